@@ -1,0 +1,19 @@
+//! Benchmarks: model step speed (`model`). Timing lives here and in reports, never in
+//! pass/fail tests.
+
+pub mod model;
+
+/// Median of a slice (sorts a copy). Empty slices give NaN.
+pub fn median(values: &[f64]) -> f64 {
+    if values.is_empty() {
+        return f64::NAN;
+    }
+    let mut v = values.to_vec();
+    v.sort_by(|a, b| a.total_cmp(b));
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}

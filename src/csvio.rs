@@ -1,0 +1,205 @@
+//! Numeric CSV files with a header line: reading with errors that name the file, line and
+//! column, and buffered writing. Offline only: never used on the real-time path.
+
+use std::fmt;
+use std::io::{BufWriter, Write};
+use std::path::Path;
+
+/// A CSV error naming the file and, where it applies, line and column (1-based).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CsvError {
+    pub path: String,
+    pub line: Option<usize>,
+    pub column: Option<usize>,
+    pub message: String,
+}
+
+impl fmt::Display for CsvError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.path)?;
+        if let Some(line) = self.line {
+            write!(f, ":{line}")?;
+        }
+        if let Some(column) = self.column {
+            write!(f, ":{column}")?;
+        }
+        write!(f, ": {}", self.message)
+    }
+}
+
+impl std::error::Error for CsvError {}
+
+/// Columns read from a numeric CSV file, in the order asked for.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Columns {
+    pub names: Vec<String>,
+    pub data: Vec<Vec<f64>>,
+}
+
+impl Columns {
+    pub fn len(&self) -> usize {
+        self.data.first().map_or(0, Vec::len)
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Reads the named columns of a CSV file with a header line. Extra columns are ignored.
+pub fn read_columns(path: &Path, wanted: &[&str]) -> Result<Columns, CsvError> {
+    let origin = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|e| CsvError {
+        path: origin.clone(),
+        line: None,
+        column: None,
+        message: format!("cannot read: {e}"),
+    })?;
+    parse_columns(&text, &origin, wanted)
+}
+
+/// Parses CSV text; `origin` names the file in errors.
+pub fn parse_columns(text: &str, origin: &str, wanted: &[&str]) -> Result<Columns, CsvError> {
+    let err = |line: Option<usize>, column: Option<usize>, message: String| CsvError {
+        path: origin.to_string(),
+        line,
+        column,
+        message,
+    };
+    let mut lines = text.lines().enumerate();
+    let header = loop {
+        match lines.next() {
+            None => {
+                return Err(err(
+                    None,
+                    None,
+                    format!("empty file: expected a header line `{}`", wanted.join(",")),
+                ))
+            }
+            Some((_, l)) if l.trim().is_empty() => continue,
+            Some((i, l)) => break (i + 1, l),
+        }
+    };
+    let names: Vec<&str> = header.1.split(',').map(|s| s.trim()).collect();
+    let mut index = Vec::with_capacity(wanted.len());
+    for want in wanted {
+        match names.iter().position(|n| n == want) {
+            Some(i) => index.push(i),
+            None => {
+                return Err(err(
+                    Some(header.0),
+                    None,
+                    format!(
+                        "header `{}` lacks column `{want}`: expected `{}`",
+                        header.1.trim(),
+                        wanted.join(",")
+                    ),
+                ))
+            }
+        }
+    }
+    let needed = index.iter().copied().max().unwrap_or(0) + 1;
+    let mut data: Vec<Vec<f64>> = vec![Vec::new(); wanted.len()];
+    for (i, line) in lines {
+        let line_no = i + 1;
+        if line.trim().is_empty() {
+            continue;
+        }
+        let fields: Vec<&str> = line.split(',').collect();
+        if fields.len() < needed {
+            return Err(err(
+                Some(line_no),
+                Some(fields.len() + 1),
+                format!("{} fields, expected at least {needed}", fields.len()),
+            ));
+        }
+        for (out, &col) in data.iter_mut().zip(&index) {
+            let field = fields[col].trim();
+            match field.parse::<f64>() {
+                Ok(x) if x.is_finite() => out.push(x),
+                Ok(_) => {
+                    return Err(err(
+                        Some(line_no),
+                        Some(col + 1),
+                        format!(
+                            "column `{}` is `{field}`: expected a finite number",
+                            names[col]
+                        ),
+                    ))
+                }
+                Err(_) => {
+                    return Err(err(
+                        Some(line_no),
+                        Some(col + 1),
+                        format!("column `{}` is `{field}`: not a number", names[col]),
+                    ))
+                }
+            }
+        }
+    }
+    Ok(Columns {
+        names: wanted.iter().map(|s| s.to_string()).collect(),
+        data,
+    })
+}
+
+/// Checks that a time column is strictly increasing with a uniform step; returns the step.
+///
+/// Uniform means every step within 1e-6 relative of the mean step (CSV round-off).
+pub fn uniform_step(time_s: &[f64], origin: &str, column: &str) -> Result<f64, CsvError> {
+    let err = |line: Option<usize>, message: String| CsvError {
+        path: origin.to_string(),
+        line,
+        column: None,
+        message,
+    };
+    if time_s.len() < 2 {
+        return Err(err(
+            None,
+            format!("needs at least two data rows, found {}", time_s.len()),
+        ));
+    }
+    let dt = (time_s[time_s.len() - 1] - time_s[0]) / (time_s.len() - 1) as f64;
+    for (i, pair) in time_s.windows(2).enumerate() {
+        let step = pair[1] - pair[0];
+        // Data row i + 1 is file line i + 3 (header is line 1), assuming no blank lines.
+        if step <= 0.0 {
+            return Err(err(
+                Some(i + 3),
+                format!(
+                    "`{column}` = {} does not increase (previous {})",
+                    pair[1], pair[0]
+                ),
+            ));
+        }
+        if (step - dt).abs() > 1e-6 * dt.abs().max(1e-300) + 1e-12 {
+            return Err(err(
+                Some(i + 3),
+                format!("`{column}` step {step:e} s differs from the mean step {dt:e} s: the time step must be uniform"),
+            ));
+        }
+    }
+    Ok(dt)
+}
+
+/// Writes columns as CSV with a header line. Numbers use Rust's shortest round-trip form.
+pub fn write_columns(path: &Path, names: &[&str], columns: &[&[f64]]) -> std::io::Result<()> {
+    let file = std::fs::File::create(path)?;
+    let mut out = BufWriter::with_capacity(1 << 20, file);
+    writeln!(out, "{}", names.join(","))?;
+    let rows = columns.first().map_or(0, |c| c.len());
+    let mut line = String::with_capacity(128);
+    for row in 0..rows {
+        line.clear();
+        for (i, col) in columns.iter().enumerate() {
+            if i > 0 {
+                line.push(',');
+            }
+            use std::fmt::Write as _;
+            let _ = write!(line, "{:?}", col[row]);
+        }
+        line.push('\n');
+        out.write_all(line.as_bytes())?;
+    }
+    out.flush()
+}

@@ -1,0 +1,7 @@
+//! fastemu: real-time hardware-in-the-loop emulation of the rail fastening elastomer of
+//! Li et al. (Materials 2021), plus the offline tools around it. See ARCHITECTURE.md.
+
+pub mod bench;
+pub mod cli;
+pub mod csvio;
+pub mod model;

@@ -1,0 +1,225 @@
+//! Fixed-step force from imposed displacement (SPEC 2.2): the emulator's model step.
+//!
+//! Each step takes the displacement at the end of the step and returns the element force
+//! there. Within a step `z` is taken linear in time and the preload-dependent parameters
+//! frozen, and the Maxwell branch is integrated exactly (exponential integrator), so the
+//! scheme is stable for any `dt`. `step` does not allocate, read a clock or do I/O.
+
+use super::params::{consistent_static_force, paper_static_force, ElementModel, BASE_MIN};
+
+/// Flags raised by a step. A bit set, `Copy`, so the loop can report it as data.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash)]
+pub struct StepFlags(pub u8);
+
+impl StepFlags {
+    pub const NONE: StepFlags = StepFlags(0);
+    /// Tension beyond the model's domain: the power-law base was clamped at `BASE_MIN`.
+    pub const TENSION_CLAMPED: StepFlags = StepFlags(1);
+    /// The input was NaN or infinite: the state was held and the last force returned.
+    pub const NONFINITE_INPUT: StepFlags = StepFlags(2);
+
+    #[inline]
+    pub fn contains(self, other: StepFlags) -> bool {
+        self.0 & other.0 == other.0 && other.0 != 0
+    }
+
+    #[inline]
+    pub fn is_empty(self) -> bool {
+        self.0 == 0
+    }
+}
+
+impl std::ops::BitOr for StepFlags {
+    type Output = StepFlags;
+    fn bitor(self, rhs: StepFlags) -> StepFlags {
+        StepFlags(self.0 | rhs.0)
+    }
+}
+
+impl std::ops::BitOrAssign for StepFlags {
+    fn bitor_assign(&mut self, rhs: StepFlags) {
+        self.0 |= rhs.0;
+    }
+}
+
+/// `phi1(x) = (1 - e^-x)/x` and `phi2(x) = (1 - phi1(x))/x`, accurate for small `x`.
+pub fn phi_functions(x: f64) -> (f64, f64) {
+    if x < 1e-3 {
+        // Taylor series: the closed forms cancel catastrophically for small x.
+        let phi1 = 1.0 - x / 2.0 + x * x / 6.0 - x * x * x / 24.0;
+        let phi2 = 0.5 - x / 6.0 + x * x / 24.0 - x * x * x / 120.0;
+        (phi1, phi2)
+    } else {
+        let phi1 = -(-x).exp_m1() / x;
+        (phi1, (1.0 - phi1) / x)
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+enum State {
+    /// Consistent form: elastic part `Fs` and Maxwell branch force `Fm`.
+    Consistent { fs_n: f64, fm_n: f64 },
+    /// Paper form: the total force is the state.
+    Paper { force_n: f64 },
+    /// Kelvin-Voigt: stateless apart from the previous displacement.
+    KelvinVoigt { force_n: f64 },
+}
+
+/// Force-from-displacement stepper for one element at a fixed step `dt`.
+#[derive(Debug, Clone, Copy)]
+pub struct ForceStepper {
+    model: ElementModel,
+    dt_s: f64,
+    /// `e^{-a dt}` with `a = k2/c2`.
+    decay: f64,
+    /// `phi1(a dt)`.
+    phi1: f64,
+    /// `dt phi1(a dt)` and `dt phi2(a dt)`: weights of a linear input over the step.
+    weight_0: f64,
+    weight_1: f64,
+    z_prev_m: f64,
+    state: State,
+}
+
+impl ForceStepper {
+    /// A stepper with step `dt_s`, starting in static equilibrium at `z0_m`.
+    pub fn new(model: ElementModel, dt_s: f64, z0_m: f64) -> ForceStepper {
+        assert!(dt_s > 0.0 && dt_s.is_finite(), "step must be positive");
+        let rate = model.zener().map_or(0.0, |p| p.relaxation_rate_per_s());
+        let x = rate * dt_s;
+        let (phi1, phi2) = phi_functions(x);
+        let mut stepper = ForceStepper {
+            model,
+            dt_s,
+            decay: (-x).exp(),
+            phi1,
+            weight_0: dt_s * phi1,
+            weight_1: dt_s * phi2,
+            z_prev_m: 0.0,
+            state: State::KelvinVoigt { force_n: 0.0 },
+        };
+        stepper.reset_static(z0_m);
+        stepper
+    }
+
+    pub fn model(&self) -> &ElementModel {
+        &self.model
+    }
+
+    pub fn dt_s(&self) -> f64 {
+        self.dt_s
+    }
+
+    /// Puts the element at rest in static equilibrium at `z_m` (relaxed Maxwell branch).
+    pub fn reset_static(&mut self, z_m: f64) {
+        self.z_prev_m = z_m;
+        self.state = match &self.model {
+            ElementModel::Consistent(p) => State::Consistent {
+                fs_n: consistent_static_force(p, z_m).0,
+                fm_n: 0.0,
+            },
+            ElementModel::Paper(p) => State::Paper {
+                force_n: paper_static_force(p, z_m),
+            },
+            ElementModel::KelvinVoigt(p) => State::KelvinVoigt {
+                force_n: p.k_n_per_m * z_m,
+            },
+        };
+    }
+
+    /// Current element force, N.
+    #[inline]
+    pub fn force_n(&self) -> f64 {
+        match self.state {
+            State::Consistent { fs_n, fm_n } => fs_n + fm_n,
+            State::Paper { force_n } | State::KelvinVoigt { force_n } => force_n,
+        }
+    }
+
+    /// Displacement of the last accepted step, m.
+    pub fn displacement_m(&self) -> f64 {
+        self.z_prev_m
+    }
+
+    /// Advances one step to displacement `z_m`; returns the force at the step's end.
+    #[inline]
+    pub fn step(&mut self, z_m: f64) -> (f64, StepFlags) {
+        if !z_m.is_finite() {
+            return (self.force_n(), StepFlags::NONFINITE_INPUT);
+        }
+        let z0 = self.z_prev_m;
+        self.z_prev_m = z_m;
+        let mut flags = StepFlags::NONE;
+        match (&self.model, &mut self.state) {
+            (ElementModel::Consistent(p), State::Consistent { fs_n, fm_n }) => {
+                let (fs1, clamped) = consistent_static_force(p, z_m);
+                if clamped {
+                    flags |= StepFlags::TENSION_CLAMPED;
+                }
+                // dFm/dt = k2 dz/dt - a Fm with k2 = k2_0 g(Fs) = (k2_0/k1_0) dFs/dt:
+                // the Maxwell spring sees the increment of Fs scaled by k2_0/k1_0, taken
+                // linear in time over the step and integrated exactly.
+                let ratio = p.k2_0_n_per_m / p.k1_0_n_per_m;
+                *fm_n = self.decay * *fm_n + ratio * (fs1 - *fs_n) * self.phi1;
+                *fs_n = fs1;
+            }
+            (ElementModel::Paper(p), State::Paper { force_n }) => {
+                // dF/dt = -a F + g(F) u(t), u = (k1_0 + k2_0) dz/dt + a k1_0 z (Eq. 3).
+                let a = p.relaxation_rate_per_s();
+                let velocity = (z_m - z0) / self.dt_s;
+                let u0 = (p.k1_0_n_per_m + p.k2_0_n_per_m) * velocity + a * p.k1_0_n_per_m * z0;
+                let u1 = u0 + a * p.k1_0_n_per_m * (z_m - z0);
+                let forcing = u0 * self.weight_0 + (u1 - u0) * self.weight_1;
+                let f0 = *force_n;
+                // Predictor with g at the step start, corrector with g at the midpoint.
+                let (g0, clamped0) = paper_factor(p.chi, p.p0_n, f0);
+                let f_pred = self.decay * f0 + g0 * forcing;
+                let (g_mid, clamped_mid) = paper_factor(p.chi, p.p0_n, 0.5 * (f0 + f_pred));
+                let f1 = self.decay * f0 + g_mid * forcing;
+                let (_, clamped1) = paper_factor(p.chi, p.p0_n, f1);
+                if clamped0 || clamped_mid || clamped1 {
+                    flags |= StepFlags::TENSION_CLAMPED;
+                }
+                *force_n = f1.max(-p.p0_n * (1.0 - BASE_MIN));
+            }
+            (ElementModel::KelvinVoigt(p), State::KelvinVoigt { force_n }) => {
+                let velocity = (z_m - z0) / self.dt_s;
+                *force_n = p.k_n_per_m * z_m + p.c_ns_per_m * velocity;
+            }
+            _ => unreachable!("state always matches the model's form"),
+        }
+        (self.force_n(), flags)
+    }
+}
+
+/// `g(F) = (1 + F/P0)^chi` and whether the base was clamped.
+#[inline]
+pub(crate) fn paper_factor(chi: f64, p0_n: f64, force_n: f64) -> (f64, bool) {
+    let raw = 1.0 + force_n / p0_n;
+    let clamped = !(raw >= BASE_MIN);
+    (if clamped { BASE_MIN } else { raw }.powf(chi), clamped)
+}
+
+/// Simulates the force for a whole displacement history at a uniform step.
+///
+/// The element starts in static equilibrium at the first sample. Returns forces and the
+/// union of flags raised. (Offline helper: allocates the output once.)
+pub fn simulate_force(
+    model: ElementModel,
+    dt_s: f64,
+    displacement_m: &[f64],
+) -> (Vec<f64>, StepFlags) {
+    let mut forces = Vec::with_capacity(displacement_m.len());
+    let Some(&z0) = displacement_m.first() else {
+        return (forces, StepFlags::NONE);
+    };
+    let mut stepper = ForceStepper::new(model, dt_s, z0);
+    let mut all_flags = StepFlags::NONE;
+    forces.push(stepper.force_n());
+    for &z in &displacement_m[1..] {
+        let (force, flags) = stepper.step(z);
+        all_flags |= flags;
+        forces.push(force);
+    }
+    (forces, all_flags)
+}
