@@ -4,4 +4,8 @@
 pub mod bench;
 pub mod cli;
 pub mod csvio;
+pub mod ipc;
 pub mod model;
+pub mod plot;
+pub mod rt;
+pub mod track;

@@ -1,0 +1,7 @@
+//! Inter-process communication over iceoryx2: the only module that imports iceoryx2.
+//!
+//! Owns the shared-memory message types (`messages`), compiled once for every process so
+//! their layouts cannot drift. Must not: allocate or log on the per-sample publish/receive
+//! path.
+
+pub mod messages;
