@@ -76,9 +76,11 @@ pub fn parse_model_toml(text: &str, origin: &str) -> Result<ModelSpec, ModelFile
             ))
         }
         Some(toml::Value::String(s)) => s.clone(),
-        Some(other) => return Err(err(format!(
+        Some(other) => {
+            return Err(err(format!(
             "key `form` = {other}: expected a string \"consistent\", \"paper\" or \"kelvin-voigt\""
-        ))),
+        )))
+        }
     };
     let form = Form::from_name(&form_name).ok_or_else(|| {
         err(format!(
