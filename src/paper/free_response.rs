@@ -182,8 +182,11 @@ pub fn write_figure11(out_dir: &Path, options: &PaperOptions) -> anyhow::Result<
         "time (s)",
         "amplitude (mm)",
     )
-    .log_y();
+    .log_y()
+    .y_range(1e-3, 2.0);
     let n_window = (FREQUENCY_WINDOW_S / FREE_DT_S).round() as usize + 1;
+    // The plot shows the first 0.1 s (18 cycles) so single oscillations stay readable.
+    let n_plot = (0.1 / FREE_DT_S).round() as usize + 1;
     let mut window_columns: Vec<Vec<f64>> = Vec::new();
     let mut envelope_columns: Vec<Vec<f64>> = vec![Vec::new(); 3];
     for (model_idx, (key, label, model)) in models.named().into_iter().enumerate() {
@@ -209,15 +212,16 @@ pub fn write_figure11(out_dir: &Path, options: &PaperOptions) -> anyhow::Result<
             envelope_columns[2].push(a);
         }
         let color = model_color(key);
-        let x_mm: Vec<f64> = response.displacement_m[..n_window]
+        let x_mm: Vec<f64> = response.displacement_m[..n_plot]
             .iter()
             .map(|x| x * 1e3)
             .collect();
-        window_panel = window_panel.with(if key == "consistent" {
-            Series::dashed(label, window_columns[0].clone(), x_mm, color)
-        } else {
-            Series::line(label, window_columns[0].clone(), x_mm, color)
-        });
+        window_panel = window_panel.with(Series::line(
+            label,
+            window_columns[0][..n_plot].to_vec(),
+            x_mm,
+            color,
+        ));
         let decay_label = match response.decay_90_percent_s {
             Some(t) => format!("{label}: 90 % decay {t:.2} s"),
             None => format!("{label}: 90 % decay > {duration_s:.0} s"),

@@ -164,15 +164,37 @@ fn lagging_phase(response: Complex64) -> f64 {
     }
 }
 
-/// The linear Kelvin-Voigt FRF `1/(k - m W^2 + i c W)` at `frequency_hz`.
-pub fn linear_frf(model: &ElementModel, mass_kg: f64, frequency_hz: f64) -> Complex64 {
+/// The small-signal FRF `1/(k_eq - m W^2 + i c_eq W)` of the model's time-domain form
+/// linearised at `preload_n` (`equivalent`), at `frequency_hz`, m/N. For the linear
+/// Kelvin-Voigt model this is its exact FRF `1/(k - m W^2 + i c W)` at any preload; for
+/// the Zener forms it is the limit of F12's time-domain ratio as F1 -> 0.
+pub fn small_signal_frf(
+    model: &ElementModel,
+    mass_kg: f64,
+    preload_n: f64,
+    frequency_hz: f64,
+) -> Complex64 {
     let omega = TWO_PI * frequency_hz;
-    let lin = equivalent(model, 0.0, omega);
+    let lin = equivalent(model, preload_n, omega);
     Complex64::new(1.0, 0.0)
         / Complex64::new(
             lin.k_eq_n_per_m - mass_kg * omega * omega,
             lin.c_eq_ns_per_m * omega,
         )
+}
+
+/// The linear Kelvin-Voigt FRF at `frequency_hz`, m/N.
+pub fn linear_frf(model: &ElementModel, mass_kg: f64, frequency_hz: f64) -> Complex64 {
+    small_signal_frf(model, mass_kg, 0.0, frequency_hz)
+}
+
+/// Peak of the small-signal FRF in 150-210 Hz on a 1 mHz grid: (frequency Hz, |H| m/N).
+pub fn small_signal_peak(model: &ElementModel, mass_kg: f64, preload_n: f64) -> (f64, f64) {
+    (0..=60_000)
+        .map(|i| 150.0 + 1e-3 * i as f64)
+        .map(|f| (f, small_signal_frf(model, mass_kg, preload_n, f).norm()))
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap_or((f64::NAN, f64::NAN))
 }
 
 /// One simulation job: which curve, which model, which preload and frequency.
@@ -416,6 +438,8 @@ pub fn write_figure12(out_dir: &Path, options: &PaperOptions) -> anyhow::Result<
             "settle_change_consistent",
             "amplitude_ratio_linear_m_per_n",
             "phase_linear_rad",
+            "tension_clamped_paper",
+            "tension_clamped_consistent",
         ],
         &[
             &freqs_a,
@@ -427,9 +451,11 @@ pub fn write_figure12(out_dir: &Path, options: &PaperOptions) -> anyhow::Result<
             &col(&pc, &|p| p.settle_change),
             &freqs_a.iter().map(|&f| linear_ratio(f)).collect::<Vec<_>>(),
             &freqs_a.iter().map(|&f| linear_phase(f)).collect::<Vec<_>>(),
+            &col(&pa, &|p| f64::from(u8::from(p.tension_clamped))),
+            &col(&pc, &|p| f64::from(u8::from(p.tension_clamped))),
         ],
     )?;
-    let mut b_cols: Vec<Vec<f64>> = vec![Vec::new(); 10];
+    let mut b_cols: Vec<Vec<f64>> = vec![Vec::new(); 12];
     for (p_idx, &preload_n) in PRELOADS_N.iter().enumerate() {
         let (cp, cc) = (curve(2 + 2 * p_idx), curve(3 + 2 * p_idx));
         for (i, &f) in freqs_b.iter().enumerate() {
@@ -444,6 +470,8 @@ pub fn write_figure12(out_dir: &Path, options: &PaperOptions) -> anyhow::Result<
                 cc[i].settle_change,
                 linear_ratio(f),
                 linear_phase(f),
+                f64::from(u8::from(cp[i].tension_clamped)),
+                f64::from(u8::from(cc[i].tension_clamped)),
             ];
             for (c, v) in b_cols.iter_mut().zip(row) {
                 c.push(v);
@@ -463,6 +491,8 @@ pub fn write_figure12(out_dir: &Path, options: &PaperOptions) -> anyhow::Result<
             "settle_change_consistent",
             "amplitude_ratio_linear_m_per_n",
             "phase_linear_rad",
+            "tension_clamped_paper",
+            "tension_clamped_consistent",
         ],
         &b_cols.iter().map(Vec::as_slice).collect::<Vec<_>>(),
     )?;
@@ -483,7 +513,21 @@ pub fn write_figure12(out_dir: &Path, options: &PaperOptions) -> anyhow::Result<
         for (c, v) in peak_cols.iter_mut().zip(row) {
             c.push(v);
         }
+        let (ss_f, ss_ratio) = small_signal_peak(&nonlinear[m].1, mass, preload_n);
+        let clamped: Vec<f64> = curve(2 + 2 * peak_jobs[i].0 + m)
+            .iter()
+            .filter(|p| p.tension_clamped)
+            .map(|p| p.frequency_hz)
+            .collect();
+        let clamped_band = match (clamped.first(), clamped.last()) {
+            (Some(lo), Some(hi)) => json!([lo, hi]),
+            _ => Value::Null,
+        };
         peak_json.push(json!({
+            "small_signal_peak_frequency_hz": ss_f,
+            "small_signal_peak_amplitude_ratio_m_per_n": ss_ratio,
+            "small_signal_peak_over_linear_peak": ss_ratio / linear_peak_ratio,
+            "grid_tension_clamped_band_hz": clamped_band,
             "model": nonlinear[m].0,
             "preload_n": preload_n,
             "grid_peak_frequency_hz": gp.frequency_hz,
@@ -537,13 +581,8 @@ pub fn write_figure12(out_dir: &Path, options: &PaperOptions) -> anyhow::Result<
     for (m, (key, _)) in nonlinear.iter().enumerate() {
         let pts = curve(m);
         let label = format!("nonlinear, {key} form (time domain, {step_a} Hz grid)");
-        let series = |y: Vec<f64>| {
-            if *key == "consistent" {
-                Series::dashed(label.clone(), freqs_a.clone(), y, model_color(key))
-            } else {
-                Series::line(label.clone(), freqs_a.clone(), y, model_color(key))
-            }
-        };
+        let series =
+            |y: Vec<f64>| Series::line(label.clone(), freqs_a.clone(), y, model_color(key));
         amp_a = amp_a.with(series(col(&pts, &|p| p.amplitude_ratio_m_per_n)));
         phase_a = phase_a.with(series(col(&pts, &|p| p.phase_rad)));
     }
@@ -588,6 +627,19 @@ pub fn write_figure12(out_dir: &Path, options: &PaperOptions) -> anyhow::Result<
                 label.clone(),
                 freqs_b.clone(),
                 col(&pts, &|p| p.amplitude_ratio_m_per_n),
+                color,
+            ));
+            // The F1 -> 0 limit, to show what the 1 kN amplitude's nonlinearity removes.
+            amp = amp.with(Series::dashed(
+                if p_idx == 0 {
+                    "dashed: small-signal FRF (F1 -> 0)"
+                } else {
+                    ""
+                },
+                fb.clone(),
+                fb.iter()
+                    .map(|&f| small_signal_frf(&nonlinear[m].1, mass, preload_n, f).norm())
+                    .collect(),
                 color,
             ));
             let tp = true_peaks[2 * p_idx + m];

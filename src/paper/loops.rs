@@ -159,6 +159,11 @@ pub fn write_figure5(out_dir: &Path) -> anyhow::Result<Value> {
             ),
             "displacement, compression positive (mm)",
             "force on sample, compression positive (kN)",
+        )
+        // Headroom above the loops keeps the legend (upper right) off the curves.
+        .y_range(
+            (preload_n - FORCE_AMPLITUDE_N) * 1e-3 - 0.5,
+            (preload_n + 2.0 * FORCE_AMPLITUDE_N) * 1e-3,
         );
         for (model_idx, (key, label, model)) in models.named().into_iter().enumerate() {
             let cycle = force_controlled_cycle(&model, preload_n, FORCE_AMPLITUDE_N, frequency_hz);
@@ -188,12 +193,7 @@ pub fn write_figure5(out_dir: &Path) -> anyhow::Result<Value> {
             columns[4 + model_idx].extend(&cycle.displacement_m);
             let z_mm: Vec<f64> = cycle.displacement_m.iter().map(|z| z * 1e3).collect();
             let f_kn: Vec<f64> = cycle.force_n.iter().map(|f| f * 1e-3).collect();
-            let series = if key == "consistent" {
-                Series::dashed(label, z_mm, f_kn, model_color(key))
-            } else {
-                Series::line(label, z_mm, f_kn, model_color(key))
-            };
-            panel = panel.with(series);
+            panel = panel.with(Series::line(label, z_mm, f_kn, model_color(key)));
         }
         panels.push(panel);
     }

@@ -123,7 +123,7 @@ pub fn write_csv(path: &Path, names: &[&str], columns: &[&[f64]]) -> anyhow::Res
 }
 
 /// Every file `fastemu paper` writes, relative to the output directory.
-pub const OUTPUT_FILES: [&str; 24] = [
+pub const OUTPUT_FILES: [&str; 25] = [
     "t3_equivalent_table.csv",
     "t3_equivalent_table.png",
     "f5_force_displacement_loops.csv",
@@ -148,6 +148,7 @@ pub const OUTPUT_FILES: [&str; 24] = [
     "f14_spectra.csv",
     "f14_spectra.png",
     "summary.json",
+    "summary.md",
 ];
 
 /// Runs every scenario, writes all files into `out_dir` (plus `summary.md`), and

@@ -139,7 +139,8 @@ pub fn write_figure8(out_dir: &Path) -> anyhow::Result<Value> {
         "Force imposing the 200 km/h passage on the 750 mm sample (whole coach)",
         "time (s)",
         "external force, compression negative as in paper Fig. 8 (kN)",
-    );
+    )
+    .y_range(-75.0, 25.0);
     let t_bogie_end = t_first_s + 11.0 / speed_m_per_s;
     let t_bogie_start = t_first_s - 6.0 / speed_m_per_s;
     let mut bogie = Panel::new(
@@ -147,7 +148,11 @@ pub fn write_figure8(out_dir: &Path) -> anyhow::Result<Value> {
         "time (s)",
         "external force, compression negative as in paper Fig. 8 (kN)",
     )
-    .x_range(t_bogie_start, t_bogie_end);
+    .y_range(-75.0, 25.0);
+    let (b0, b1) = (
+        (t_bogie_start / PASSAGE_DT_S).round() as usize,
+        (t_bogie_end / PASSAGE_DT_S).round() as usize,
+    );
     for (key, label, model) in models.named() {
         let (force_n, _flags) = simulate_force(model, PASSAGE_DT_S, &displacement_m);
         let f = bogie_features(&time_s, &force_n, t_first_s, speed_m_per_s);
@@ -160,25 +165,18 @@ pub fn write_figure8(out_dir: &Path) -> anyhow::Result<Value> {
             }),
         );
         let paper_sign_kn: Vec<f64> = force_n.iter().map(|f| -f * 1e-3).collect();
-        let series = |label: &str| {
-            if key == "consistent" {
-                Series::dashed(
-                    label,
-                    time_s.clone(),
-                    paper_sign_kn.clone(),
-                    model_color(key),
-                )
-            } else {
-                Series::line(
-                    label,
-                    time_s.clone(),
-                    paper_sign_kn.clone(),
-                    model_color(key),
-                )
-            }
-        };
-        whole = whole.with(series(label));
-        bogie = bogie.with(series(label));
+        whole = whole.with(Series::line(
+            label,
+            time_s.clone(),
+            paper_sign_kn.clone(),
+            model_color(key),
+        ));
+        bogie = bogie.with(Series::line(
+            label,
+            time_s[b0..b1].to_vec(),
+            paper_sign_kn[b0..b1].to_vec(),
+            model_color(key),
+        ));
         forces.push(force_n);
     }
     write_csv(

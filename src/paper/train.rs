@@ -252,13 +252,7 @@ pub fn write_figures13_14(out_dir: &Path) -> anyhow::Result<(Value, Value)> {
         );
         let color = model_color(key);
         let x_mm: Vec<f64> = x.iter().map(|x| x * 1e3).collect();
-        let series = |label: &str, xs: Vec<f64>, ys: Vec<f64>| {
-            if *key == "consistent" {
-                Series::dashed(label, xs, ys, color)
-            } else {
-                Series::line(label, xs, ys, color)
-            }
-        };
+        let series = |label: &str, xs: Vec<f64>, ys: Vec<f64>| Series::line(label, xs, ys, color);
         let (a0, a1) = window_idx(1.2, 1.8);
         panel_a = panel_a.with(series(
             label,

@@ -1,1 +1,3 @@
+//! One integration-test binary (STYLE.md): each module tests one feature.
 
+mod paper;
