@@ -26,6 +26,9 @@ pub const FREE_DT_S: f64 = 1e-4;
 /// Window over which the natural frequency is measured (and the plotted window), s.
 pub const FREQUENCY_WINDOW_S: f64 = 0.2;
 
+/// Lowest amplitude on the envelope plot, mm.
+const ENVELOPE_FLOOR_MM: f64 = 1e-3;
+
 /// What F11 measures on one free response.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FreeResponse {
@@ -183,7 +186,7 @@ pub fn write_figure11(out_dir: &Path, options: &PaperOptions) -> anyhow::Result<
         "amplitude (mm)",
     )
     .log_y()
-    .y_range(1e-3, 2.0);
+    .y_range(ENVELOPE_FLOOR_MM, 2.0);
     let n_window = (FREQUENCY_WINDOW_S / FREE_DT_S).round() as usize + 1;
     // The plot shows the first 0.1 s (18 cycles) so single oscillations stay readable.
     let n_plot = (0.1 / FREE_DT_S).round() as usize + 1;
@@ -226,12 +229,15 @@ pub fn write_figure11(out_dir: &Path, options: &PaperOptions) -> anyhow::Result<
             Some(t) => format!("{label}: 90 % decay {t:.2} s"),
             None => format!("{label}: 90 % decay > {duration_s:.0} s"),
         };
-        envelope_panel = envelope_panel.with(Series::line(
-            decay_label,
-            response.envelope.iter().map(|e| e.0).collect(),
-            response.envelope.iter().map(|e| e.1 * 1e3).collect(),
-            color,
-        ));
+        // Only amplitudes inside the plotted range: points below it would be drawn on
+        // the axis and look like a floor.
+        let (env_t, env_mm): (Vec<f64>, Vec<f64>) = response
+            .envelope
+            .iter()
+            .filter(|e| e.1 * 1e3 >= ENVELOPE_FLOOR_MM)
+            .map(|e| (e.0, e.1 * 1e3))
+            .unzip();
+        envelope_panel = envelope_panel.with(Series::line(decay_label, env_t, env_mm, color));
     }
     write_csv(
         &out_path(out_dir, "f11_free_response.csv"),

@@ -123,7 +123,7 @@ pub fn write_csv(path: &Path, names: &[&str], columns: &[&[f64]]) -> anyhow::Res
 }
 
 /// Every file `fastemu paper` writes, relative to the output directory.
-pub const OUTPUT_FILES: [&str; 25] = [
+pub const OUTPUT_FILES: [&str; 26] = [
     "t3_equivalent_table.csv",
     "t3_equivalent_table.png",
     "f5_force_displacement_loops.csv",
@@ -141,6 +141,7 @@ pub const OUTPUT_FILES: [&str; 25] = [
     "f12a_harmonic_sweep.csv",
     "f12b_harmonic_sweep.csv",
     "f12_true_peaks.csv",
+    "f12_peak_scans.csv",
     "f12a_harmonic_sweep.png",
     "f12b_harmonic_sweep.png",
     "f13_train_passage.csv",
