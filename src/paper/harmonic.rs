@@ -1,8 +1,10 @@
 //! F12: steady-state response of one metre of ERS (rail mass on the element) to
 //! `P + F1 cos(W t)` by time-domain simulation, as amplitude ratio |X|/F1 (m/N) and phase
 //! delay of the displacement's component at W: (a) P = 6 kN, 10-500 Hz; (b) P = 6, 18,
-//! 37, 55 kN, 150-210 Hz; F1 = 1 kN; the paper's 2 Hz grid, then the true peak found by
-//! a golden-section search around each grid maximum. The linear model's curve is its
+//! 37, 55 kN, 150-210 Hz; F1 = 1 kN; the paper's 2 Hz grid, then the true peak of each
+//! (b) curve: a 0.25 Hz scan from 6 Hz below to 4 Hz above the grid maximum, refined by a
+//! golden-section search around the scan maximum (the resonance softens and jumps at this
+//! amplitude, see `write_figure12`). The linear model's curve is its
 //! exact FRF `1/(k - m W^2 + i c W)` (the paper computed it in the frequency domain too).
 //!
 //! Settling. Each run starts in static equilibrium under `F(0) = P + F1` (the force has
@@ -24,8 +26,8 @@
 //! samples per cycle; the force is linear between samples, which attenuates the forcing
 //! fundamental by `(W dt)^2 / 12` <= 3.3e-4. The oscillator sub-steps RK4 as it needs.
 //!
-//! Cost: ~1000 runs of ~10 s simulated time at ~10 M RK4 sub-steps per second on one
-//! core. Runs go to two worker threads through a shared queue (the machine has 2 cores).
+//! Cost: ~1200 runs of 1-40 s simulated time (~50 s of CPU in all, release build). Runs
+//! go to two worker threads through a shared queue (the machine has 2 cores).
 
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};

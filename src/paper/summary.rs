@@ -227,17 +227,19 @@ pub fn markdown(s: &Value) -> String {
     let (true_lo, true_hi) = range("true_peak_over_linear_peak");
     let (grid_lo, grid_hi) = range("grid_peak_over_linear_grid_peak");
     let (shift_lo, shift_hi) = range("frequency_shift_from_linear_peak_hz");
+    let (ss_lo, ss_hi) = range("small_signal_peak_over_linear_peak");
     let _ = writeln!(
         w,
         "\nPaper: nonlinear peaks ~3x the linear one, peak frequency shifted by ~4 Hz, higher \
          preload -> higher peak and frequency. We get the ordering and a shift of {shift_lo:+.1} \
          to {shift_hi:+.1} Hz (smallest at high preload), but peaks only {grid_lo:.1}-{grid_hi:.1}x \
          the linear one on the grid and {true_lo:.1}-{true_hi:.1}x at the true peaks. Why: at resonance a 1 kN force would need displacement \
-         amplitudes of several mm (small-signal peaks are ~10x linear, last column), i.e. \
-         element forces far below -P0 = -64 kN where Eq. 1's factor (1 + F/P0)^chi goes to \
-         zero. Near every peak our runs leave the model's domain (tension clamped and \
-         flagged, `true_peak_tension_clamped`, `grid_tension_clamped_band_hz`), so the peak \
-         is set by that softening, not by damping. The paper's ~3x depends on how its code \
+         amplitudes of several mm (the small-signal peaks are {ss_lo:.0}-{ss_hi:.0}x linear, last \
+         column), i.e. element forces far below -P0 = -64 kN where Eq. 1's factor \
+         (1 + F/P0)^chi goes to zero. Runs at or next to each peak leave the model's domain \
+         (tension clamped and flagged: `true_peak_tension_clamped`, and on the grid \
+         `grid_tension_clamped_band_hz`, the 0-2 points nearest the peak), so the peak is \
+         set by that softening, not by damping. The paper's ~3x depends on how its code \
          handled the same out-of-domain region, which it does not say. The shift: at 6 kN \
          Eq. 2 gives k_eq ~72.9 MN/m^2 near 175 Hz against the linear 80 MN/m^2, which alone \
          puts the small-signal resonance ~8 Hz below the linear one (175.1 vs 183.4 Hz); the \
