@@ -212,6 +212,7 @@ pub fn write_figures13_14(out_dir: &Path) -> anyhow::Result<(Value, Value)> {
         .x_range(150.0, 200.0),
     ];
     let mut f14 = serde_json::Map::new();
+    let mut detail_range_mm = (f64::INFINITY, f64::NEG_INFINITY);
     for (key, label, samples) in &runs {
         let x: Vec<f64> = samples.iter().map(|s| s.displacement_m).collect();
         let v: Vec<f64> = samples.iter().map(|s| s.velocity_m_per_s).collect();
@@ -259,6 +260,9 @@ pub fn write_figures13_14(out_dir: &Path) -> anyhow::Result<(Value, Value)> {
             time_s[a0..a1].to_vec(),
             x_mm[a0..a1].to_vec(),
         ));
+        detail_range_mm = x_mm[r0..r1]
+            .iter()
+            .fold(detail_range_mm, |(lo, hi), &v| (lo.min(v), hi.max(v)));
         panel_b = panel_b.with(series(
             label,
             time_s[r0..r1].to_vec(),
@@ -296,6 +300,9 @@ pub fn write_figures13_14(out_dir: &Path) -> anyhow::Result<(Value, Value)> {
         columns.push(v);
         columns.push(f);
     }
+    // Headroom above the detail's curves keeps the legend (upper right) off them.
+    let (lo, hi) = detail_range_mm;
+    panel_b = panel_b.y_range(lo - 0.05 * (hi - lo), hi + 0.45 * (hi - lo));
     let ratio = |map: &serde_json::Map<String, Value>, model: &str, field: &str| {
         map[model][field].as_f64().unwrap_or(f64::NAN)
             / map["linear"][field].as_f64().unwrap_or(f64::NAN)
