@@ -9,3 +9,4 @@ mod model_closed_form;
 mod model_determinism;
 mod model_modulus;
 mod model_tension;
+mod paper;
