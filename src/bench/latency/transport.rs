@@ -145,7 +145,9 @@ fn spin_receive<E: std::fmt::Display>(
         } else {
             std::hint::spin_loop();
         }
-        if misses.is_multiple_of(4096) && monotonic_now_ns() - start_ns > RECEIVE_TIMEOUT.as_nanos() as u64 {
+        if misses.is_multiple_of(4096)
+            && monotonic_now_ns() - start_ns > RECEIVE_TIMEOUT.as_nanos() as u64
+        {
             bail!("{what}: nothing received for {RECEIVE_TIMEOUT:?}");
         }
     }
