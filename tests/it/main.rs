@@ -1,1 +1,1 @@
-
+mod latency_bench;
