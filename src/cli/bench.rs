@@ -54,6 +54,10 @@ pub struct LatencyArgs {
     /// Final spin of the sleep+spin scheduler mode, us.
     #[arg(long, default_value_t = 100)]
     pub spin_us: u64,
+    /// Timer slack for the thread measuring wake-up jitter, ns (kernel default 50000;
+    /// ignored under SCHED_FIFO). Unset keeps the kernel's.
+    #[arg(long, value_name = "NS")]
+    pub timer_slack_ns: Option<u64>,
     /// Length of the `hil` run that gives the end-to-end latency, s.
     #[arg(long, default_value_t = 2.0)]
     pub hil_duration_s: f64,
@@ -135,6 +139,7 @@ fn run_latency(args: LatencyArgs) -> anyhow::Result<ExitCode> {
         warmup_per_round: args.warmup,
         jitter_seconds: args.jitter_s,
         spin_ns: args.spin_us * 1000,
+        timer_slack_ns: args.timer_slack_ns,
         main_rt: setup(main_cpus),
         peer_rt: setup(peer_cpus),
         yield_while_spinning,

@@ -69,3 +69,36 @@ pub fn measure_wake_jitter(
     }
     missed_deadlines
 }
+
+/// The calling thread's timer slack, ns (`PR_GET_TIMERSLACK`): how much the kernel may
+/// delay a normal-priority thread's timer expiry to batch wake-ups (50 us by default).
+/// SCHED_FIFO/RR threads get no slack whatever this says.
+pub fn timer_slack_ns() -> u64 {
+    // SAFETY: PR_GET_TIMERSLACK takes no pointers and only reads the calling thread.
+    let slack = unsafe { libc::prctl(libc::PR_GET_TIMERSLACK, 0, 0, 0, 0) };
+    slack.max(0) as u64
+}
+
+/// Sets the calling thread's timer slack (`PR_SET_TIMERSLACK`); 0 is refused because
+/// the kernel reads it as "reset to the default".
+pub fn set_timer_slack_ns(slack_ns: u64) -> Result<(), String> {
+    if slack_ns == 0 {
+        return Err("timer slack 0 means \"default\" to the kernel: use 1 ns".to_string());
+    }
+    // SAFETY: PR_SET_TIMERSLACK takes a value, no pointers; it affects this thread only.
+    let rc = unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, slack_ns as libc::c_ulong, 0, 0, 0) };
+    if rc != 0 {
+        return Err(format!(
+            "timer slack {slack_ns} ns refused ({})",
+            std::io::Error::last_os_error()
+        ));
+    }
+    Ok(())
+}
+
+/// Whether the calling thread runs under a real-time policy (SCHED_FIFO or SCHED_RR).
+pub fn thread_is_realtime() -> bool {
+    // SAFETY: pid 0 is the calling thread; no pointers.
+    let policy = unsafe { libc::sched_getscheduler(0) };
+    policy == libc::SCHED_FIFO || policy == libc::SCHED_RR
+}

@@ -28,7 +28,9 @@ use crate::plot::{draw_png, Panel, Series};
 use crate::rt::{apply_rt_setup, RtSetup, WaitMode};
 use end_to_end::{measure_end_to_end, EndToEnd};
 use hlog::{write_interval_log_file, LoggedInterval};
-use jitter::{measure_wake_jitter, JitterConfig};
+use jitter::{
+    measure_wake_jitter, set_timer_slack_ns, thread_is_realtime, timer_slack_ns, JitterConfig,
+};
 use stats::{new_latency_histogram, percentile_curve, PercentileSummary};
 use transport::{crossbeam_round, PeerSession, Transport, MESSAGE_BYTES};
 
@@ -45,6 +47,9 @@ pub struct LatencyConfig {
     pub jitter_seconds: f64,
     /// Final spin of `WaitMode::SleepSpin`, ns.
     pub spin_ns: u64,
+    /// Timer slack to set on the measuring thread before the jitter runs, ns
+    /// (`None` keeps the kernel's; it only matters without SCHED_FIFO).
+    pub timer_slack_ns: Option<u64>,
     /// Real-time setup of this process (pinger, scheduler jitter).
     pub main_rt: RtSetup,
     /// Real-time setup of the echo peer (process and crossbeam echo thread).
@@ -85,6 +90,10 @@ pub struct LatencyReport {
     pub rounds: u64,
     pub warmup_per_round: u64,
     pub spin_ns: u64,
+    /// Timer slack of the thread that measured wake-up jitter, ns.
+    pub timer_slack_ns: u64,
+    /// Whether that thread ran under SCHED_FIFO/RR (which ignores timer slack).
+    pub jitter_thread_realtime: bool,
     pub main_cpus: Vec<usize>,
     pub peer_cpus: Vec<usize>,
     pub fifo_priority: Option<i32>,
@@ -227,6 +236,21 @@ pub fn run_latency_bench(
         .collect();
 
     // --- scheduler wake-up jitter ---------------------------------------------------
+    if let Some(slack_ns) = config.timer_slack_ns {
+        if let Err(e) = set_timer_slack_ns(slack_ns) {
+            warnings.push(format!("main: {e}"));
+        }
+    }
+    let timer_slack_ns = timer_slack_ns();
+    let jitter_thread_realtime = thread_is_realtime();
+    if !jitter_thread_realtime && timer_slack_ns > 1_000 {
+        warnings.push(format!(
+            "wake jitter measured under normal scheduling with {} us timer slack: every \
+             sleep may end up to that much late (SCHED_FIFO via --priority, or \
+             --timer-slack-ns 1, removes it)",
+            timer_slack_ns / 1000
+        ));
+    }
     let jitter_configs = JitterConfig::standard_set(config.spin_ns);
     let mut jitter_totals: Vec<(Histogram<u64>, u64)> = jitter_configs
         .iter()
@@ -314,6 +338,8 @@ pub fn run_latency_bench(
         rounds,
         warmup_per_round: config.warmup_per_round,
         spin_ns: config.spin_ns,
+        timer_slack_ns,
+        jitter_thread_realtime,
         main_cpus: config.main_rt.cpus.clone(),
         peer_cpus: config.peer_rt.cpus.clone(),
         fifo_priority: config.main_rt.fifo_priority,
@@ -421,6 +447,8 @@ impl LatencyReport {
             "transports": transports,
             "loop": {
                 "wake_jitter": wake_jitter,
+                "timer_slack_ns": self.timer_slack_ns,
+                "jitter_thread_realtime": self.jitter_thread_realtime,
                 "end_to_end": end_to_end,
                 "end_to_end_note": end_to_end_note,
                 "hil_wake_jitter": hil_wake_jitter,
@@ -471,8 +499,10 @@ impl LatencyReport {
             ));
         }
         out.push_str(&format!(
-            "\nScheduler wake-up lateness (sleep_spin spins the last {} us)\n",
-            self.spin_ns / 1000
+            "\nScheduler wake-up lateness (sleep_spin spins the last {} us; {}, timer slack {} us)\n",
+            self.spin_ns / 1000,
+            if self.jitter_thread_realtime { "SCHED_FIFO" } else { "normal scheduling" },
+            self.timer_slack_ns as f64 / 1e3
         ));
         out.push_str(header.trim_end());
         out.push_str("  missed\n");
