@@ -358,3 +358,29 @@ fn impossible_pinning_and_priority_are_warnings_not_failures() {
     assert_eq!(report["cpus"]["peer"], serde_json::json!([901]));
     let _ = std::fs::remove_dir_all(dir);
 }
+
+#[test]
+fn rt_setup_can_move_a_thread_off_an_inherited_one_cpu_mask() {
+    // A peer process or echo thread inherits its parent's CPU mask; asking it for
+    // another CPU must work, not be refused as "CPU does not exist".
+    // SAFETY: sysconf with a constant name has no preconditions.
+    let n_cpus = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) }.max(1) as usize;
+    let last_cpu = n_cpus - 1;
+    let warnings = std::thread::spawn(move || {
+        let setup = |cpus: Vec<usize>| fastemu::rt::RtSetup {
+            lock_memory: false,
+            fifo_priority: None,
+            cpus,
+        };
+        let mut warnings = fastemu::rt::apply_rt_setup(&setup(vec![0]));
+        warnings.extend(fastemu::rt::apply_rt_setup(&setup(vec![last_cpu])));
+        // SAFETY: cpu_set_t is plain data; pid 0 is this thread.
+        let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
+        unsafe { libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut set) };
+        assert!(unsafe { libc::CPU_ISSET(last_cpu, &set) });
+        warnings
+    })
+    .join()
+    .unwrap();
+    assert!(warnings.is_empty(), "{warnings:?}");
+}

@@ -237,9 +237,15 @@ pub fn crossbeam_round(
         Err(TryRecvError::Empty) => Ok(None),
         Err(TryRecvError::Disconnected) => Err("channel closed"),
     };
+    // The echo thread inherits this thread's CPU mask and SCHED_FIFO priority: until it
+    // has moved itself, a spinning pinger on the same CPU at the same priority would
+    // never let it run. So the pinger blocks until the echo thread is set up.
+    let echo_ready = std::sync::Barrier::new(2);
     std::thread::scope(|scope| {
+        let echo_ready = &echo_ready;
         let echo = scope.spawn(move || -> anyhow::Result<Vec<String>> {
             let warnings = apply_rt_setup(echo_setup);
+            echo_ready.wait();
             echo_loop(
                 total,
                 || spin_receive(|| poll(&ping_rx), yield_while_spinning, "crossbeam echo"),
@@ -247,6 +253,7 @@ pub fn crossbeam_round(
             )?;
             Ok(warnings)
         });
+        echo_ready.wait();
         let pinged = ping_loop(n_warmup, n_measured, hop_ns, |ping| {
             ping_tx.send(ping).context("crossbeam send")?;
             spin_receive(|| poll(&pong_rx), yield_while_spinning, "crossbeam")
