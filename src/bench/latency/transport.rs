@@ -275,7 +275,11 @@ pub struct RunDir {
 }
 
 impl RunDir {
+    /// Creates `<tmp>/fastemu-latency-<unique>`, where `unique` starts with this
+    /// process's pid; first removes such directories left by runs whose process died
+    /// without unwinding (e.g. `kill -9`).
     pub fn create(unique: &str) -> anyhow::Result<RunDir> {
+        remove_dead_run_dirs();
         let path = std::env::temp_dir().join(format!("fastemu-latency-{unique}"));
         std::fs::create_dir_all(&path)
             .with_context(|| format!("cannot create {}", path.display()))?;
@@ -283,6 +287,28 @@ impl RunDir {
     }
     pub fn path(&self) -> &Path {
         &self.path
+    }
+}
+
+fn remove_dead_run_dirs() {
+    let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else {
+        return;
+    };
+    for entry in entries.filter_map(Result::ok) {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let Some(pid) = name
+            .strip_prefix("fastemu-latency-")
+            .and_then(|rest| rest.split('_').next())
+            .and_then(|pid| pid.parse::<libc::pid_t>().ok())
+        else {
+            continue;
+        };
+        // SAFETY: signal 0 only checks whether the process exists.
+        let dead = unsafe { libc::kill(pid, 0) } != 0
+            && std::io::Error::last_os_error().raw_os_error() == Some(libc::ESRCH);
+        if dead {
+            let _ = std::fs::remove_dir_all(entry.path());
+        }
     }
 }
 
