@@ -6,6 +6,7 @@ pub mod cli;
 pub mod csvio;
 pub mod ipc;
 pub mod model;
+pub mod paper;
 pub mod plot;
 pub mod rt;
 pub mod track;

@@ -3,12 +3,15 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::Context;
+use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
 
 use crate::bench::latency::transport::{serve_peer, PeerConfig};
 use crate::bench::latency::{run_latency_bench, LatencyConfig};
 use crate::bench::model::time_all_forms;
+use crate::bench::rail::time_simulate_rail;
+use crate::csvio::{read_columns, uniform_step};
+use crate::model::oscillator::StartCondition;
 use crate::rt::setup::parse_cpu_list;
 use crate::rt::RtSetup;
 
@@ -16,6 +19,8 @@ use crate::rt::RtSetup;
 pub enum BenchCommand {
     /// Nanoseconds per model step for each form (median of interleaved runs).
     Model(ModelBenchArgs),
+    /// Seconds per `simulate rail` computation (no CSV I/O), median of repeated runs.
+    Rail(RailBenchArgs),
     /// Transport hop latency (iceoryx2, UDP, Unix socket, crossbeam), scheduler wake-up
     /// jitter and the loop's end-to-end latency, with hdrhistogram percentiles.
     Latency(LatencyArgs),
@@ -89,6 +94,28 @@ pub struct LatencyPeerArgs {
 }
 
 #[derive(Args)]
+pub struct RailBenchArgs {
+    /// Model file (SPEC 2.3).
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Mass on the element, kg.
+    #[arg(long = "mass-kg", allow_negative_numbers = true)]
+    pub mass_kg: f64,
+    /// External force CSV: `t_s,force_n`, uniform step (read once, outside the timing).
+    #[arg(long)]
+    pub input: PathBuf,
+    /// Initial condition: `rest` or `static`.
+    #[arg(long, default_value = "rest")]
+    pub start: String,
+    /// Timed runs.
+    #[arg(long, default_value_t = 7)]
+    pub runs: usize,
+    /// Print one JSON object.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Args)]
 pub struct ModelBenchArgs {
     /// Print `{"ns_per_step": {...}, ...}` as JSON.
     #[arg(long)]
@@ -104,6 +131,7 @@ pub struct ModelBenchArgs {
 pub fn run(cmd: BenchCommand) -> anyhow::Result<ExitCode> {
     match cmd {
         BenchCommand::Model(args) => run_model(args),
+        BenchCommand::Rail(args) => run_rail(args),
         BenchCommand::Latency(args) => run_latency(args),
         BenchCommand::LatencyPeer(args) => run_latency_peer(args),
     }
@@ -162,6 +190,47 @@ fn run_latency(args: LatencyArgs) -> anyhow::Result<ExitCode> {
         println!("{}", serde_json::to_string(&report.to_json())?);
     } else {
         print!("{}", report.table());
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn run_rail(args: RailBenchArgs) -> anyhow::Result<ExitCode> {
+    let Some(start) = StartCondition::from_name(&args.start) else {
+        bail!("--start {}: expected `rest` or `static`", args.start);
+    };
+    if !(args.mass_kg.is_finite() && args.mass_kg > 0.0) {
+        bail!(
+            "--mass-kg {}: must be a positive finite number",
+            args.mass_kg
+        );
+    }
+    anyhow::ensure!(args.runs > 0, "--runs must be positive");
+    let spec = super::load_model(&args.model)?;
+    let cols = read_columns(&args.input, &["t_s", "force_n"])?;
+    let dt = uniform_step(&cols.data[0], &args.input.display().to_string(), "t_s")?;
+    let timing = time_simulate_rail(
+        spec.element,
+        args.mass_kg,
+        dt,
+        &cols.data[1],
+        start,
+        args.runs,
+    );
+    if args.json {
+        println!("{}", serde_json::to_string(&timing)?);
+    } else {
+        println!(
+            "{} form, {} samples at dt {:e} s, {} sub-step(s): median {:.6} s (min {:.6}, max {:.6}) over {} runs, {:.1} ns/step",
+            timing.form,
+            timing.n_samples,
+            timing.dt_s,
+            timing.substeps_per_step,
+            timing.median_s,
+            timing.min_s,
+            timing.max_s,
+            timing.runs,
+            timing.median_ns_per_step
+        );
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -3,6 +3,7 @@
 
 pub mod bench;
 pub mod equiv;
+pub mod paper;
 pub mod simulate;
 
 use anyhow::Context;
