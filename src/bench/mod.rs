@@ -1,6 +1,9 @@
-//! Benchmarks: model step speed (`model`), offline rail simulation (`rail`). Timing lives here and in reports, never in
-//! pass/fail tests.
+//! Benchmarks: model step speed (`model`), offline rail simulation (`rail`), and the
+//! loop's latency and jitter (`latency`, with its child-process guard in `child`).
+//! Timing lives here and in reports, never in pass/fail tests.
 
+pub mod child;
+pub mod latency;
 pub mod model;
 pub mod rail;
 

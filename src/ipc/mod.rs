@@ -5,3 +5,4 @@
 //! path.
 
 pub mod messages;
+pub mod pingpong;

@@ -4,6 +4,7 @@
 mod alloc_counter;
 mod cli_errors;
 mod common;
+mod latency_bench;
 mod model_alloc;
 mod model_closed_form;
 mod model_determinism;
