@@ -22,6 +22,10 @@ enum Command {
     Simulate(cli::simulate::SimulateCommand),
     /// Equivalent stiffness and damping table (paper Eq. 2).
     Equiv(cli::equiv::EquivArgs),
+    /// Identify Zener parameters from a campaign of harmonic tests (paper Sec. 3.1).
+    Identify(cli::identify::IdentifyArgs),
+    /// Find where model and campaign disagree, name the missing effect, show the gap shrink.
+    Diagnose(cli::diagnose::DiagnoseArgs),
     /// Benchmarks (model step speed, transport latency).
     #[command(subcommand)]
     Bench(cli::bench::BenchCommand),
@@ -33,6 +37,8 @@ fn main() -> std::process::ExitCode {
         Command::Simulate(cmd) => cli::simulate::run(cmd),
         Command::Equiv(args) => cli::equiv::run(args),
         Command::Bench(cmd) => cli::bench::run(cmd),
+        Command::Identify(args) => cli::identify::run(args),
+        Command::Diagnose(args) => cli::diagnose::run(args),
     };
     match result {
         Ok(code) => code,

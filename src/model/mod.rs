@@ -9,6 +9,7 @@
 //! allocate inside `ForceStepper::step` / `Oscillator::step`. Every step is a pure
 //! function of its state and inputs, so identical inputs give bit-identical outputs.
 
+pub mod effects;
 pub mod element;
 pub mod equiv;
 pub mod file;

@@ -1,1 +1,4 @@
+//! The integration-test binary: one binary, one module per feature.
 
+mod diagnose_campaigns;
+mod gen;

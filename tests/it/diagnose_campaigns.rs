@@ -1,0 +1,131 @@
+//! Diagnose on synthetic campaigns with one hidden effect, none, or two.
+
+use std::path::PathBuf;
+
+use fastemu::campaign::load_campaign;
+use fastemu::diagnose::{diagnose, DiagnoseOptions};
+use fastemu::fit::cycle_data;
+use fastemu::model::effects::AugmentedModel;
+use fastemu::model::file::parse_model_toml;
+
+use crate::gen::{off_baseline_toml, standard_design, write_campaign, Noise, Truth};
+
+fn scratch_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("fastemu-it-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+/// Generates a campaign, runs the workflow, returns (named effects, gap before, gap after).
+fn run_case(name: &str, truth: &Truth, baseline_chi: f64, seed: u64) -> (Vec<String>, f64, f64) {
+    let dir = scratch_dir(name);
+    write_campaign(&dir, truth, &standard_design(), &Noise::typical(), seed);
+    let campaign = load_campaign(&dir).expect("campaign loads");
+    let data = cycle_data(&campaign);
+    let spec = parse_model_toml(&off_baseline_toml(baseline_chi), "baseline.toml").unwrap();
+    let baseline = AugmentedModel::from_spec(&spec, "baseline.toml").unwrap();
+    let diagnosis = diagnose(&baseline, &data, &DiagnoseOptions::default(), &mut |m| {
+        eprintln!("[{name}] {m}")
+    });
+    let _ = std::fs::remove_dir_all(&dir);
+    let named = diagnosis
+        .named
+        .iter()
+        .map(|k| k.name().to_string())
+        .collect();
+    (named, diagnosis.baseline_cv.gap(), diagnosis.final_cv.gap())
+}
+
+fn check_single(name: &str, truth: Truth, baseline_chi: f64, expected: &str, seed: u64) {
+    let (named, before, after) = run_case(name, &truth, baseline_chi, seed);
+    eprintln!(
+        "[{name}] named {named:?}, gap {before:.4e} -> {after:.4e} ({:.1}x)",
+        before / after
+    );
+    assert_eq!(named, vec![expected.to_string()], "{name}");
+    assert!(
+        before >= 3.0 * after,
+        "{name}: gap {before:.3e} -> {after:.3e} shrinks less than 3x"
+    );
+}
+
+#[test]
+fn null_campaign_names_nothing() {
+    let (named, before, after) = run_case("null", &Truth::paper_like(), 0.3, 11);
+    eprintln!("[null] named {named:?}, gap {before:.4e} -> {after:.4e}");
+    assert!(named.is_empty(), "null campaign named {named:?}");
+}
+
+#[test]
+fn hidden_preload_stiffening_is_named() {
+    let truth = Truth {
+        chi: 0.3,
+        ..Truth::paper_like()
+    };
+    check_single("preload", truth, 0.0, "preload-stiffening", 12);
+}
+
+#[test]
+fn hidden_amplitude_friction_is_named() {
+    let truth = Truth {
+        friction: Some((20e6, 1.0e3)),
+        ..Truth::paper_like()
+    };
+    check_single("friction", truth, 0.3, "amplitude-friction", 13);
+}
+
+#[test]
+fn hidden_fractional_damping_is_named() {
+    let truth = Truth {
+        springpot: Some((7e5, 0.3)),
+        ..Truth::paper_like()
+    };
+    check_single("fractional", truth, 0.3, "fractional-damping", 14);
+}
+
+#[test]
+fn hidden_temperature_shift_is_named() {
+    let truth = Truth {
+        wlf: Some((2.0, 80.0, 23.0, 0.005)),
+        ..Truth::paper_like()
+    };
+    check_single("temperature", truth, 0.3, "temperature-shift", 15);
+}
+
+#[test]
+fn hidden_channel_delay_is_named() {
+    let truth = Truth {
+        force_lag_s: 2e-4,
+        ..Truth::paper_like()
+    };
+    check_single("delay", truth, 0.3, "channel-delay", 16);
+}
+
+#[test]
+fn hidden_moving_mass_is_named() {
+    let truth = Truth {
+        mass_kg: 40.0,
+        ..Truth::paper_like()
+    };
+    check_single("mass", truth, 0.3, "moving-mass", 17);
+}
+
+#[test]
+fn two_hidden_effects_are_both_named() {
+    let truth = Truth {
+        wlf: Some((2.0, 80.0, 23.0, 0.005)),
+        mass_kg: 40.0,
+        ..Truth::paper_like()
+    };
+    let (mut named, before, after) = run_case("two", &truth, 0.3, 18);
+    eprintln!(
+        "[two] named {named:?}, gap {before:.4e} -> {after:.4e} ({:.1}x)",
+        before / after
+    );
+    named.sort();
+    assert_eq!(
+        named,
+        vec!["moving-mass".to_string(), "temperature-shift".to_string()]
+    );
+    assert!(before >= 3.0 * after);
+}
