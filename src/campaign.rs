@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use crate::csvio::{read_columns, uniform_step};
 
 /// Duration treated as start-up transient at the beginning of a harmonic test, s.
-pub const START_UP_S: f64 = 0.25;
+pub const START_UP_S: f64 = 0.1;
 
 /// Number of harmonics kept per test (1 = fundamental only).
 pub const N_HARMONICS: usize = 3;
@@ -67,6 +67,11 @@ pub struct HarmonicCycle {
     pub n_cycles: usize,
     /// RMS of what the harmonic fit leaves in the force (noise and higher harmonics), N.
     pub force_residual_rms_n: f64,
+    /// Estimated variance of the noise in `F_1 - K Z_1` (`K = F_1/Z_1`), N^2: the mean
+    /// `|X_F - K X_Z|^2` of the regression residuals' DFT at the neighbouring bins
+    /// `f (1 + j / n_cycles)`, `j = +-1, +-2, +-3` (bins on harmonics excluded). This is
+    /// the part of any model's fundamental-force residual that no model can remove.
+    pub fundamental_noise_variance_n2: f64,
 }
 
 impl HarmonicCycle {
@@ -417,14 +422,32 @@ pub fn analyse_cycle(
     let n_cycles = n_whole.saturating_sub(start_up_cycles).max(2.min(n_whole));
     let n_used = ((n_cycles as f64 * samples_per_cycle).round() as usize).min(n);
     let start = n - n_used;
-    let (z_mean, z_h, _) = harmonic_regression(
-        dt_s,
-        frequency_hz,
-        &displacement_m[start..],
-        start as f64 * dt_s,
-    );
-    let (f_mean, f_h, f_rms) =
-        harmonic_regression(dt_s, frequency_hz, &force_n[start..], start as f64 * dt_s);
+    let t0_s = start as f64 * dt_s;
+    let (z_mean, z_h, z_residual) =
+        harmonic_regression(dt_s, frequency_hz, &displacement_m[start..], t0_s);
+    let (f_mean, f_h, f_residual) =
+        harmonic_regression(dt_s, frequency_hz, &force_n[start..], t0_s);
+    let f_rms =
+        (f_residual.iter().map(|r| r * r).sum::<f64>() / f_residual.len().max(1) as f64).sqrt();
+    let stiffness = cdiv(f_h[0], z_h[0]);
+    let mut noise_sum = 0.0;
+    let mut noise_count = 0;
+    for j in [-3i32, -2, -1, 1, 2, 3] {
+        if j.rem_euclid(n_cycles as i32) == 0 || n_cycles as i32 + j <= 0 {
+            continue;
+        }
+        let bin_hz = frequency_hz * (1.0 + j as f64 / n_cycles as f64);
+        let x_f = dft_bin(&f_residual, dt_s, bin_hz);
+        let x_z = dft_bin(&z_residual, dt_s, bin_hz);
+        let combined = cmul(stiffness, x_z);
+        noise_sum += (x_f.0 - combined.0).powi(2) + (x_f.1 - combined.1).powi(2);
+        noise_count += 1;
+    }
+    let fundamental_noise_variance_n2 = if noise_count > 0 {
+        noise_sum / noise_count as f64
+    } else {
+        0.0
+    };
     HarmonicCycle {
         frequency_hz,
         displacement_mean_m: z_mean,
@@ -433,18 +456,19 @@ pub fn analyse_cycle(
         force_harmonics_n: f_h,
         n_cycles,
         force_residual_rms_n: f_rms,
+        fundamental_noise_variance_n2,
     }
 }
 
 /// Least-squares fit of `a + b (t - t_mid) + sum_h (c_h cos + s_h sin)(h W t)`; returns the
-/// mean `a`, the complex amplitudes `c_h - i s_h` (phase referred to t = 0) and the RMS of
-/// the residual. `t0_s` is the time of the first sample.
+/// mean `a`, the complex amplitudes `c_h - i s_h` (phase referred to t = 0) and the
+/// residual series. `t0_s` is the time of the first sample.
 fn harmonic_regression(
     dt_s: f64,
     frequency_hz: f64,
     x: &[f64],
     t0_s: f64,
-) -> (f64, [Complex; N_HARMONICS], f64) {
+) -> (f64, [Complex; N_HARMONICS], Vec<f64>) {
     let n_basis = 2 + 2 * N_HARMONICS;
     let omega = 2.0 * std::f64::consts::PI * frequency_hz;
     let t_mid = 0.5 * (x.len().saturating_sub(1)) as f64 * dt_s;
@@ -481,17 +505,29 @@ fn harmonic_regression(
         .cholesky()
         .map(|c| c.solve(&atb))
         .unwrap_or_else(|| nalgebra::DVector::zeros(n_basis));
-    let mut sse = 0.0;
+    let mut residual = Vec::with_capacity(x.len());
     for (i, &xi) in x.iter().enumerate() {
         basis(i, &mut row);
         let fit: f64 = row.iter().zip(coef.iter()).map(|(r, c)| r * c).sum();
-        sse += (xi - fit).powi(2);
+        residual.push(xi - fit);
     }
     let mut harmonics = [(0.0, 0.0); N_HARMONICS];
     for (h, out) in harmonics.iter_mut().enumerate() {
         *out = (coef[2 + 2 * h], -coef[3 + 2 * h]);
     }
-    (coef[0], harmonics, (sse / x.len().max(1) as f64).sqrt())
+    (coef[0], harmonics, residual)
+}
+
+/// Complex amplitude `(2/N) sum x_k e^{-i 2 pi f t_k}` of a record at `bin_hz`.
+fn dft_bin(x: &[f64], dt_s: f64, bin_hz: f64) -> Complex {
+    let mut acc = (0.0, 0.0);
+    for (k, &xk) in x.iter().enumerate() {
+        let (s, c) = (2.0 * std::f64::consts::PI * bin_hz * k as f64 * dt_s).sin_cos();
+        acc.0 += xk * c;
+        acc.1 -= xk * s;
+    }
+    let scale = 2.0 / x.len().max(1) as f64;
+    (acc.0 * scale, acc.1 * scale)
 }
 
 #[cfg(test)]

@@ -20,6 +20,11 @@ use crate::model::params::ElementModel;
 
 pub use lm::{levenberg_marquardt, LmFit};
 
+/// Harmonics compared in residuals and gaps: the fundamental only. Higher harmonics of the
+/// force carry little signal and as much noise as the fundamental, so they would only
+/// raise the noise floor of the gap; they still drive the simulation (measured `Z_2, Z_3`).
+pub const FIT_HARMONICS: usize = 1;
+
 /// Samples per simulated cycle.
 pub const SAMPLES_PER_CYCLE: usize = 64;
 
@@ -36,8 +41,10 @@ pub struct CycleData {
     pub force_mean_n: f64,
     pub displacement_harmonics_m: [Complex; N_HARMONICS],
     pub force_harmonics_n: [Complex; N_HARMONICS],
-    /// `sqrt(sum_h |F_h|^2)`: residuals are relative to it, N.
+    /// `|F_1|`: residuals are relative to it, N.
     pub scale_n: f64,
+    /// Estimated noise variance of the fundamental residual relative to `|F_1|^2`.
+    pub noise_relative: f64,
 }
 
 impl CycleData {
@@ -52,12 +59,7 @@ pub fn cycle_data(campaign: &Campaign) -> Vec<CycleData> {
         .harmonic_tests()
         .filter_map(|test| {
             let cycle = test.cycle.as_ref()?;
-            let scale_n = cycle
-                .force_harmonics_n
-                .iter()
-                .map(|f| f.0 * f.0 + f.1 * f.1)
-                .sum::<f64>()
-                .sqrt();
+            let scale_n = cabs(cycle.force_harmonics_n[0]).max(1e-300);
             Some(CycleData {
                 id: test.id.clone(),
                 frequency_hz: cycle.frequency_hz,
@@ -67,7 +69,8 @@ pub fn cycle_data(campaign: &Campaign) -> Vec<CycleData> {
                 force_mean_n: cycle.force_mean_n,
                 displacement_harmonics_m: cycle.displacement_harmonics_m,
                 force_harmonics_n: cycle.force_harmonics_n,
-                scale_n: scale_n.max(1e-300),
+                scale_n,
+                noise_relative: cycle.fundamental_noise_variance_n2 / (scale_n * scale_n),
             })
         })
         .collect()
@@ -164,15 +167,18 @@ fn artefacts(model: &AugmentedModel) -> (f64, f64) {
     (mass_kg, lag_s)
 }
 
-/// Relative squared residual of one test: `sum_h |F_sim,h - F_h|^2 / sum_h |F_h|^2`.
+/// Relative squared residual of one test: `|F_sim,1 - F_1|^2 / |F_1|^2`.
 pub fn relative_error(model: &AugmentedModel, data: &CycleData) -> f64 {
     let predicted = predict_cycle(model, data);
     residual_terms(&predicted, data).iter().map(|r| r * r).sum()
 }
 
-fn residual_terms(predicted: &[Complex; N_HARMONICS], data: &CycleData) -> [f64; 2 * N_HARMONICS] {
-    let mut out = [0.0; 2 * N_HARMONICS];
-    for h in 0..N_HARMONICS {
+fn residual_terms(
+    predicted: &[Complex; N_HARMONICS],
+    data: &CycleData,
+) -> [f64; 2 * FIT_HARMONICS] {
+    let mut out = [0.0; 2 * FIT_HARMONICS];
+    for h in 0..FIT_HARMONICS {
         out[2 * h] = (predicted[h].0 - data.force_harmonics_n[h].0) / data.scale_n;
         out[2 * h + 1] = (predicted[h].1 - data.force_harmonics_n[h].1) / data.scale_n;
     }
@@ -451,7 +457,7 @@ impl Template {
     /// Residual vector over `data`.
     pub fn residuals(&self, theta: &[f64], data: &[&CycleData]) -> Vec<f64> {
         let model = self.model(theta);
-        let mut out = Vec::with_capacity(data.len() * 2 * N_HARMONICS);
+        let mut out = Vec::with_capacity(data.len() * 2 * FIT_HARMONICS);
         for d in data {
             out.extend_from_slice(&residual_terms(&predict_cycle(&model, d), d));
         }

@@ -10,7 +10,14 @@ use fastemu::model::file::parse_model_toml;
 
 use crate::gen::{off_baseline_toml, standard_design, write_campaign, Noise, Truth};
 
+/// Campaigns go to `$FASTEMU_KEEP_CAMPAIGNS/<name>` (kept, for inspection with the CLI) or
+/// to a temporary directory that is removed afterwards.
 fn scratch_dir(name: &str) -> PathBuf {
+    if let Some(keep) = std::env::var_os("FASTEMU_KEEP_CAMPAIGNS") {
+        let dir = PathBuf::from(keep).join(name);
+        let _ = std::fs::remove_dir_all(&dir);
+        return dir;
+    }
     let dir = std::env::temp_dir().join(format!("fastemu-it-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     dir
@@ -27,13 +34,17 @@ fn run_case(name: &str, truth: &Truth, baseline_chi: f64, seed: u64) -> (Vec<Str
     let diagnosis = diagnose(&baseline, &data, &DiagnoseOptions::default(), &mut |m| {
         eprintln!("[{name}] {m}")
     });
-    let _ = std::fs::remove_dir_all(&dir);
+    if std::env::var_os("FASTEMU_KEEP_CAMPAIGNS").is_none() {
+        let _ = std::fs::remove_dir_all(&dir);
+    } else {
+        std::fs::write(dir.join("baseline.toml"), off_baseline_toml(baseline_chi)).unwrap();
+    }
     let named = diagnosis
         .named
         .iter()
         .map(|k| k.name().to_string())
         .collect();
-    (named, diagnosis.baseline_cv.gap(), diagnosis.final_cv.gap())
+    (named, diagnosis.gap_before, diagnosis.gap_after)
 }
 
 fn check_single(name: &str, truth: Truth, baseline_chi: f64, expected: &str, seed: u64) {
