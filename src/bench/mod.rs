@@ -1,7 +1,8 @@
-//! Benchmarks: model step speed (`model`). Timing lives here and in reports, never in
+//! Benchmarks: model step speed (`model`), offline rail simulation (`rail`). Timing lives here and in reports, never in
 //! pass/fail tests.
 
 pub mod model;
+pub mod rail;
 
 /// Median of a slice (sorts a copy). Empty slices give NaN.
 pub fn median(values: &[f64]) -> f64 {

@@ -112,12 +112,11 @@ pub fn predict_cycle_with_waveform(
     for (k, (z, b)) in z_cycle.iter_mut().zip(basis.iter_mut()).enumerate() {
         let t = t_start + k as f64 * dt_s;
         *z = z_mean;
-        for h in 0..N_HARMONICS {
+        for (h, (bh, zh)) in b.iter_mut().zip(&data.displacement_harmonics_m).enumerate() {
             let phase = (h + 1) as f64 * omega * t;
             let (s, c) = phase.sin_cos();
-            let zh = data.displacement_harmonics_m[h];
             *z += zh.0 * c - zh.1 * s;
-            b[h] = (c, -s);
+            *bh = (c, -s);
         }
     }
     let mut stepper = ModelStepper::new(&model_t, StepperMode::Emulation, dt_s, z_cycle[0]);

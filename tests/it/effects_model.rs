@@ -1,8 +1,6 @@
 //! The effect library as real-time model elements: no allocation per step, determinism,
 //! and each effect against an independent calculation.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use std::f64::consts::PI;
 
 use fastemu::model::effects::{
@@ -12,33 +10,7 @@ use fastemu::model::file::parse_model_toml;
 use fastemu::model::params::{ElementModel, ZenerParams};
 use fastemu::model::ForceStepper;
 
-/// Counts allocations made by the current thread (tests run in parallel threads).
-struct CountingAllocator;
-
-thread_local! {
-    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
-}
-
-unsafe impl GlobalAlloc for CountingAllocator {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.with(|c| c.set(c.get() + 1));
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCATIONS.with(|c| c.set(c.get() + 1));
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
-#[global_allocator]
-static GLOBAL: CountingAllocator = CountingAllocator;
-
-fn allocations() -> usize {
-    ALLOCATIONS.with(|c| c.get())
-}
+use crate::alloc_counter::count_allocations;
 
 fn zener() -> ElementModel {
     ElementModel::Consistent(ZenerParams::paper_table3(0.75))
@@ -100,11 +72,11 @@ fn steps_allocate_nothing_and_are_deterministic_for_every_effect() {
             let mut a = ModelStepper::new(&model, mode, dt, z[0]);
             let mut b = ModelStepper::new(&model, mode, dt, z[0]);
             let mut out_a = vec![0.0; z.len()];
-            let before = allocations();
-            for (o, &zi) in out_a.iter_mut().zip(&z) {
-                *o = a.step(zi).0;
-            }
-            let allocated = allocations() - before;
+            let allocated = count_allocations(|| {
+                for (o, &zi) in out_a.iter_mut().zip(&z) {
+                    *o = a.step(zi).0;
+                }
+            });
             assert_eq!(
                 allocated,
                 0,

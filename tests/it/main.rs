@@ -1,7 +1,16 @@
-//! The integration-test binary: one binary, one module per feature.
+//! The one integration-test binary (STYLE: one binary, shared helpers). Each module
+//! checks a feature against an independent calculation written in the test itself.
 
+mod alloc_counter;
 mod campaign_loading;
+mod cli_errors;
+mod common;
 mod diagnose_campaigns;
 mod effects_model;
 mod gen;
 mod identify_cli;
+mod model_alloc;
+mod model_closed_form;
+mod model_determinism;
+mod model_modulus;
+mod model_tension;
