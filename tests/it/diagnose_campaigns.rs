@@ -25,8 +25,18 @@ fn scratch_dir(name: &str) -> PathBuf {
 
 /// Generates a campaign, runs the workflow, returns (named effects, gap before, gap after).
 fn run_case(name: &str, truth: &Truth, baseline_chi: f64, seed: u64) -> (Vec<String>, f64, f64) {
+    run_case_with_noise(name, truth, baseline_chi, seed, &Noise::typical())
+}
+
+fn run_case_with_noise(
+    name: &str,
+    truth: &Truth,
+    baseline_chi: f64,
+    seed: u64,
+    noise: &Noise,
+) -> (Vec<String>, f64, f64) {
     let dir = scratch_dir(name);
-    write_campaign(&dir, truth, &standard_design(), &Noise::typical(), seed);
+    write_campaign(&dir, truth, &standard_design(), noise, seed);
     let campaign = load_campaign(&dir).expect("campaign loads");
     let data = cycle_data(&campaign);
     let spec = parse_model_toml(&off_baseline_toml(baseline_chi), "baseline.toml").unwrap();
@@ -139,4 +149,154 @@ fn two_hidden_effects_are_both_named() {
         vec!["moving-mass".to_string(), "temperature-shift".to_string()]
     );
     assert!(before >= 3.0 * after);
+}
+
+/// Variants of the generator beyond the project's tests (other friction laws, a fractional
+/// Zener, negative skews and masses, other preload laws, noise-free and noisy nulls). Slow:
+/// runs only when `FASTEMU_SOAK` is set; prints a table and fails on any wrong diagnosis.
+#[test]
+fn soak_generator_variants() {
+    if std::env::var_os("FASTEMU_SOAK").is_none() {
+        return;
+    }
+    let base = Truth::paper_like();
+    let quiet = Noise {
+        white_force: 0.0,
+        white_displacement: 0.0,
+        coloured_force: 0.0,
+        coloured_rho: 0.0,
+        drift_force: 0.0,
+    };
+    let loud = Noise {
+        white_force: 0.03,
+        white_displacement: 0.02,
+        coloured_force: 0.03,
+        coloured_rho: 0.995,
+        drift_force: 0.03,
+    };
+    let cases: Vec<(&str, Truth, f64, Noise, Vec<&str>)> = vec![
+        ("null-quiet", base, 0.3, quiet, vec![]),
+        ("null-loud", base, 0.1, loud, vec![]),
+        (
+            "friction-jenkins",
+            Truth {
+                friction: Some((30e6, 1.2e3)),
+                friction_exponent: 10.0,
+                ..base
+            },
+            0.3,
+            Noise::typical(),
+            vec!["amplitude-friction"],
+        ),
+        (
+            "friction-dahl",
+            Truth {
+                friction: Some((15e6, 0.8e3)),
+                friction_exponent: 1.0,
+                ..base
+            },
+            0.3,
+            Noise::typical(),
+            vec!["amplitude-friction"],
+        ),
+        (
+            "fractional-zener",
+            Truth {
+                fractional_maxwell_order: Some(0.5),
+                ..base
+            },
+            0.3,
+            Noise::typical(),
+            vec!["fractional-damping"],
+        ),
+        (
+            "springpot-strong",
+            Truth {
+                springpot: Some((2e6, 0.15)),
+                ..base
+            },
+            0.3,
+            Noise::typical(),
+            vec!["fractional-damping"],
+        ),
+        (
+            "delay-negative",
+            Truth {
+                force_lag_s: -3e-4,
+                ..base
+            },
+            0.3,
+            Noise::typical(),
+            vec!["channel-delay"],
+        ),
+        (
+            "mass-negative",
+            Truth {
+                mass_kg: -60.0,
+                ..base
+            },
+            0.3,
+            Noise::typical(),
+            vec!["moving-mass"],
+        ),
+        (
+            "preload-p0",
+            Truth {
+                chi: 0.35,
+                p0_n: 30e3,
+                ..base
+            },
+            0.0,
+            Noise::typical(),
+            vec!["preload-stiffening"],
+        ),
+        (
+            "temperature-modulus",
+            Truth {
+                wlf: Some((0.0, 80.0, 23.0, 0.01)),
+                ..base
+            },
+            0.3,
+            Noise::typical(),
+            vec!["temperature-shift"],
+        ),
+        (
+            "preload+delay",
+            Truth {
+                chi: 0.3,
+                force_lag_s: 2e-4,
+                ..base
+            },
+            0.0,
+            Noise::typical(),
+            vec!["channel-delay", "preload-stiffening"],
+        ),
+        (
+            "friction+fractional",
+            Truth {
+                friction: Some((20e6, 1.0e3)),
+                springpot: Some((1e6, 0.3)),
+                ..base
+            },
+            0.3,
+            Noise::typical(),
+            vec!["amplitude-friction", "fractional-damping"],
+        ),
+    ];
+    let mut failures = Vec::new();
+    for (i, (name, truth, chi, noise, expected)) in cases.into_iter().enumerate() {
+        let (mut named, before, after) =
+            run_case_with_noise(name, &truth, chi, 100 + i as u64, &noise);
+        named.sort();
+        let ok = named == expected && (expected.is_empty() || before >= 3.0 * after);
+        eprintln!(
+            "SOAK {name:<22} named {named:?} gap {before:.3e} -> {after:.3e} ({:.1}x) {}",
+            before / after,
+            if ok { "ok" } else { "WRONG" }
+        );
+        if !ok {
+            failures.push(name);
+        }
+    }
+    assert!(failures.is_empty(), "wrong diagnoses: {failures:?}");
 }

@@ -55,6 +55,11 @@ pub struct Truth {
     pub p0_n: f64,
     /// Bouc-Wen friction: initial stiffness (N/m^2) and slip force (N/m), per metre.
     pub friction: Option<(f64, f64)>,
+    /// Bouc-Wen exponent (2 by default; large values approach a Jenkins element).
+    pub friction_exponent: f64,
+    /// Fractional Zener: the Maxwell dashpot replaced by a springpot of this order
+    /// (Cole-Cole branch `k2 (i W tau)^a / (1 + (i W tau)^a)`, linear, at the preload).
+    pub fractional_maxwell_order: Option<f64>,
     /// Springpot coefficient per metre (N s^alpha / m^2) and order.
     pub springpot: Option<(f64, f64)>,
     /// WLF C1, C2, reference temperature and modulus slope per degC.
@@ -73,6 +78,8 @@ impl Truth {
             chi: 0.2,
             p0_n: 64e3,
             friction: None,
+            friction_exponent: 2.0,
+            fractional_maxwell_order: None,
             springpot: None,
             wlf: None,
             force_lag_s: 0.0,
@@ -189,6 +196,15 @@ pub fn simulate_test(
         let x = (c2g * w / k2g).powi(2);
         (k1g + k2g * x / (1.0 + x), w * c2g / (1.0 + x))
     };
+    if let Some(order) = truth.fractional_maxwell_order {
+        // Replace the Maxwell part by the Cole-Cole branch for the amplitude estimate.
+        let x = (c2 * w / k2).powi(2);
+        modulus.0 -= k2 * g * x / (1.0 + x);
+        modulus.1 -= w * c2 * g / (1.0 + x);
+        let mag = (w * c2 / k2).powf(order);
+        modulus.0 += k2 * g * mag / (1.0 + mag);
+        modulus.1 += k2 * g * mag * 0.5 / (1.0 + mag);
+    }
     if let Some((kf, _)) = truth.friction {
         modulus.0 += 0.3 * kf * l;
     }
@@ -223,11 +239,16 @@ pub fn simulate_test(
         let v = v_of(t);
         let gg = (1.0 + s[0] / p0).max(1e-6).powf(chi);
         let dfs = k1 * gg * v;
-        let dfm = k2 * gg * v - (k2 / c2) * s[1];
-        // Bouc-Wen, n = 2, beta = gamma = 1/2: saturates at the slip force.
+        let dfm = if truth.fractional_maxwell_order.is_some() {
+            0.0
+        } else {
+            k2 * gg * v - (k2 / c2) * s[1]
+        };
+        // Bouc-Wen, exponent n, beta = gamma = 1/2: saturates at the slip force.
         let wn = s[2] / ff_slip;
         let dff = if kf > 0.0 {
-            kf * (v - 0.5 * v.abs() * wn.abs() * wn - 0.5 * v * wn * wn)
+            let pow = wn.abs().powf(truth.friction_exponent - 1.0);
+            kf * (v - 0.5 * v.abs() * pow * wn - 0.5 * v * pow * wn.abs())
         } else {
             0.0
         };
@@ -259,6 +280,23 @@ pub fn simulate_test(
         let m2 = c_eff * (2.0 * w).powf(alpha);
         (m1, m2, PI * alpha / 2.0)
     });
+    // Cole-Cole Maxwell branch at the preload: k2 g (i h W tau)^a / (1 + (i h W tau)^a).
+    let cole = truth.fractional_maxwell_order.map(|order| {
+        let tau = c2 / k2;
+        let branch = |w_h: f64| {
+            let mag = (w_h * tau).powf(order);
+            let (re, im) = (
+                mag * (PI * order / 2.0).cos(),
+                mag * (PI * order / 2.0).sin(),
+            );
+            // x / (1 + x)
+            let (dr, di) = (1.0 + re, im);
+            let den = dr * dr + di * di;
+            let (qr, qi) = ((re * dr + im * di) / den, (im * dr - re * di) / den);
+            (k2 * g * qr, k2 * g * qi)
+        };
+        (branch(w), branch(2.0 * w))
+    });
     let force_at = |t: f64| -> f64 {
         let x = (t - t0) / h;
         let i = (x.floor() as usize).min(fine.len() - 2);
@@ -266,6 +304,12 @@ pub fn simulate_test(
         let mut f = fine[i] * (1.0 - frac) + fine[i + 1] * frac;
         if let Some((m1, m2, phase)) = springpot {
             f += m1 * a1 * (w * t + phase).cos() + m2 * a2 * (2.0 * w * t + phi2 + phase).cos();
+        }
+        if let Some((b1, b2)) = cole {
+            // Re(K Z e^{i phase}) for z = a cos(W t + phi): a (K_r cos - K_i sin).
+            let (p1, p2) = (w * t, 2.0 * w * t + phi2);
+            f +=
+                a1 * (b1.0 * p1.cos() - b1.1 * p1.sin()) + a2 * (b2.0 * p2.cos() - b2.1 * p2.sin());
         }
         f + truth.mass_kg * acc_of(t)
     };
