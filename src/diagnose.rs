@@ -20,7 +20,10 @@
 //! 3. the paired one-sided Wilcoxon signed-rank test of per-test held-out errors
 //!    (current minus candidate, each divided by that test's noise level plus the median
 //!    one) gives z > 2.6 (p < 0.005), and
-//! 4. it lowers the held-out error in at least K - 1 of the K folds.
+//! 4. it lowers the held-out error in at least K - 1 of the K folds, and
+//! 5. what it explains is material: `sqrt(gap_current^2 - gap_candidate^2)` exceeds 1e-3
+//!    (0.1 % of the force at the test frequency). Below that, differences between
+//!    integration schemes or model forms can be "explained" by any flexible effect.
 //!
 //! Held-out evidence does not assume white noise: coloured noise inflates the spread of
 //! the per-test differences, not their sign, and an effect that only fits noise does not
@@ -44,6 +47,8 @@ pub struct DiagnoseOptions {
     pub max_raw_ratio: f64,
     pub penalty_per_param: f64,
     pub min_wilcoxon_z: f64,
+    /// Smallest held-out gap an effect must explain, `sqrt(gap_before^2 - gap_after^2)`.
+    pub min_explained_gap: f64,
 }
 
 impl Default for DiagnoseOptions {
@@ -56,6 +61,7 @@ impl Default for DiagnoseOptions {
             max_raw_ratio: 0.95,
             penalty_per_param: 0.02,
             min_wilcoxon_z: 2.6,
+            min_explained_gap: 1e-3,
         }
     }
 }
@@ -435,7 +441,12 @@ pub fn diagnose(
                     sum(&cv.held_out_error) < sum(&current_errors)
                 })
                 .count();
+            let candidate_gap = excess_gap(&cv.held_out_error, data);
+            let explained = (current_gap * current_gap - candidate_gap * candidate_gap)
+                .max(0.0)
+                .sqrt();
             let qualifies = score < options.max_score
+                && explained > options.min_explained_gap
                 && raw_ratio * penalty < options.max_raw_ratio
                 && z > options.min_wilcoxon_z
                 && folds_improved + 1 >= n_folds;

@@ -2,7 +2,6 @@
 //! this module loads inputs, prints progress, and writes the report, plots, augmented
 //! model file and the `--json` object.
 
-use std::f64::consts::PI;
 use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -430,8 +429,13 @@ fn render_report(
     let _ = writeln!(
         r,
         "Each candidate is the current model plus one effect, fitted on the training folds and scored on the held-out fold. \
-         Score = held-out gap ratio x (1 + 0.02 x extra parameters); named only if score < 0.8, Wilcoxon z > 2.6 \
-         (paired, per-test held-out errors) and better in at least K-1 of K folds.\n"
+         Score = held-out gap ratio (noise excluded) x (1 + 0.02 per extra parameter). Named only if score < {}, \
+         the penalised raw-residual ratio < {}, the paired Wilcoxon z (per-test held-out errors, noise-normalised) > {}, \
+         it is better in at least K-1 of K folds, and it explains a held-out gap above {:.0e}.\n",
+        DiagnoseOptions::default().max_score,
+        DiagnoseOptions::default().max_raw_ratio,
+        DiagnoseOptions::default().min_wilcoxon_z,
+        DiagnoseOptions::default().min_explained_gap
     );
     let _ = writeln!(r, "| round | effect | raw held-out residual | gap ratio | score | Wilcoxon z | folds better | qualifies | parameters |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- |");
     for c in d.rounds.iter().flatten() {
@@ -519,9 +523,9 @@ fn render_report(
     }
     let _ = writeln!(
         r,
-        "Equivalent stiffness at 1 Hz of the augmented model at its reference temperature is plotted with the measured points; \
-         loops show the dynamic (mean-removed) steady-state cycle. Omega = 2 pi f; {:.3} rad/s per Hz.",
-        2.0 * PI
+        "k_eq/c_eq curves are drawn at the reference temperature and each preload's median displacement amplitude; \
+         points marked (at tests) are each model's prediction for the actual tests. Loops show the dynamic \
+         (mean-removed) steady-state cycle."
     );
     r
 }

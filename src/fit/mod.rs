@@ -212,6 +212,7 @@ impl EffectKind {
     pub fn n_params(self) -> usize {
         match self {
             EffectKind::PreloadStiffening | EffectKind::ChannelDelay | EffectKind::MovingMass => 1,
+            EffectKind::AmplitudeFriction => 3,
             _ => 2,
         }
     }
@@ -233,6 +234,8 @@ pub struct Template {
 }
 
 const CHI_MAX: f64 = 0.95;
+/// Largest log-normal spread of the friction sliders' slip forces.
+const SLIP_SPREAD_MAX: f64 = 3.0;
 
 fn logit(x: f64) -> f64 {
     (x / (1.0 - x)).ln()
@@ -300,9 +303,11 @@ impl Template {
         for kind in &self.added {
             match kind {
                 EffectKind::PreloadStiffening => names.push("logit_chi".into()),
-                EffectKind::AmplitudeFriction => {
-                    names.extend(["ln_friction_stiffness".into(), "ln_slip_force".into()])
-                }
+                EffectKind::AmplitudeFriction => names.extend([
+                    "ln_friction_stiffness".into(),
+                    "ln_slip_force".into(),
+                    "logit_slip_spread".into(),
+                ]),
                 EffectKind::FractionalDamping => {
                     names.extend(["ln_springpot_coefficient".into(), "logit_alpha".into()])
                 }
@@ -367,9 +372,11 @@ impl Template {
                 EffectKind::PreloadStiffening => vec![vec![logit(0.2 / CHI_MAX)]],
                 EffectKind::AmplitudeFriction => {
                     let stiffness = 0.3 * k_ref;
+                    let spread = |sigma: f64| logit(sigma / SLIP_SPREAD_MAX);
                     vec![
-                        vec![stiffness.ln(), (stiffness * 0.2 * z_amp).ln()],
-                        vec![stiffness.ln(), (stiffness * 0.6 * z_amp).ln()],
+                        vec![stiffness.ln(), (stiffness * 0.2 * z_amp).ln(), spread(1.0)],
+                        vec![stiffness.ln(), (stiffness * 0.6 * z_amp).ln(), spread(0.3)],
+                        vec![stiffness.ln(), (stiffness * 0.6 * z_amp).ln(), spread(1.5)],
                     ]
                 }
                 EffectKind::FractionalDamping => [0.3, 0.7]
@@ -428,6 +435,7 @@ impl Template {
                 EffectKind::AmplitudeFriction => Effect::AmplitudeFriction {
                     stiffness_n_per_m: theta[i].exp(),
                     slip_force_n: theta[i + 1].exp(),
+                    slip_spread: SLIP_SPREAD_MAX * logistic(theta[i + 2]),
                 },
                 EffectKind::FractionalDamping => Effect::FractionalDamping {
                     coefficient_ns_alpha_per_m: theta[i].exp(),

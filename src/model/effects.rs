@@ -5,8 +5,11 @@
 //! (paper Eq. 1-3, consistent form) with the effects:
 //!
 //! - `preload-stiffening`: sets `chi` and `P0` of the Zener element (paper Eq. 1).
-//! - `amplitude-friction`: a Dahl friction element in parallel,
-//!   `dFf/dz = k_f (1 - Ff sgn(dz) / F_slip)`, integrated exactly for z linear in the step.
+//! - `amplitude-friction`: an Iwan friction element in parallel: `IWAN_ELEMENTS` Jenkins
+//!   elements (spring `k_f / N` in series with a Coulomb slider) whose slip forces follow
+//!   a log-normal spread `s` around `F_slip / N` (normalised so the full-slip force is
+//!   `F_slip`). `s = 0` is one Jenkins element (bilinear loop); `s ~ 1` is a smooth
+//!   Dahl/Berg-like transition. Rate-independent and exact for any step (a clamp each).
 //! - `fractional-damping`: a springpot `c_a s^alpha` in parallel, realised by a fixed bank
 //!   of Maxwell branches (log-spaced relaxation rates, stiffnesses from the springpot's
 //!   relaxation spectrum `c_a sin(pi alpha)/pi r^(alpha-1)`), plus a spring for the rates
@@ -55,6 +58,8 @@ pub enum Effect {
         stiffness_n_per_m: f64,
         /// Force at full slip, N.
         slip_force_n: f64,
+        /// Log-normal spread of the slip forces of the Jenkins elements (0: one slider).
+        slip_spread: f64,
     },
     FractionalDamping {
         /// Springpot coefficient `c_a` in `F = c_a d^alpha z / dt^alpha`, N s^alpha / m.
@@ -99,9 +104,11 @@ impl Effect {
             Effect::AmplitudeFriction {
                 stiffness_n_per_m,
                 slip_force_n,
+                slip_spread,
             } => vec![
                 ("stiffness_n_per_m2", stiffness_n_per_m / length_m),
                 ("slip_force_n_per_m", slip_force_n / length_m),
+                ("slip_spread", slip_spread),
             ],
             Effect::FractionalDamping {
                 coefficient_ns_alpha_per_m,
@@ -175,7 +182,7 @@ fn parse_effect(
     };
     let keys: &[&str] = match name.as_str() {
         "preload-stiffening" => &["chi", "p0_n"],
-        "amplitude-friction" => &["stiffness_n_per_m2", "slip_force_n_per_m"],
+        "amplitude-friction" => &["stiffness_n_per_m2", "slip_force_n_per_m", "slip_spread"],
         "fractional-damping" => &["coefficient_ns_alpha_per_m2", "alpha"],
         "temperature-shift" => &[
             "reference_temperature_c",
@@ -231,10 +238,19 @@ fn parse_effect(
                 p0_n: positive("p0_n")?,
             }
         }
-        "amplitude-friction" => Effect::AmplitudeFriction {
-            stiffness_n_per_m: positive("stiffness_n_per_m2")? * length_m,
-            slip_force_n: positive("slip_force_n_per_m")? * length_m,
-        },
+        "amplitude-friction" => {
+            let slip_spread = number("slip_spread")?;
+            if !(0.0..=5.0).contains(&slip_spread) {
+                return Err(err(format!(
+                    "key `slip_spread` = {slip_spread}: must be in [0, 5]"
+                )));
+            }
+            Effect::AmplitudeFriction {
+                stiffness_n_per_m: positive("stiffness_n_per_m2")? * length_m,
+                slip_force_n: positive("slip_force_n_per_m")? * length_m,
+                slip_spread,
+            }
+        }
         "fractional-damping" => {
             let alpha = number("alpha")?;
             if !(alpha > 0.0 && alpha < 1.0) {
@@ -435,11 +451,98 @@ struct BankState {
     high_tail_damping_ns_per_m: f64,
 }
 
-#[derive(Debug, Clone, Copy)]
-struct DahlState {
-    stiffness_n_per_m: f64,
-    slip_force_n: f64,
-    force_n: f64,
+/// Number of Jenkins elements of the Iwan friction element.
+pub const IWAN_ELEMENTS: usize = 12;
+
+/// Iwan element: per-slider stiffness (N/m), slip forces (N) and current forces (N).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IwanElement {
+    pub slider_stiffness_n_per_m: f64,
+    pub slip_forces_n: [f64; IWAN_ELEMENTS],
+    pub forces_n: [f64; IWAN_ELEMENTS],
+}
+
+impl IwanElement {
+    /// At rest (all sliders unloaded).
+    pub fn new(stiffness_n_per_m: f64, slip_force_n: f64, slip_spread: f64) -> IwanElement {
+        // Slider j sits at the standard-normal quantile (j + 1/2) / N of the spread.
+        let mut weights = [0.0; IWAN_ELEMENTS];
+        for (j, w) in weights.iter_mut().enumerate() {
+            let p = (j as f64 + 0.5) / IWAN_ELEMENTS as f64;
+            *w = (slip_spread * normal_quantile(p)).exp();
+        }
+        let total: f64 = weights.iter().sum();
+        let mut slip_forces_n = [0.0; IWAN_ELEMENTS];
+        for (f, w) in slip_forces_n.iter_mut().zip(&weights) {
+            *f = slip_force_n * w / total;
+        }
+        IwanElement {
+            slider_stiffness_n_per_m: stiffness_n_per_m / IWAN_ELEMENTS as f64,
+            slip_forces_n,
+            forces_n: [0.0; IWAN_ELEMENTS],
+        }
+    }
+
+    /// Advances by a displacement increment; returns the total friction force.
+    #[inline]
+    pub fn step(&mut self, dz_m: f64) -> f64 {
+        let mut total = 0.0;
+        for (f, limit) in self.forces_n.iter_mut().zip(&self.slip_forces_n) {
+            *f = (*f + self.slider_stiffness_n_per_m * dz_m).clamp(-limit, *limit);
+            total += *f;
+        }
+        total
+    }
+
+    pub fn force_n(&self) -> f64 {
+        self.forces_n.iter().sum()
+    }
+}
+
+/// Standard normal quantile (Acklam's rational approximation, |error| < 1.2e-9).
+fn normal_quantile(p: f64) -> f64 {
+    const A: [f64; 6] = [
+        -3.969683028665376e1,
+        2.209460984245205e2,
+        -2.759285104469687e2,
+        1.38357751867269e2,
+        -3.066479806614716e1,
+        2.506628277459239,
+    ];
+    const B: [f64; 5] = [
+        -5.447609879822406e1,
+        1.615858368580409e2,
+        -1.556989798598866e2,
+        6.680131188771972e1,
+        -1.328068155288572e1,
+    ];
+    const C: [f64; 6] = [
+        -7.784894002430293e-3,
+        -3.223964580411365e-1,
+        -2.400758277161838,
+        -2.549732539343734,
+        4.374664141464968,
+        2.938163982698783,
+    ];
+    const D: [f64; 4] = [
+        7.784695709041462e-3,
+        3.224671290700398e-1,
+        2.445134137142996,
+        3.754408661907416,
+    ];
+    let p_low = 0.02425;
+    if p < p_low {
+        let q = (-2.0 * p.ln()).sqrt();
+        (((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5])
+            / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
+    } else if p <= 1.0 - p_low {
+        let q = p - 0.5;
+        let r = q * q;
+        (((((A[0] * r + A[1]) * r + A[2]) * r + A[3]) * r + A[4]) * r + A[5]) * q
+            / (((((B[0] * r + B[1]) * r + B[2]) * r + B[3]) * r + B[4]) * r + 1.0)
+    } else {
+        -normal_quantile(1.0 - p)
+    }
 }
 
 /// Force-from-displacement stepper of an augmented model at a fixed step `dt`.
@@ -447,7 +550,7 @@ struct DahlState {
 pub struct ModelStepper {
     base: ForceStepper,
     dt_s: f64,
-    friction: Option<DahlState>,
+    friction: Option<IwanElement>,
     bank: Option<BankState>,
     /// Moving mass in the force (0 in emulation mode), kg.
     mass_kg: f64,
@@ -477,12 +580,13 @@ impl ModelStepper {
                 Effect::AmplitudeFriction {
                     stiffness_n_per_m,
                     slip_force_n,
+                    slip_spread,
                 } => {
-                    friction = Some(DahlState {
+                    friction = Some(IwanElement::new(
                         stiffness_n_per_m,
                         slip_force_n,
-                        force_n: 0.0,
-                    })
+                        slip_spread,
+                    ))
                 }
                 Effect::FractionalDamping {
                     coefficient_ns_alpha_per_m,
@@ -551,8 +655,8 @@ impl ModelStepper {
 
     fn undelayed_force_n(&self, z_m: f64) -> f64 {
         let mut force = self.base.force_n();
-        if let Some(dahl) = &self.friction {
-            force += dahl.force_n;
+        if let Some(iwan) = &self.friction {
+            force += iwan.force_n();
         }
         if let Some(bank) = &self.bank {
             force += bank.low_tail_stiffness_n_per_m * (z_m - self.z_start_m);
@@ -570,14 +674,8 @@ impl ModelStepper {
         let (mut force, flags) = self.base.step(z_m);
         let z_prev = self.z_history_m[0];
         let dz = z_m - z_prev;
-        if let Some(dahl) = &mut self.friction {
-            if dz != 0.0 {
-                // dFf/dz = k_f (1 - Ff s / F_slip), s = sgn(dz), exact over the step.
-                let target = dahl.slip_force_n.copysign(dz);
-                let decay = (-dahl.stiffness_n_per_m * dz.abs() / dahl.slip_force_n).exp();
-                dahl.force_n = target + (dahl.force_n - target) * decay;
-            }
-            force += dahl.force_n;
+        if let Some(iwan) = &mut self.friction {
+            force += iwan.step(dz);
         }
         if let Some(bank) = &mut self.bank {
             let mut branch_sum = 0.0;
