@@ -8,7 +8,9 @@ use fastemu::fit::cycle_data;
 use fastemu::model::effects::AugmentedModel;
 use fastemu::model::file::parse_model_toml;
 
-use crate::gen::{off_baseline_toml, standard_design, write_campaign, Noise, Truth};
+use crate::gen::{
+    off_baseline_toml, standard_design, write_campaign_with, Acquisition, Noise, TestPoint, Truth,
+};
 
 /// Campaigns go to `$FASTEMU_KEEP_CAMPAIGNS/<name>` (kept, for inspection with the CLI) or
 /// to a temporary directory that is removed afterwards.
@@ -35,8 +37,28 @@ fn run_case_with_noise(
     seed: u64,
     noise: &Noise,
 ) -> (Vec<String>, f64, f64) {
+    run_case_with_design(
+        name,
+        truth,
+        baseline_chi,
+        seed,
+        noise,
+        &standard_design(),
+        &Acquisition::typical(),
+    )
+}
+
+fn run_case_with_design(
+    name: &str,
+    truth: &Truth,
+    baseline_chi: f64,
+    seed: u64,
+    noise: &Noise,
+    design: &[TestPoint],
+    acquisition: &Acquisition,
+) -> (Vec<String>, f64, f64) {
     let dir = scratch_dir(name);
-    write_campaign(&dir, truth, &standard_design(), noise, seed);
+    write_campaign_with(&dir, truth, design, noise, seed, acquisition);
     let campaign = load_campaign(&dir).expect("campaign loads");
     let data = cycle_data(&campaign);
     let spec = parse_model_toml(&off_baseline_toml(baseline_chi), "baseline.toml").unwrap();
@@ -287,6 +309,113 @@ fn soak_generator_variants() {
     for (i, (name, truth, chi, noise, expected)) in cases.into_iter().enumerate() {
         let (mut named, before, after) =
             run_case_with_noise(name, &truth, chi, 100 + i as u64, &noise);
+        named.sort();
+        let ok = named == expected && (expected.is_empty() || before >= 3.0 * after);
+        eprintln!(
+            "SOAK {name:<22} named {named:?} gap {before:.3e} -> {after:.3e} ({:.1}x) {}",
+            before / after,
+            if ok { "ok" } else { "WRONG" }
+        );
+        if !ok {
+            failures.push(name);
+        }
+    }
+    assert!(failures.is_empty(), "wrong diagnoses: {failures:?}");
+}
+
+/// A sparser, different design: 3 cycles at 32 samples per cycle, frequencies 2-32 Hz,
+/// amplitudes 3 and 4 kN, temperatures 19 and 27 degC, 15 tests. Opt-in (`FASTEMU_SOAK`).
+#[test]
+fn soak_sparse_design() {
+    if std::env::var_os("FASTEMU_SOAK").is_none() {
+        return;
+    }
+    let mut design = Vec::new();
+    for (i, p) in [8e3, 25e3, 45e3].into_iter().enumerate() {
+        for (j, f) in [2.0, 4.0, 8.0, 16.0, 32.0].into_iter().enumerate() {
+            let amplitude_n = if (i + j) % 2 == 0 { 3e3 } else { 4e3 };
+            let temperature_c = if (i + 2 * j) % 3 == 0 { 27.0 } else { 19.0 };
+            design.push(TestPoint {
+                preload_n: p,
+                amplitude_n,
+                frequency_hz: f,
+                temperature_c,
+            });
+        }
+    }
+    let acquisition = Acquisition {
+        samples_per_cycle: 32.0,
+        min_rate_hz: 0.0,
+        cycles_below_2_hz: 3,
+        cycles_above_2_hz: 3,
+    };
+    let base = Truth::paper_like();
+    let cases: Vec<(&str, Truth, f64, Vec<&str>)> = vec![
+        ("sparse-null", base, 0.3, vec![]),
+        (
+            "sparse-friction",
+            Truth {
+                friction: Some((25e6, 1.0e3)),
+                friction_exponent: 3.0,
+                ..base
+            },
+            0.3,
+            vec!["amplitude-friction"],
+        ),
+        (
+            "sparse-fractional",
+            Truth {
+                springpot: Some((1e6, 0.4)),
+                ..base
+            },
+            0.3,
+            vec!["fractional-damping"],
+        ),
+        (
+            "sparse-temperature",
+            Truth {
+                wlf: Some((3.0, 60.0, 23.0, 0.008)),
+                ..base
+            },
+            0.3,
+            vec!["temperature-shift"],
+        ),
+        (
+            "sparse-delay",
+            Truth {
+                force_lag_s: 1.5e-4,
+                ..base
+            },
+            0.3,
+            vec!["channel-delay"],
+        ),
+        (
+            "sparse-mass",
+            Truth {
+                mass_kg: 30.0,
+                ..base
+            },
+            0.3,
+            vec!["moving-mass"],
+        ),
+        (
+            "sparse-preload",
+            Truth { chi: 0.3, ..base },
+            0.0,
+            vec!["preload-stiffening"],
+        ),
+    ];
+    let mut failures = Vec::new();
+    for (k, (name, truth, chi, expected)) in cases.into_iter().enumerate() {
+        let (mut named, before, after) = run_case_with_design(
+            name,
+            &truth,
+            chi,
+            300 + k as u64,
+            &Noise::typical(),
+            &design,
+            &acquisition,
+        );
         named.sort();
         let ok = named == expected && (expected.is_empty() || before >= 3.0 * after);
         eprintln!(

@@ -181,6 +181,8 @@ pub fn simulate_test(
     truth: &Truth,
     point: &TestPoint,
     n_cycles: usize,
+    samples_per_cycle: f64,
+    min_rate_hz: f64,
 ) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let l = truth.length_m;
     let (b, a) = truth.temperature_factors(point.temperature_c);
@@ -222,7 +224,7 @@ pub fn simulate_test(
     let acc_of =
         |t: f64| -a1 * w * w * (w * t).cos() - 4.0 * a2 * w * w * (2.0 * w * t + phi2).cos();
 
-    let fs_hz = (64.0 * point.frequency_hz).max(500.0);
+    let fs_hz = (samples_per_cycle * point.frequency_hz).max(min_rate_hz);
     let dt = 1.0 / fs_hz;
     let n = (n_cycles as f64 * fs_hz / point.frequency_hz).round() as usize;
     let sub = 16usize;
@@ -326,7 +328,39 @@ pub fn simulate_test(
 }
 
 /// Writes a campaign directory for `truth` over `design`.
+/// How tests are sampled: samples per cycle (at least `min_rate_hz`), cycles recorded
+/// below and above 2 Hz, and white noise on the displacement relative to the force's.
+#[derive(Debug, Clone, Copy)]
+pub struct Acquisition {
+    pub samples_per_cycle: f64,
+    pub min_rate_hz: f64,
+    pub cycles_below_2_hz: usize,
+    pub cycles_above_2_hz: usize,
+}
+
+impl Acquisition {
+    pub fn typical() -> Acquisition {
+        Acquisition {
+            samples_per_cycle: 64.0,
+            min_rate_hz: 500.0,
+            cycles_below_2_hz: 4,
+            cycles_above_2_hz: 8,
+        }
+    }
+}
+
 pub fn write_campaign(dir: &Path, truth: &Truth, design: &[TestPoint], noise: &Noise, seed: u64) {
+    write_campaign_with(dir, truth, design, noise, seed, &Acquisition::typical());
+}
+
+pub fn write_campaign_with(
+    dir: &Path,
+    truth: &Truth,
+    design: &[TestPoint],
+    noise: &Noise,
+    seed: u64,
+    acquisition: &Acquisition,
+) {
     std::fs::create_dir_all(dir).unwrap();
     let mut rng = Rng::new(seed);
     let mut toml = format!("sample_length_m = {:?}\n", truth.length_m);
@@ -338,8 +372,18 @@ pub fn write_campaign(dir: &Path, truth: &Truth, design: &[TestPoint], noise: &N
             point.amplitude_n / 1e3,
             point.temperature_c
         );
-        let n_cycles = if point.frequency_hz < 2.0 { 4 } else { 8 };
-        let (t, mut z, mut f) = simulate_test(truth, point, n_cycles);
+        let n_cycles = if point.frequency_hz < 2.0 {
+            acquisition.cycles_below_2_hz
+        } else {
+            acquisition.cycles_above_2_hz
+        };
+        let (t, mut z, mut f) = simulate_test(
+            truth,
+            point,
+            n_cycles,
+            acquisition.samples_per_cycle,
+            acquisition.min_rate_hz,
+        );
         let z_amp = {
             let lo = z.iter().copied().fold(f64::INFINITY, f64::min);
             let hi = z.iter().copied().fold(f64::NEG_INFINITY, f64::max);
