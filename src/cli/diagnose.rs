@@ -327,9 +327,16 @@ fn write_plots(
     let gap_map = args.out.join("gap_map.png");
     draw_png(&gap_map, 1500, 900, 3, &panels)?;
     let loops = args.out.join("loops.png");
+    // The four tests where the calibrated baseline misses most (held-out).
+    let mut worst: Vec<usize> = (0..data.len()).collect();
+    worst.sort_by(|&a, &b| {
+        d.baseline_cv.held_out_error[b].total_cmp(&d.baseline_cv.held_out_error[a])
+    });
+    worst.truncate(4);
     plot_loops(
         &loops,
         data,
+        &worst,
         &[
             ("baseline (calibrated)", &d.baseline_model),
             ("augmented", &d.final_model),

@@ -224,14 +224,16 @@ pub fn reconstruct(harmonics: &[(f64, f64); N_HARMONICS], n: usize) -> Vec<f64> 
         .collect()
 }
 
-/// Measured vs simulated steady-state loops (dynamic parts, mean removed) of a few tests.
+/// Measured vs simulated steady-state loops (dynamic parts, mean removed) of the tests
+/// `indices` (see `loop_tests`).
 pub fn plot_loops(
     path: &Path,
     data: &[CycleData],
+    indices: &[usize],
     models: &[(&str, &AugmentedModel)],
 ) -> anyhow::Result<()> {
     let mut panels = Vec::new();
-    for i in loop_tests(data) {
+    for &i in indices {
         let d = &data[i];
         let n = 128;
         let z_mm: Vec<f64> = reconstruct(&d.displacement_harmonics_m, n)

@@ -349,7 +349,12 @@ pub fn run(args: IdentifyArgs) -> anyhow::Result<ExitCode> {
             DEFAULT_TEMPERATURE_C,
         )?;
         let loop_path = dir.join("identify_loops.png");
-        super::fitplots::plot_loops(&loop_path, &data, &[(&label, &model)])?;
+        super::fitplots::plot_loops(
+            &loop_path,
+            &data,
+            &super::fitplots::loop_tests(&data),
+            &[(&label, &model)],
+        )?;
         plots.push(eq_path.display().to_string());
         plots.push(loop_path.display().to_string());
     }
