@@ -133,6 +133,17 @@ fn diagnose_json_follows_spec_5_and_says_what_is_not_identifiable() {
     };
     write_campaign(&dir.join("campaign"), &truth, &design, &Noise::typical(), 3);
     std::fs::write(dir.join("baseline.toml"), off_baseline_toml(0.3)).unwrap();
+    // A history test rides along: loaded and validated, not used by the harmonic workflow.
+    let mut history = String::from("t_s,displacement_m,force_n,extra\n");
+    for i in 0..500 {
+        let t = i as f64 * 1e-3;
+        let _ = writeln!(history, "{t:?},{:?},{:?},0", 1e-3 * t, 6e4 * t);
+    }
+    std::fs::write(dir.join("campaign").join("ramp.csv"), history).unwrap();
+    let toml_path = dir.join("campaign").join("campaign.toml");
+    let mut toml = std::fs::read_to_string(&toml_path).unwrap();
+    toml.push_str("\n[[test]]\nid = \"ramp\"\nfile = \"ramp.csv\"\nkind = \"history\"\n");
+    std::fs::write(&toml_path, toml).unwrap();
     let output = Command::new(env!("CARGO_BIN_EXE_fastemu"))
         .arg("diagnose")
         .arg("--campaign")
