@@ -19,7 +19,7 @@
 //!    the current model's,
 //! 3. the paired one-sided Wilcoxon signed-rank test of per-test held-out errors
 //!    (current minus candidate, each divided by that test's noise level plus the median
-//!    one) gives z > 2.6 (p < 0.005), and
+//!    one) gives z > 2.3 (p < 0.01), and
 //! 4. it lowers the held-out error in at least K - 1 of the K folds, and
 //! 5. what it explains is material: `sqrt(gap_current^2 - gap_candidate^2)` exceeds 1e-3
 //!    (0.1 % of the force at the test frequency). Below that, differences between
@@ -60,7 +60,7 @@ impl Default for DiagnoseOptions {
             max_score: 0.6,
             max_raw_ratio: 0.95,
             penalty_per_param: 0.02,
-            min_wilcoxon_z: 2.6,
+            min_wilcoxon_z: 2.3,
             min_explained_gap: 1e-3,
         }
     }

@@ -84,8 +84,10 @@ fn relaxation_time_s(element: &ElementModel) -> f64 {
 }
 
 /// Force harmonics the model gives when driven by the test's displacement cycle around
-/// the static point of the measured mean force. Also returns one simulated cycle of force
-/// (`SAMPLES_PER_CYCLE` samples, rig artefacts excluded) for loop plots.
+/// the static point of the measured mean force (so a displacement offset in the data does
+/// not matter, and the operating point is the measured preload). Also returns one
+/// simulated cycle of force and displacement (`SAMPLES_PER_CYCLE` samples, rig artefacts
+/// excluded from the force).
 pub fn predict_cycle_with_waveform(
     model: &AugmentedModel,
     data: &CycleData,
@@ -144,7 +146,6 @@ pub fn predict_cycle_with_waveform(
             *fh = cmul(*fh, ((w * lag_s).cos(), -(w * lag_s).sin()));
         }
     }
-    // Phase of each sample, for plotting against the cycle.
     (harmonics, waveform, z_cycle)
 }
 
@@ -503,7 +504,7 @@ pub struct CrossValidation {
 }
 
 impl CrossValidation {
-    /// Held-out gap: RMS over tests of the relative RMS residual of the force cycle.
+    /// Raw held-out residual (noise included): `sqrt(mean_i e_i)`.
     pub fn gap(&self) -> f64 {
         rms_gap(&self.held_out_error)
     }

@@ -199,6 +199,19 @@ fn soak_generator_variants() {
     let cases: Vec<(&str, Truth, f64, Noise, Vec<&str>)> = vec![
         ("null-quiet", base, 0.3, quiet, vec![]),
         ("null-loud", base, 0.1, loud, vec![]),
+        ("null-seed-a", base, 0.25, Noise::typical(), vec![]),
+        ("null-seed-b", base, 0.15, Noise::typical(), vec![]),
+        (
+            "null-coloured",
+            base,
+            0.3,
+            Noise {
+                coloured_force: 0.03,
+                coloured_rho: 0.9,
+                ..Noise::typical()
+            },
+            vec![],
+        ),
         (
             "friction-jenkins",
             Truth {
