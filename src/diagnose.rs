@@ -33,7 +33,9 @@
 //!
 //! Must not: do I/O (the CLI writes files and progress).
 
-use crate::fit::{assign_folds, cross_validate, CrossValidation, CycleData, EffectKind, Template};
+use crate::fit::{
+    assign_folds, cross_validate, run_parallel, CrossValidation, CycleData, EffectKind, Template,
+};
 use crate::model::effects::{AugmentedModel, Effect};
 use crate::model::params::ElementModel;
 
@@ -288,38 +290,6 @@ fn data_driven_element(element: &ElementModel, data: &[CycleData]) -> ElementMod
     out
 }
 
-fn run_parallel<T: Send, R: Send>(
-    items: Vec<T>,
-    n_threads: usize,
-    work: impl Fn(T) -> R + Sync,
-) -> Vec<R> {
-    let n_threads = n_threads.max(1);
-    let mut buckets: Vec<Vec<(usize, T)>> = (0..n_threads).map(|_| Vec::new()).collect();
-    for (i, item) in items.into_iter().enumerate() {
-        buckets[i % n_threads].push((i, item));
-    }
-    let mut results: Vec<(usize, R)> = std::thread::scope(|scope| {
-        let handles: Vec<_> = buckets
-            .into_iter()
-            .map(|bucket| {
-                let work = &work;
-                scope.spawn(move || {
-                    bucket
-                        .into_iter()
-                        .map(|(i, item)| (i, work(item)))
-                        .collect::<Vec<_>>()
-                })
-            })
-            .collect();
-        handles
-            .into_iter()
-            .flat_map(|h| h.join().expect("worker panicked"))
-            .collect()
-    });
-    results.sort_by_key(|(i, _)| *i);
-    results.into_iter().map(|(_, r)| r).collect()
-}
-
 /// Runs the workflow. `progress` receives one-line messages.
 pub fn diagnose(
     baseline: &AugmentedModel,
@@ -387,7 +357,14 @@ pub fn diagnose(
     let calibration = crate::fit::fit_template(&template, &all, &starts, 100);
     template.baseline = template.model(&calibration.params);
     let baseline_template = template.clone();
-    let baseline_cv = cross_validate(&template, data, &folds, n_folds, options.max_iterations);
+    let baseline_cv = cross_validate(
+        &template,
+        data,
+        &folds,
+        n_folds,
+        options.max_iterations,
+        options.n_threads,
+    );
     let baseline_model = template.model(&baseline_cv.full_fit.params);
     progress(&format!(
         "baseline calibrated on {} tests: held-out gap {:.4e} (raw {:.4e}, noise floor {:.4e}; {n_folds}-fold)",
@@ -418,9 +395,16 @@ pub fn diagnose(
         let mut noise_levels: Vec<f64> = data.iter().map(|d| d.noise_relative).collect();
         noise_levels.sort_by(f64::total_cmp);
         let median_noise = noise_levels[noise_levels.len() / 2].max(1e-300);
-        let results = run_parallel(remaining, options.n_threads, |kind| {
+        let results = run_parallel(&remaining, options.n_threads, |&kind| {
             let candidate = current_template.with_effect(kind, Some(&prefix));
-            let cv = cross_validate(&candidate, data, &folds, n_folds, options.max_iterations);
+            let cv = cross_validate(
+                &candidate,
+                data,
+                &folds,
+                n_folds,
+                options.max_iterations,
+                options.n_threads,
+            );
             let penalty = 1.0 + options.penalty_per_param * kind.n_params() as f64;
             let gap_ratio = excess_gap(&cv.held_out_error, data) / current_gap.max(1e-300);
             let raw_ratio = cv.gap() / current_raw.max(1e-300);

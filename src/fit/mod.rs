@@ -534,19 +534,55 @@ pub fn assign_folds(data: &[CycleData], n_folds: usize) -> Vec<usize> {
     folds
 }
 
+/// Runs `work` on every item with up to `n_threads` threads, items handed out one at a
+/// time (so one slow item does not hold a whole share back). Results are in item order and
+/// do not depend on the thread count.
+pub fn run_parallel<T: Sync, R: Send>(
+    items: &[T],
+    n_threads: usize,
+    work: impl Fn(&T) -> R + Sync,
+) -> Vec<R> {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::sync::Mutex;
+    let next = AtomicUsize::new(0);
+    let results: Vec<Mutex<Option<R>>> = items.iter().map(|_| Mutex::new(None)).collect();
+    let n_workers = n_threads.clamp(1, items.len().max(1));
+    std::thread::scope(|scope| {
+        for _ in 0..n_workers {
+            scope.spawn(|| loop {
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                let Some(item) = items.get(i) else { break };
+                let result = work(item);
+                *results[i]
+                    .lock()
+                    .expect("no worker panics while holding it") = Some(result);
+            });
+        }
+    });
+    results
+        .into_iter()
+        .map(|m| {
+            m.into_inner()
+                .expect("no worker panicked")
+                .expect("every item was processed")
+        })
+        .collect()
+}
+
 /// Fits on all data (multi-start), then refits without each fold (starting from the full
-/// fit) and predicts the fold.
+/// fit, folds in parallel) and predicts the fold.
 pub fn cross_validate(
     template: &Template,
     data: &[CycleData],
     folds: &[usize],
     n_folds: usize,
     max_iterations: usize,
+    n_threads: usize,
 ) -> CrossValidation {
     let all: Vec<&CycleData> = data.iter().collect();
     let full_fit = fit_template(template, &all, &template.starts(data), max_iterations);
-    let mut held_out_error = vec![0.0; data.len()];
-    for fold in 0..n_folds {
+    let fold_ids: Vec<usize> = (0..n_folds).collect();
+    let fold_errors = run_parallel(&fold_ids, n_threads, |&fold| {
         let train: Vec<&CycleData> = data
             .iter()
             .zip(folds)
@@ -554,7 +590,7 @@ pub fn cross_validate(
             .map(|(d, _)| d)
             .collect();
         if train.len() == data.len() {
-            continue;
+            return Vec::new();
         }
         let fit = fit_template(
             template,
@@ -563,11 +599,15 @@ pub fn cross_validate(
             max_iterations,
         );
         let model = template.model(&fit.params);
-        for (i, d) in data.iter().enumerate() {
-            if folds[i] == fold {
-                held_out_error[i] = relative_error(&model, d);
-            }
-        }
+        data.iter()
+            .enumerate()
+            .filter(|(i, _)| folds[*i] == fold)
+            .map(|(i, d)| (i, relative_error(&model, d)))
+            .collect::<Vec<_>>()
+    });
+    let mut held_out_error = vec![0.0; data.len()];
+    for (i, e) in fold_errors.into_iter().flatten() {
+        held_out_error[i] = e;
     }
     CrossValidation {
         full_fit,
