@@ -96,6 +96,10 @@ where
                 continue;
             };
             let trial: Vec<f64> = theta.iter().zip(step.iter()).map(|(t, s)| t + s).collect();
+            if trial.iter().any(|t| !t.is_finite()) {
+                lambda *= 10.0;
+                continue;
+            }
             let mut r_trial = residuals(&trial);
             sanitize(&mut r_trial);
             let sse_trial: f64 = r_trial.iter().map(|x| x * x).sum();

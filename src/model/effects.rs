@@ -488,7 +488,10 @@ impl IwanElement {
     pub fn step(&mut self, dz_m: f64) -> f64 {
         let mut total = 0.0;
         for (f, limit) in self.forces_n.iter_mut().zip(&self.slip_forces_n) {
-            *f = (*f + self.slider_stiffness_n_per_m * dz_m).clamp(-limit, *limit);
+            // max/min rather than clamp: never panics, whatever the parameters.
+            *f = (*f + self.slider_stiffness_n_per_m * dz_m)
+                .min(*limit)
+                .max(-limit);
             total += *f;
         }
         total
