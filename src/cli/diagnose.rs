@@ -483,7 +483,7 @@ fn render_report(
         );
     }
 
-    let _ = writeln!(r, "\n## Where the gap lives (held-out, before -> after)\n");
+    let _ = writeln!(r, "\n## Where the gap lives (raw held-out residual per level, noise included, before -> after)\n");
     type Key = fn(&CycleData) -> f64;
     let factors: [(&str, Key); 4] = [
         ("preload (kN)", |c| c.preload_n / 1e3),
