@@ -24,6 +24,10 @@ enum Command {
     Equiv(cli::equiv::EquivArgs),
     /// Reproduces the paper's tables and figures (CSV + PNG + summary.json/.md).
     Paper(cli::paper::PaperArgs),
+    /// Identify Zener parameters from a campaign of harmonic tests (paper Sec. 3.1).
+    Identify(cli::identify::IdentifyArgs),
+    /// Find where model and campaign disagree, name the missing effect, show the gap shrink.
+    Diagnose(cli::diagnose::DiagnoseArgs),
     /// Benchmarks (model step speed, transport latency).
     #[command(subcommand)]
     Bench(cli::bench::BenchCommand),
@@ -36,6 +40,8 @@ fn main() -> std::process::ExitCode {
         Command::Equiv(args) => cli::equiv::run(args),
         Command::Paper(args) => cli::paper::run(args),
         Command::Bench(cmd) => cli::bench::run(cmd),
+        Command::Identify(args) => cli::identify::run(args),
+        Command::Diagnose(args) => cli::diagnose::run(args),
     };
     match result {
         Ok(code) => code,

@@ -2,8 +2,11 @@
 //! Handlers may do I/O and allocate; they never run inside the real-time loop.
 
 pub mod bench;
+pub mod diagnose;
 pub mod equiv;
 pub mod paper;
+pub mod fitplots;
+pub mod identify;
 pub mod simulate;
 
 use anyhow::Context;

@@ -68,7 +68,22 @@ fn run_force(args: ForceArgs) -> anyhow::Result<ExitCode> {
     let spec = super::load_model(&args.model)?;
     let cols = read_columns(&args.input, &["t_s", "displacement_m"])?;
     let dt = uniform_step(&cols.data[0], &args.input.display().to_string(), "t_s")?;
-    let (forces, flags) = simulate_force(spec.element, dt, &cols.data[1]);
+    // A model file with [[effect]] tables runs through the effect library; the force is
+    // what a rig would measure (channel-delay and moving-mass included).
+    let (forces, flags) = if spec.effect_tables.is_empty() {
+        simulate_force(spec.element, dt, &cols.data[1])
+    } else {
+        let model = crate::model::effects::AugmentedModel::from_spec(
+            &spec,
+            &args.model.display().to_string(),
+        )?;
+        crate::model::effects::simulate_model_force(
+            &model,
+            crate::model::effects::StepperMode::Measurement,
+            dt,
+            &cols.data[1],
+        )
+    };
     warn_flags(flags);
     super::ensure_parent_dir(&args.out)?;
     write_columns(
@@ -91,6 +106,12 @@ fn run_rail(args: RailArgs) -> anyhow::Result<ExitCode> {
         );
     }
     let spec = super::load_model(&args.model)?;
+    if !spec.effect_tables.is_empty() {
+        eprintln!(
+            "fastemu: warning: {}: [[effect]] tables are not applied by `simulate rail` (only by `simulate force`)",
+            args.model.display()
+        );
+    }
     let cols = read_columns(&args.input, &["t_s", "force_n"])?;
     let dt = uniform_step(&cols.data[0], &args.input.display().to_string(), "t_s")?;
     let (samples, flags) = simulate_rail(spec.element, args.mass_kg, dt, &cols.data[1], start);

@@ -2,9 +2,14 @@
 //! checks a feature against an independent calculation written in the test itself.
 
 mod alloc_counter;
+mod campaign_loading;
 mod cli_errors;
 mod common;
 mod latency_bench;
+mod diagnose_campaigns;
+mod effects_model;
+mod gen;
+mod identify_cli;
 mod model_alloc;
 mod model_closed_form;
 mod model_determinism;

@@ -1,0 +1,534 @@
+//! The discrepancy workflow (SPEC 5): calibrate the baseline, measure the held-out gap,
+//! try each library effect, name one only on held-out evidence, repeat.
+//!
+//! The error of a model on a test is the relative residual of the force at the test
+//! frequency: the steady-state force simulated from the measured displacement cycle
+//! against the measured one, `e_i = |F_sim,1 - F_1|^2 / |F_1|^2` (single-bin DFT over
+//! whole cycles, SPEC 4), with every `e_i` held out: K-fold cross-validation over tests,
+//! folds dealt across the design. Each test also carries `nu_i`, the part of `e_i` that
+//! measurement noise alone produces (estimated from the neighbouring DFT bins, see
+//! `campaign::HarmonicCycle`). The gap is the held-out RMS residual in excess of noise,
+//! `sqrt(mean_i e_i - mean_i nu_i)`, floored at a tenth of the noise RMS (below that it is
+//! not measurable); the raw `sqrt(mean_i e_i)` and the noise RMS are reported next to it.
+//!
+//! Naming rule, per round of greedy forward selection: a candidate (current model plus one
+//! effect, refitted on the training folds) is named only if
+//! 1. its score, the held-out gap over the current model's, times 1 + 0.02 per extra
+//!    parameter, is below 0.6,
+//! 2. its raw held-out residual (noise included), penalised the same way, is below 0.95 x
+//!    the current model's,
+//! 3. the paired one-sided Wilcoxon signed-rank test of per-test held-out errors
+//!    (current minus candidate, each divided by that test's noise level plus the median
+//!    one) gives z > 2.3 (p < 0.01), and
+//! 4. it lowers the held-out error in at least K - 1 of the K folds, and
+//! 5. what it explains is material: `sqrt(gap_current^2 - gap_candidate^2)` exceeds 1e-3
+//!    (0.1 % of the force at the test frequency). Below that, differences between
+//!    integration schemes or model forms can be "explained" by any flexible effect.
+//!
+//! Held-out evidence does not assume white noise: coloured noise inflates the spread of
+//! the per-test differences, not their sign, and an effect that only fits noise does not
+//! predict held-out tests. Among qualifying candidates the lowest score wins. Effects
+//! whose required variation is absent from the campaign are reported as not identifiable
+//! and not tried.
+//!
+//! Must not: do I/O (the CLI writes files and progress).
+
+use crate::fit::{
+    assign_folds, cross_validate, run_parallel, CrossValidation, CycleData, EffectKind, Template,
+};
+use crate::model::effects::{AugmentedModel, Effect};
+use crate::model::params::ElementModel;
+
+/// Tunables of the naming rule (defaults documented in the module docs).
+#[derive(Debug, Clone, Copy)]
+pub struct DiagnoseOptions {
+    pub n_folds: usize,
+    pub max_iterations: usize,
+    pub n_threads: usize,
+    pub max_score: f64,
+    pub max_raw_ratio: f64,
+    pub penalty_per_param: f64,
+    pub min_wilcoxon_z: f64,
+    /// Smallest held-out gap an effect must explain, `sqrt(gap_before^2 - gap_after^2)`.
+    pub min_explained_gap: f64,
+}
+
+impl Default for DiagnoseOptions {
+    fn default() -> DiagnoseOptions {
+        DiagnoseOptions {
+            n_folds: 5,
+            max_iterations: 40,
+            n_threads: 2,
+            max_score: 0.6,
+            max_raw_ratio: 0.95,
+            penalty_per_param: 0.02,
+            min_wilcoxon_z: 2.3,
+            min_explained_gap: 1e-3,
+        }
+    }
+}
+
+/// One candidate evaluated in one round.
+#[derive(Debug, Clone)]
+pub struct CandidateResult {
+    pub kind: EffectKind,
+    pub round: usize,
+    pub cv: CrossValidation,
+    /// Candidate's held-out gap (noise excluded) over the current model's.
+    pub gap_ratio: f64,
+    /// Same for the raw held-out residual (noise included).
+    pub raw_ratio: f64,
+    /// `gap_ratio (1 + penalty * n_params)`: the score (lower is better; < 1 is better).
+    pub score: f64,
+    pub wilcoxon_z: f64,
+    pub folds_improved: usize,
+    pub qualifies: bool,
+    /// The candidate fitted on all tests.
+    pub model: AugmentedModel,
+}
+
+/// Why an effect was not tried.
+#[derive(Debug, Clone)]
+pub struct NotTried {
+    pub kind: EffectKind,
+    pub reason: String,
+    /// True when the campaign lacks the variation the effect needs (SPEC 5
+    /// `not_identifiable`); false when the baseline already has the effect.
+    pub not_identifiable: bool,
+}
+
+/// Everything a diagnosis found.
+#[derive(Debug, Clone)]
+pub struct Diagnosis {
+    pub reference_temperature_c: f64,
+    pub folds: Vec<usize>,
+    pub baseline_template: Template,
+    pub baseline_cv: CrossValidation,
+    pub baseline_model: AugmentedModel,
+    pub final_template: Template,
+    pub final_cv: CrossValidation,
+    pub final_model: AugmentedModel,
+    pub named: Vec<EffectKind>,
+    pub rounds: Vec<Vec<CandidateResult>>,
+    pub not_tried: Vec<NotTried>,
+    /// Held-out gaps in excess of noise (the SPEC 5 `gap_before` / `gap_after`).
+    pub gap_before: f64,
+    pub gap_after: f64,
+    /// Raw held-out RMS residuals (noise included) and the noise floor RMS.
+    pub raw_gap_before: f64,
+    pub raw_gap_after: f64,
+    pub noise_floor: f64,
+}
+
+/// Held-out gap in excess of noise: `sqrt(mean e_i - mean nu_i)`, floored at a tenth of the
+/// noise RMS.
+pub fn excess_gap(errors: &[f64], data: &[CycleData]) -> f64 {
+    let n = errors.len().max(1) as f64;
+    let mean_error = errors.iter().sum::<f64>() / n;
+    let mean_noise = data.iter().map(|d| d.noise_relative).sum::<f64>() / n;
+    (mean_error - mean_noise)
+        .max(0.01 * mean_noise)
+        .max(1e-300)
+        .sqrt()
+}
+
+/// RMS of the estimated noise floor `sqrt(mean nu_i)`.
+pub fn noise_floor(data: &[CycleData]) -> f64 {
+    (data.iter().map(|d| d.noise_relative).sum::<f64>() / data.len().max(1) as f64).sqrt()
+}
+
+/// Distinct levels with a relative tolerance.
+fn levels(values: impl Iterator<Item = f64>, tolerance: f64) -> Vec<f64> {
+    let mut v: Vec<f64> = values.collect();
+    v.sort_by(f64::total_cmp);
+    let mut out: Vec<f64> = Vec::new();
+    for x in v {
+        if out
+            .last()
+            .is_none_or(|&l| (x - l).abs() > tolerance * l.abs().max(1.0))
+        {
+            out.push(x);
+        }
+    }
+    out
+}
+
+/// Whether the campaign varies what an effect needs; `Err(reason)` if not.
+pub fn identifiability(kind: EffectKind, data: &[CycleData]) -> Result<(), String> {
+    let freqs = levels(data.iter().map(|d| d.frequency_hz), 0.02);
+    let f_span = freqs.last().unwrap_or(&1.0) / freqs.first().unwrap_or(&1.0);
+    match kind {
+        EffectKind::PreloadStiffening => {
+            let preloads = levels(data.iter().map(|d| d.force_mean_n), 0.1);
+            if preloads.len() < 2 {
+                return Err("all tests at one preload".into());
+            }
+        }
+        EffectKind::AmplitudeFriction => {
+            // The force amplitude is what the rig varies; displacement amplitudes also vary
+            // with stiffness (preload, frequency), which does not separate friction.
+            let force_amps = levels(data.iter().map(|d| d.amplitude_n), 0.05);
+            let span =
+                force_amps.last().unwrap_or(&1.0) / force_amps.first().unwrap_or(&1.0).max(1e-300);
+            if force_amps.len() < 2 || span < 1.1 {
+                return Err(
+                    "no amplitude variation (one force amplitude, or levels within 10 %)".into(),
+                );
+            }
+        }
+        EffectKind::FractionalDamping => {
+            if freqs.len() < 3 || f_span < 4.0 {
+                return Err("fewer than three frequencies or less than a 4x frequency span".into());
+            }
+        }
+        EffectKind::TemperatureShift => {
+            let temps: Vec<f64> = data.iter().map(|d| d.temperature_c).collect();
+            let lo = temps.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = temps.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            if hi - lo < 2.0 {
+                return Err("no temperature variation (span below 2 degC)".into());
+            }
+        }
+        EffectKind::ChannelDelay => {
+            if freqs.len() < 2 || f_span < 2.0 {
+                return Err("fewer than two frequencies or less than a 2x frequency span".into());
+            }
+        }
+        EffectKind::MovingMass => {
+            if freqs.len() < 3 || f_span < 3.0 {
+                return Err("fewer than three frequencies or less than a 3x frequency span".into());
+            }
+        }
+    }
+    Ok(())
+}
+
+/// One-sided Wilcoxon signed-rank statistic (normal approximation with tie correction)
+/// for `differences` being positive.
+pub fn wilcoxon_z(differences: &[f64]) -> f64 {
+    let mut nonzero: Vec<f64> = differences.iter().copied().filter(|d| *d != 0.0).collect();
+    let n = nonzero.len();
+    if n == 0 {
+        return 0.0;
+    }
+    nonzero.sort_by(|a, b| a.abs().total_cmp(&b.abs()));
+    let mut w_plus = 0.0;
+    let mut tie_term = 0.0;
+    let mut i = 0;
+    while i < n {
+        let mut j = i;
+        while j + 1 < n && nonzero[j + 1].abs() == nonzero[i].abs() {
+            j += 1;
+        }
+        let rank = (i + j) as f64 / 2.0 + 1.0;
+        let t = (j - i + 1) as f64;
+        tie_term += t * t * t - t;
+        for d in &nonzero[i..=j] {
+            if *d > 0.0 {
+                w_plus += rank;
+            }
+        }
+        i = j + 1;
+    }
+    let nf = n as f64;
+    let mean = nf * (nf + 1.0) / 4.0;
+    let var = nf * (nf + 1.0) * (2.0 * nf + 1.0) / 24.0 - tie_term / 48.0;
+    (w_plus - mean) / var.max(1e-12).sqrt()
+}
+
+/// Reference temperature: the most common test temperature (ties: closest to 23 degC).
+pub fn reference_temperature_c(data: &[CycleData]) -> f64 {
+    let temps = levels(data.iter().map(|d| d.temperature_c), 0.005);
+    let count = |t: f64| {
+        data.iter()
+            .filter(|d| (d.temperature_c - t).abs() <= 0.005 * t.abs().max(1.0))
+            .count()
+    };
+    temps
+        .iter()
+        .copied()
+        .max_by(|&a, &b| {
+            count(a)
+                .cmp(&count(b))
+                .then(((b - 23.0).abs()).total_cmp(&(a - 23.0).abs()))
+        })
+        .unwrap_or(23.0)
+}
+
+/// A data-driven start for the baseline element (same structure, chi kept).
+fn data_driven_element(element: &ElementModel, data: &[CycleData]) -> ElementModel {
+    let ks: Vec<(f64, f64)> = data
+        .iter()
+        .map(|d| {
+            let (re, im) =
+                crate::campaign::cdiv(d.force_harmonics_n[0], d.displacement_harmonics_m[0]);
+            (re, im / (2.0 * std::f64::consts::PI * d.frequency_hz))
+        })
+        .collect();
+    let k_min = ks
+        .iter()
+        .map(|k| k.0)
+        .fold(f64::INFINITY, f64::min)
+        .max(1.0);
+    let k_max = ks.iter().map(|k| k.0).fold(0.0, f64::max);
+    let c_max = ks.iter().map(|k| k.1).fold(0.0, f64::max).max(1e-3 * k_min);
+    let mut out = *element;
+    match &mut out {
+        ElementModel::Consistent(p) | ElementModel::Paper(p) => {
+            let g = p.preload_factor(
+                data.iter().map(|d| d.force_mean_n).sum::<f64>() / data.len() as f64,
+            );
+            p.k1_0_n_per_m = 0.9 * k_min / g;
+            p.k2_0_n_per_m = (k_max - 0.9 * k_min).max(0.1 * k_min) / g;
+            p.c2_0_ns_per_m = c_max / g;
+        }
+        ElementModel::KelvinVoigt(p) => {
+            p.k_n_per_m = 0.5 * (k_min + k_max);
+            p.c_ns_per_m = c_max;
+        }
+    }
+    out
+}
+
+/// Runs the workflow. `progress` receives one-line messages.
+pub fn diagnose(
+    baseline: &AugmentedModel,
+    data: &[CycleData],
+    options: &DiagnoseOptions,
+    progress: &mut dyn FnMut(&str),
+) -> Diagnosis {
+    let n_folds = options.n_folds.clamp(2, data.len().max(2));
+    let folds = assign_folds(data, n_folds);
+    let reference_temperature_c = reference_temperature_c(data);
+    let mut not_tried = Vec::new();
+    let mut candidates: Vec<EffectKind> = Vec::new();
+    for kind in EffectKind::ALL {
+        if baseline.find(kind.name()).is_some() {
+            not_tried.push(NotTried {
+                kind,
+                reason: "already in the baseline model".into(),
+                not_identifiable: false,
+            });
+            continue;
+        }
+        if kind == EffectKind::PreloadStiffening {
+            match baseline.element {
+                ElementModel::KelvinVoigt(_) => {
+                    not_tried.push(NotTried {
+                        kind,
+                        reason: "needs a Zener baseline".into(),
+                        not_identifiable: false,
+                    });
+                    continue;
+                }
+                _ if baseline.element.zener().is_some_and(|p| p.chi > 0.0) => {
+                    not_tried.push(NotTried {
+                        kind,
+                        reason: "the baseline already has chi > 0 (re-calibrated with it)".into(),
+                        not_identifiable: false,
+                    });
+                    continue;
+                }
+                _ => {}
+            }
+        }
+        match identifiability(kind, data) {
+            Ok(()) => candidates.push(kind),
+            Err(reason) => {
+                progress(&format!("{}: not identifiable: {reason}", kind.name()));
+                not_tried.push(NotTried {
+                    kind,
+                    reason,
+                    not_identifiable: true,
+                })
+            }
+        }
+    }
+
+    // Calibrate the baseline: from the file's values and from a data-driven start.
+    let mut template = Template::new(baseline.clone(), reference_temperature_c);
+    let all: Vec<&CycleData> = data.iter().collect();
+    let mut alternative = template.clone();
+    alternative.baseline.element = data_driven_element(&baseline.element, data);
+    let starts = [
+        template.starts(data)[0].clone(),
+        alternative.starts(data)[0].clone(),
+    ];
+    let calibration = crate::fit::fit_template(&template, &all, &starts, 100);
+    template.baseline = template.model(&calibration.params);
+    let baseline_template = template.clone();
+    let baseline_cv = cross_validate(
+        &template,
+        data,
+        &folds,
+        n_folds,
+        options.max_iterations,
+        options.n_threads,
+    );
+    let baseline_model = template.model(&baseline_cv.full_fit.params);
+    progress(&format!(
+        "baseline calibrated on {} tests: held-out gap {:.4e} (raw {:.4e}, noise floor {:.4e}; {n_folds}-fold)",
+        data.len(),
+        excess_gap(&baseline_cv.held_out_error, data),
+        baseline_cv.gap(),
+        noise_floor(data)
+    ));
+
+    let mut current_template = template;
+    let mut current_cv = baseline_cv.clone();
+    let mut named = Vec::new();
+    let mut rounds = Vec::new();
+    loop {
+        let remaining: Vec<EffectKind> = candidates
+            .iter()
+            .copied()
+            .filter(|k| !named.contains(k))
+            .collect();
+        if remaining.is_empty() {
+            break;
+        }
+        let round = rounds.len() + 1;
+        let prefix = current_cv.full_fit.params.clone();
+        let current_errors = current_cv.held_out_error.clone();
+        let current_gap = excess_gap(&current_errors, data);
+        let current_raw = current_cv.gap();
+        let mut noise_levels: Vec<f64> = data.iter().map(|d| d.noise_relative).collect();
+        noise_levels.sort_by(f64::total_cmp);
+        let median_noise = noise_levels[noise_levels.len() / 2].max(1e-300);
+        let results = run_parallel(&remaining, options.n_threads, |&kind| {
+            let candidate = current_template.with_effect(kind, Some(&prefix));
+            let cv = cross_validate(
+                &candidate,
+                data,
+                &folds,
+                n_folds,
+                options.max_iterations,
+                options.n_threads,
+            );
+            let penalty = 1.0 + options.penalty_per_param * kind.n_params() as f64;
+            let gap_ratio = excess_gap(&cv.held_out_error, data) / current_gap.max(1e-300);
+            let raw_ratio = cv.gap() / current_raw.max(1e-300);
+            let score = gap_ratio * penalty;
+            let differences: Vec<f64> = current_errors
+                .iter()
+                .zip(&cv.held_out_error)
+                .zip(data)
+                .map(|((b, c), d)| (b - c) / (d.noise_relative + median_noise))
+                .collect();
+            let z = wilcoxon_z(&differences);
+            let folds_improved = (0..n_folds)
+                .filter(|&f| {
+                    let sum = |e: &[f64]| -> f64 {
+                        e.iter()
+                            .zip(&folds)
+                            .filter(|(_, &g)| g == f)
+                            .map(|(x, _)| x)
+                            .sum()
+                    };
+                    sum(&cv.held_out_error) < sum(&current_errors)
+                })
+                .count();
+            let candidate_gap = excess_gap(&cv.held_out_error, data);
+            let explained = (current_gap * current_gap - candidate_gap * candidate_gap)
+                .max(0.0)
+                .sqrt();
+            let qualifies = score < options.max_score
+                && explained > options.min_explained_gap
+                && raw_ratio * penalty < options.max_raw_ratio
+                && z > options.min_wilcoxon_z
+                && folds_improved + 1 >= n_folds;
+            let model = candidate.model(&cv.full_fit.params);
+            CandidateResult {
+                kind,
+                round,
+                cv,
+                gap_ratio,
+                raw_ratio,
+                score,
+                wilcoxon_z: z,
+                folds_improved,
+                qualifies,
+                model,
+            }
+        });
+        for r in &results {
+            progress(&format!(
+                "round {round}: {:<20} held-out gap {:.4e} (raw {:.4e}) ratio {:.3} raw ratio {:.3} score {:.3} z {:.2} folds {}/{}{}",
+                r.kind.name(),
+                excess_gap(&r.cv.held_out_error, data),
+                r.cv.gap(),
+                r.gap_ratio,
+                r.raw_ratio,
+                r.score,
+                r.wilcoxon_z,
+                r.folds_improved,
+                n_folds,
+                if r.qualifies { " qualifies" } else { "" }
+            ));
+        }
+        let winner = results
+            .iter()
+            .filter(|r| r.qualifies)
+            .min_by(|a, b| a.score.total_cmp(&b.score))
+            .map(|r| (r.kind, r.cv.clone()));
+        rounds.push(results);
+        match winner {
+            Some((kind, cv)) => {
+                progress(&format!("round {round}: named {}", kind.name()));
+                current_template = current_template.with_effect(kind, Some(&prefix));
+                current_cv = cv;
+                named.push(kind);
+            }
+            None => {
+                progress(&format!(
+                    "round {round}: nothing beats the current model beyond noise"
+                ));
+                break;
+            }
+        }
+    }
+    let final_model = current_template.model(&current_cv.full_fit.params);
+    Diagnosis {
+        gap_before: excess_gap(&baseline_cv.held_out_error, data),
+        gap_after: excess_gap(&current_cv.held_out_error, data),
+        raw_gap_before: baseline_cv.gap(),
+        raw_gap_after: current_cv.gap(),
+        noise_floor: noise_floor(data),
+        reference_temperature_c,
+        folds,
+        baseline_template,
+        baseline_cv,
+        baseline_model,
+        final_template: current_template,
+        final_cv: current_cv,
+        final_model,
+        named,
+        rounds,
+        not_tried,
+    }
+}
+
+/// Physical parameters of an effect in a model, per metre as in the model file.
+pub fn effect_params(model: &AugmentedModel, kind: EffectKind) -> Vec<(&'static str, f64)> {
+    model
+        .effects
+        .iter()
+        .find(|e| e.name() == kind.name())
+        .map(|e: &Effect| e.file_params(model.length_m))
+        .unwrap_or_default()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wilcoxon_is_large_for_consistent_improvement_and_small_for_noise() {
+        let improving: Vec<f64> = (1..=30).map(|i| i as f64).collect();
+        assert!(wilcoxon_z(&improving) > 4.0);
+        let mixed: Vec<f64> = (1..=30)
+            .map(|i| if i % 2 == 0 { i as f64 } else { -(i as f64) })
+            .collect();
+        assert!(wilcoxon_z(&mixed).abs() < 1.0);
+    }
+}

@@ -1,0 +1,157 @@
+//! A small Levenberg-Marquardt least-squares solver with a forward-difference Jacobian.
+//!
+//! Parameters are unbounded (callers fit log/logit/scaled parameters). Returns the final
+//! Jacobian product `J^T J` so callers can form the covariance `sigma^2 (J^T J)^-1`.
+//! Deterministic: no randomness, no threads.
+
+use nalgebra::{DMatrix, DVector};
+
+/// Result of a fit.
+#[derive(Debug, Clone)]
+pub struct LmFit {
+    pub params: Vec<f64>,
+    /// Sum of squared residuals at `params`.
+    pub sse: f64,
+    pub n_residuals: usize,
+    /// `J^T J` at `params` (unscaled).
+    pub jtj: DMatrix<f64>,
+    pub iterations: usize,
+}
+
+impl LmFit {
+    /// Standard errors of the parameters, `sqrt(diag(sigma^2 (J^T J)^-1))`, with
+    /// `sigma^2 = SSE / (n - p)`. `None` where `J^T J` is singular.
+    pub fn standard_errors(&self) -> Vec<Option<f64>> {
+        let p = self.params.len();
+        let dof = self.n_residuals.saturating_sub(p).max(1) as f64;
+        let sigma2 = self.sse / dof;
+        match self.jtj.clone().try_inverse() {
+            Some(inv) => (0..p)
+                .map(|i| {
+                    let v = inv[(i, i)] * sigma2;
+                    (v.is_finite() && v >= 0.0).then(|| v.sqrt())
+                })
+                .collect(),
+            None => vec![None; p],
+        }
+    }
+}
+
+/// Minimises `sum r(theta)^2` from `start`.
+pub fn levenberg_marquardt<F>(residuals: F, start: &[f64], max_iterations: usize) -> LmFit
+where
+    F: Fn(&[f64]) -> Vec<f64>,
+{
+    let p = start.len();
+    let mut theta = start.to_vec();
+    let mut r = residuals(&theta);
+    let sanitize = |v: &mut Vec<f64>| {
+        for x in v.iter_mut() {
+            if !x.is_finite() {
+                *x = 1e6;
+            }
+        }
+    };
+    sanitize(&mut r);
+    let n = r.len();
+    let mut sse: f64 = r.iter().map(|x| x * x).sum();
+    let mut lambda = 1e-3;
+    let mut jacobian = DMatrix::<f64>::zeros(n, p);
+    let mut iterations = 0;
+    let jacobian_at = |theta: &[f64], r: &[f64], jac: &mut DMatrix<f64>| {
+        let mut shifted = theta.to_vec();
+        for j in 0..p {
+            let h = 1e-6 * theta[j].abs().max(1.0);
+            shifted[j] = theta[j] + h;
+            let mut rj = residuals(&shifted);
+            sanitize(&mut rj);
+            for i in 0..n {
+                jac[(i, j)] = (rj[i] - r[i]) / h;
+            }
+            shifted[j] = theta[j];
+        }
+    };
+    if p == 0 {
+        return LmFit {
+            params: theta,
+            sse,
+            n_residuals: n,
+            jtj: DMatrix::zeros(0, 0),
+            iterations,
+        };
+    }
+    jacobian_at(&theta, &r, &mut jacobian);
+    while iterations < max_iterations {
+        iterations += 1;
+        let jtj = jacobian.transpose() * &jacobian;
+        let jtr = jacobian.transpose() * DVector::from_column_slice(&r);
+        let mut improved = false;
+        for _ in 0..12 {
+            let mut a = jtj.clone();
+            for i in 0..p {
+                a[(i, i)] += lambda * jtj[(i, i)].max(1e-12);
+            }
+            let Some(step) = a.cholesky().map(|c| c.solve(&(-&jtr))) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let trial: Vec<f64> = theta.iter().zip(step.iter()).map(|(t, s)| t + s).collect();
+            if trial.iter().any(|t| !t.is_finite()) {
+                lambda *= 10.0;
+                continue;
+            }
+            let mut r_trial = residuals(&trial);
+            sanitize(&mut r_trial);
+            let sse_trial: f64 = r_trial.iter().map(|x| x * x).sum();
+            if sse_trial < sse {
+                let gain = (sse - sse_trial) / sse.max(1e-300);
+                let step_size = step.amax();
+                theta = trial;
+                r = r_trial;
+                sse = sse_trial;
+                lambda = (lambda / 3.0).max(1e-9);
+                improved = true;
+                if gain < 1e-10 || step_size < 1e-9 {
+                    iterations = max_iterations;
+                }
+                break;
+            }
+            lambda *= 4.0;
+        }
+        if !improved {
+            break;
+        }
+        jacobian_at(&theta, &r, &mut jacobian);
+    }
+    let jtj = jacobian.transpose() * &jacobian;
+    LmFit {
+        params: theta,
+        sse,
+        n_residuals: n,
+        jtj,
+        iterations,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fits_an_exponential() {
+        let t: Vec<f64> = (0..20).map(|i| i as f64 * 0.1).collect();
+        let y: Vec<f64> = t.iter().map(|t| 3.0 * (-1.5 * t).exp()).collect();
+        let fit = levenberg_marquardt(
+            |p| {
+                t.iter()
+                    .zip(&y)
+                    .map(|(t, y)| p[0].exp() * (-p[1] * t).exp() - y)
+                    .collect()
+            },
+            &[0.0, 0.5],
+            100,
+        );
+        assert!((fit.params[0].exp() - 3.0).abs() < 1e-6);
+        assert!((fit.params[1] - 1.5).abs() < 1e-6);
+    }
+}

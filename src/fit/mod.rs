@@ -1,0 +1,616 @@
+//! Fitting models to harmonic tests: the steady-state cycle simulator, parameterisations
+//! of a baseline plus candidate effects, least-squares fits and cross-validation.
+//!
+//! Owns: `predict_cycle` (force harmonics a model gives for a measured displacement cycle,
+//! by time-domain simulation with `ModelStepper` over warm-up cycles and one analysed
+//! cycle), `Template` (which parameters are free and how they map to an `AugmentedModel`),
+//! `fit_template` and `cross_validate`. The rig artefacts channel-delay and moving-mass are
+//! linear and are applied exactly to the simulated harmonics (`F_meas = e^{-i h W tau}
+//! (F + m (i h W)^2 Z)`), rather than through the stepper's discrete `z''` and delay line.
+//!
+//! Must not: do I/O. Everything is deterministic (threads only split independent work).
+
+pub mod lm;
+
+use std::f64::consts::PI;
+
+use crate::campaign::{cabs, cmul, Campaign, Complex, N_HARMONICS};
+use crate::model::effects::{AugmentedModel, Effect, ModelStepper, StepperMode};
+use crate::model::params::ElementModel;
+
+pub use lm::{levenberg_marquardt, LmFit};
+
+/// Harmonics compared in residuals and gaps: the fundamental only. Higher harmonics of the
+/// force carry little signal and as much noise as the fundamental, so they would only
+/// raise the noise floor of the gap; they still drive the simulation (measured `Z_2, Z_3`).
+pub const FIT_HARMONICS: usize = 1;
+
+/// Samples per simulated cycle.
+pub const SAMPLES_PER_CYCLE: usize = 64;
+
+/// One harmonic test as the fitting code sees it.
+#[derive(Debug, Clone)]
+pub struct CycleData {
+    pub id: String,
+    pub frequency_hz: f64,
+    /// Nominal preload and force amplitude from `campaign.toml`, N.
+    pub preload_n: f64,
+    pub amplitude_n: f64,
+    pub temperature_c: f64,
+    /// Measured mean force over the analysed cycles (the operating point), N.
+    pub force_mean_n: f64,
+    pub displacement_harmonics_m: [Complex; N_HARMONICS],
+    pub force_harmonics_n: [Complex; N_HARMONICS],
+    /// `|F_1|`: residuals are relative to it, N.
+    pub scale_n: f64,
+    /// Estimated noise variance of the fundamental residual relative to `|F_1|^2`.
+    pub noise_relative: f64,
+}
+
+impl CycleData {
+    pub fn displacement_amplitude_m(&self) -> f64 {
+        cabs(self.displacement_harmonics_m[0])
+    }
+}
+
+/// The harmonic tests of a campaign, reduced to their steady-state cycles.
+pub fn cycle_data(campaign: &Campaign) -> Vec<CycleData> {
+    campaign
+        .harmonic_tests()
+        .filter_map(|test| {
+            let cycle = test.cycle.as_ref()?;
+            let scale_n = cabs(cycle.force_harmonics_n[0]).max(1e-300);
+            Some(CycleData {
+                id: test.id.clone(),
+                frequency_hz: cycle.frequency_hz,
+                preload_n: test.preload_n().unwrap_or(cycle.force_mean_n),
+                amplitude_n: test.amplitude_n().unwrap_or(0.0),
+                temperature_c: test.temperature_c,
+                force_mean_n: cycle.force_mean_n,
+                displacement_harmonics_m: cycle.displacement_harmonics_m,
+                force_harmonics_n: cycle.force_harmonics_n,
+                scale_n,
+                noise_relative: cycle.fundamental_noise_variance_n2 / (scale_n * scale_n),
+            })
+        })
+        .collect()
+}
+
+/// Slowest relaxation time of the element, s (0 for Kelvin-Voigt).
+fn relaxation_time_s(element: &ElementModel) -> f64 {
+    element
+        .zener()
+        .map_or(0.0, |p| 1.0 / p.relaxation_rate_per_s())
+}
+
+/// Force harmonics the model gives when driven by the test's displacement cycle around
+/// the static point of the measured mean force (so a displacement offset in the data does
+/// not matter, and the operating point is the measured preload). Also returns one
+/// simulated cycle of force and displacement (`SAMPLES_PER_CYCLE` samples, rig artefacts
+/// excluded from the force).
+pub fn predict_cycle_with_waveform(
+    model: &AugmentedModel,
+    data: &CycleData,
+) -> ([Complex; N_HARMONICS], Vec<f64>, Vec<f64>) {
+    let m = SAMPLES_PER_CYCLE;
+    let model_t = model.at_temperature(data.temperature_c);
+    let element = model_t.effective_element();
+    let z_mean = element.static_displacement_m(data.force_mean_n);
+    let omega = 2.0 * PI * data.frequency_hz;
+    let period_s = 1.0 / data.frequency_hz;
+    let dt_s = period_s / m as f64;
+    let mut n_warm = (5.0 * relaxation_time_s(&element) * data.frequency_hz).ceil() as usize;
+    n_warm = n_warm.clamp(1, 40);
+    if model_t.find("amplitude-friction").is_some() || model_t.find("fractional-damping").is_some()
+    {
+        n_warm += 2;
+    }
+    // Start where the fundamental crosses its mean on the way up, so slow branches start
+    // close to their periodic state.
+    let z1 = data.displacement_harmonics_m[0];
+    let t_start = (-0.5 * PI - z1.1.atan2(z1.0)).rem_euclid(2.0 * PI) / omega;
+    let mut z_cycle = vec![0.0; m];
+    let mut basis = vec![[(0.0, 0.0); N_HARMONICS]; m];
+    for (k, (z, b)) in z_cycle.iter_mut().zip(basis.iter_mut()).enumerate() {
+        let t = t_start + k as f64 * dt_s;
+        *z = z_mean;
+        for (h, (bh, zh)) in b.iter_mut().zip(&data.displacement_harmonics_m).enumerate() {
+            let phase = (h + 1) as f64 * omega * t;
+            let (s, c) = phase.sin_cos();
+            *z += zh.0 * c - zh.1 * s;
+            *bh = (c, -s);
+        }
+    }
+    let mut stepper = ModelStepper::new(&model_t, StepperMode::Emulation, dt_s, z_cycle[0]);
+    for step_idx in 1..=n_warm * m {
+        stepper.step(z_cycle[step_idx % m]);
+    }
+    let mut harmonics = [(0.0, 0.0); N_HARMONICS];
+    let mut waveform = vec![0.0; m];
+    for k in 1..=m {
+        let idx = k % m;
+        let (force, _) = stepper.step(z_cycle[idx]);
+        waveform[idx] = force;
+        for h in 0..N_HARMONICS {
+            harmonics[h].0 += force * basis[idx][h].0 * 2.0 / m as f64;
+            harmonics[h].1 += force * basis[idx][h].1 * 2.0 / m as f64;
+        }
+    }
+    let (mass_kg, lag_s) = artefacts(&model_t);
+    for (h, fh) in harmonics.iter_mut().enumerate() {
+        let w = (h + 1) as f64 * omega;
+        let zh = data.displacement_harmonics_m[h];
+        fh.0 -= mass_kg * w * w * zh.0;
+        fh.1 -= mass_kg * w * w * zh.1;
+        if lag_s != 0.0 {
+            *fh = cmul(*fh, ((w * lag_s).cos(), -(w * lag_s).sin()));
+        }
+    }
+    (harmonics, waveform, z_cycle)
+}
+
+/// Force harmonics the model predicts for a test (see `predict_cycle_with_waveform`).
+pub fn predict_cycle(model: &AugmentedModel, data: &CycleData) -> [Complex; N_HARMONICS] {
+    predict_cycle_with_waveform(model, data).0
+}
+
+fn artefacts(model: &AugmentedModel) -> (f64, f64) {
+    let mut mass_kg = 0.0;
+    let mut lag_s = 0.0;
+    for effect in &model.effects {
+        match *effect {
+            Effect::MovingMass { mass_kg: m } => mass_kg = m,
+            Effect::ChannelDelay { force_lag_s } => lag_s = force_lag_s,
+            _ => {}
+        }
+    }
+    (mass_kg, lag_s)
+}
+
+/// Relative squared residual of one test: `|F_sim,1 - F_1|^2 / |F_1|^2`.
+pub fn relative_error(model: &AugmentedModel, data: &CycleData) -> f64 {
+    let predicted = predict_cycle(model, data);
+    residual_terms(&predicted, data).iter().map(|r| r * r).sum()
+}
+
+fn residual_terms(
+    predicted: &[Complex; N_HARMONICS],
+    data: &CycleData,
+) -> [f64; 2 * FIT_HARMONICS] {
+    let mut out = [0.0; 2 * FIT_HARMONICS];
+    for h in 0..FIT_HARMONICS {
+        out[2 * h] = (predicted[h].0 - data.force_harmonics_n[h].0) / data.scale_n;
+        out[2 * h + 1] = (predicted[h].1 - data.force_harmonics_n[h].1) / data.scale_n;
+    }
+    out
+}
+
+/// An effect the library can add.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum EffectKind {
+    PreloadStiffening,
+    AmplitudeFriction,
+    FractionalDamping,
+    TemperatureShift,
+    ChannelDelay,
+    MovingMass,
+}
+
+impl EffectKind {
+    pub const ALL: [EffectKind; 6] = [
+        EffectKind::PreloadStiffening,
+        EffectKind::AmplitudeFriction,
+        EffectKind::FractionalDamping,
+        EffectKind::TemperatureShift,
+        EffectKind::ChannelDelay,
+        EffectKind::MovingMass,
+    ];
+
+    pub fn name(self) -> &'static str {
+        crate::model::effects::EFFECT_NAMES[self as usize]
+    }
+
+    pub fn n_params(self) -> usize {
+        match self {
+            EffectKind::PreloadStiffening | EffectKind::ChannelDelay | EffectKind::MovingMass => 1,
+            EffectKind::AmplitudeFriction => 3,
+            _ => 2,
+        }
+    }
+}
+
+/// Which parameters are free: the baseline's own (structure kept) plus added effects.
+#[derive(Debug, Clone)]
+pub struct Template {
+    /// The baseline: element structure and any effects it already has (held fixed).
+    pub baseline: AugmentedModel,
+    /// Whether the baseline's `chi` is fitted (only when it is non-zero: chi = 0 stays 0).
+    pub fit_chi: bool,
+    /// Whether the element's own parameters are fitted at all.
+    pub fit_element: bool,
+    pub added: Vec<EffectKind>,
+    pub reference_temperature_c: f64,
+    /// Start values for the leading parameters (e.g. the fit this template extends).
+    pub start_prefix: Option<Vec<f64>>,
+}
+
+const CHI_MAX: f64 = 0.95;
+/// Largest log-normal spread of the friction sliders' slip forces.
+const SLIP_SPREAD_MAX: f64 = 3.0;
+
+fn logit(x: f64) -> f64 {
+    (x / (1.0 - x)).ln()
+}
+
+fn logistic(x: f64) -> f64 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+impl Template {
+    pub fn new(baseline: AugmentedModel, reference_temperature_c: f64) -> Template {
+        let fit_chi = baseline.element.zener().is_some_and(|p| p.chi > 0.0);
+        Template {
+            baseline,
+            fit_chi,
+            fit_element: true,
+            added: Vec::new(),
+            reference_temperature_c,
+            start_prefix: None,
+        }
+    }
+
+    /// This template plus one effect, starting from `fitted` (this template's fit).
+    pub fn with_effect(&self, kind: EffectKind, fitted: Option<&[f64]>) -> Template {
+        let mut out = self.clone();
+        out.added.push(kind);
+        out.start_prefix = fitted.map(<[f64]>::to_vec);
+        out
+    }
+
+    fn n_element_params(&self) -> usize {
+        if !self.fit_element {
+            return 0;
+        }
+        match self.baseline.element {
+            ElementModel::KelvinVoigt(_) => 2,
+            _ => 3 + usize::from(self.fit_chi),
+        }
+    }
+
+    pub fn n_params(&self) -> usize {
+        self.n_element_params() + self.added.iter().map(|k| k.n_params()).sum::<usize>()
+    }
+
+    /// Names of the fitted (transformed) parameters.
+    pub fn param_names(&self) -> Vec<String> {
+        let mut names: Vec<String> = Vec::new();
+        if self.fit_element {
+            match self.baseline.element {
+                ElementModel::KelvinVoigt(_) => {
+                    names.extend(["ln_k_n_per_m".into(), "ln_c_ns_per_m".into()])
+                }
+                _ => {
+                    names.extend([
+                        "ln_k1_0_n_per_m".into(),
+                        "ln_k2_0_n_per_m".into(),
+                        "ln_c2_0_ns_per_m".into(),
+                    ]);
+                    if self.fit_chi {
+                        names.push("logit_chi".into());
+                    }
+                }
+            }
+        }
+        for kind in &self.added {
+            match kind {
+                EffectKind::PreloadStiffening => names.push("logit_chi".into()),
+                EffectKind::AmplitudeFriction => names.extend([
+                    "ln_friction_stiffness".into(),
+                    "ln_slip_force".into(),
+                    "logit_slip_spread".into(),
+                ]),
+                EffectKind::FractionalDamping => {
+                    names.extend(["ln_springpot_coefficient".into(), "logit_alpha".into()])
+                }
+                EffectKind::TemperatureShift => {
+                    names.extend(["100_log10_time_shift".into(), "100_ln_modulus_shift".into()])
+                }
+                EffectKind::ChannelDelay => names.push("force_lag_0.1ms".into()),
+                EffectKind::MovingMass => names.push("mass_10kg".into()),
+            }
+        }
+        names
+    }
+
+    /// Start points: the baseline's values, and a few for the nonlinear effect parameters.
+    pub fn starts(&self, data: &[CycleData]) -> Vec<Vec<f64>> {
+        let mut base = Vec::new();
+        let k_ref = match self.baseline.element {
+            ElementModel::KelvinVoigt(p) => {
+                if self.fit_element {
+                    base.extend([p.k_n_per_m.ln(), p.c_ns_per_m.ln()]);
+                }
+                p.k_n_per_m
+            }
+            ElementModel::Consistent(p) | ElementModel::Paper(p) => {
+                if self.fit_element {
+                    base.extend([
+                        p.k1_0_n_per_m.ln(),
+                        p.k2_0_n_per_m.ln(),
+                        p.c2_0_ns_per_m.ln(),
+                    ]);
+                    if self.fit_chi {
+                        base.push(logit(p.chi / CHI_MAX));
+                    }
+                }
+                p.k1_0_n_per_m
+            }
+        };
+        let mut amplitudes: Vec<f64> = data.iter().map(|d| d.displacement_amplitude_m()).collect();
+        amplitudes.sort_by(f64::total_cmp);
+        let z_amp = amplitudes
+            .get(amplitudes.len() / 2)
+            .copied()
+            .unwrap_or(1e-4);
+        let mut freqs: Vec<f64> = data.iter().map(|d| d.frequency_hz).collect();
+        freqs.sort_by(f64::total_cmp);
+        let omega_mid = 2.0 * PI * freqs.get(freqs.len() / 2).copied().unwrap_or(5.0);
+        let mut starts = vec![base];
+        let mut n_prefix_effects = 0;
+        if let Some(prefix) = &self.start_prefix {
+            let mut n = self.n_element_params();
+            for kind in &self.added {
+                if n + kind.n_params() > prefix.len() {
+                    break;
+                }
+                n += kind.n_params();
+                n_prefix_effects += 1;
+            }
+            starts = vec![prefix[..n].to_vec()];
+        }
+        for kind in &self.added[n_prefix_effects..] {
+            let options: Vec<Vec<f64>> = match kind {
+                EffectKind::PreloadStiffening => vec![vec![logit(0.2 / CHI_MAX)]],
+                EffectKind::AmplitudeFriction => {
+                    let stiffness = 0.3 * k_ref;
+                    let spread = |sigma: f64| logit(sigma / SLIP_SPREAD_MAX);
+                    vec![
+                        vec![stiffness.ln(), (stiffness * 0.2 * z_amp).ln(), spread(1.0)],
+                        vec![stiffness.ln(), (stiffness * 0.6 * z_amp).ln(), spread(0.3)],
+                        vec![stiffness.ln(), (stiffness * 0.6 * z_amp).ln(), spread(1.5)],
+                    ]
+                }
+                EffectKind::FractionalDamping => [0.3, 0.7]
+                    .iter()
+                    .map(|&alpha: &f64| {
+                        vec![(0.05 * k_ref / omega_mid.powf(alpha)).ln(), logit(alpha)]
+                    })
+                    .collect(),
+                EffectKind::TemperatureShift => vec![vec![0.0, 0.0]],
+                EffectKind::ChannelDelay => vec![vec![0.0]],
+                EffectKind::MovingMass => vec![vec![0.0]],
+            };
+            starts = starts
+                .iter()
+                .flat_map(|s| {
+                    options.iter().map(move |o| {
+                        let mut v = s.clone();
+                        v.extend(o);
+                        v
+                    })
+                })
+                .collect();
+        }
+        starts
+    }
+
+    /// The model for transformed parameters `theta`.
+    pub fn model(&self, theta: &[f64]) -> AugmentedModel {
+        let mut model = self.baseline.clone();
+        let mut i = 0;
+        if self.fit_element {
+            match &mut model.element {
+                ElementModel::KelvinVoigt(p) => {
+                    p.k_n_per_m = theta[0].exp();
+                    p.c_ns_per_m = theta[1].exp();
+                    i = 2;
+                }
+                ElementModel::Consistent(p) | ElementModel::Paper(p) => {
+                    p.k1_0_n_per_m = theta[0].exp();
+                    p.k2_0_n_per_m = theta[1].exp();
+                    p.c2_0_ns_per_m = theta[2].exp();
+                    i = 3;
+                    if self.fit_chi {
+                        p.chi = CHI_MAX * logistic(theta[3]);
+                        i = 4;
+                    }
+                }
+            }
+        }
+        for kind in &self.added {
+            let effect = match kind {
+                EffectKind::PreloadStiffening => Effect::PreloadStiffening {
+                    chi: CHI_MAX * logistic(theta[i]),
+                    p0_n: model.element.zener().map_or(64e3, |p| p.p0_n),
+                },
+                EffectKind::AmplitudeFriction => Effect::AmplitudeFriction {
+                    stiffness_n_per_m: theta[i].exp(),
+                    slip_force_n: theta[i + 1].exp(),
+                    slip_spread: SLIP_SPREAD_MAX * logistic(theta[i + 2]),
+                },
+                EffectKind::FractionalDamping => Effect::FractionalDamping {
+                    coefficient_ns_alpha_per_m: theta[i].exp(),
+                    alpha: logistic(theta[i + 1]).clamp(1e-3, 0.999),
+                },
+                EffectKind::TemperatureShift => Effect::TemperatureShift {
+                    reference_temperature_c: self.reference_temperature_c,
+                    operating_temperature_c: self.reference_temperature_c,
+                    log10_time_shift_per_c: theta[i] / 100.0,
+                    ln_modulus_shift_per_c: theta[i + 1] / 100.0,
+                },
+                EffectKind::ChannelDelay => Effect::ChannelDelay {
+                    force_lag_s: theta[i] * 1e-4,
+                },
+                EffectKind::MovingMass => Effect::MovingMass {
+                    mass_kg: theta[i] * 10.0,
+                },
+            };
+            i += kind.n_params();
+            model.effects.retain(|e| e.name() != effect.name());
+            model.effects.push(effect);
+        }
+        model
+    }
+
+    /// Residual vector over `data`.
+    pub fn residuals(&self, theta: &[f64], data: &[&CycleData]) -> Vec<f64> {
+        let model = self.model(theta);
+        let mut out = Vec::with_capacity(data.len() * 2 * FIT_HARMONICS);
+        for d in data {
+            out.extend_from_slice(&residual_terms(&predict_cycle(&model, d), d));
+        }
+        out
+    }
+}
+
+/// Fits a template on `data` from each of `starts`; returns the best fit.
+pub fn fit_template(
+    template: &Template,
+    data: &[&CycleData],
+    starts: &[Vec<f64>],
+    max_iterations: usize,
+) -> LmFit {
+    let mut best: Option<LmFit> = None;
+    for start in starts {
+        let fit = levenberg_marquardt(
+            |theta| template.residuals(theta, data),
+            start,
+            max_iterations,
+        );
+        if best.as_ref().is_none_or(|b| fit.sse < b.sse) {
+            best = Some(fit);
+        }
+    }
+    best.expect("at least one start")
+}
+
+/// Cross-validated errors of a template.
+#[derive(Debug, Clone)]
+pub struct CrossValidation {
+    /// Fit on all tests (used for the model file and in-sample numbers).
+    pub full_fit: LmFit,
+    /// Held-out relative squared residual of each test (fit without its fold).
+    pub held_out_error: Vec<f64>,
+}
+
+impl CrossValidation {
+    /// Raw held-out residual (noise included): `sqrt(mean_i e_i)`.
+    pub fn gap(&self) -> f64 {
+        rms_gap(&self.held_out_error)
+    }
+}
+
+pub fn rms_gap(errors: &[f64]) -> f64 {
+    (errors.iter().sum::<f64>() / errors.len().max(1) as f64).sqrt()
+}
+
+/// Fold of each test: tests sorted by (temperature, preload, amplitude, frequency) and
+/// dealt round-robin, so every fold spans the design.
+pub fn assign_folds(data: &[CycleData], n_folds: usize) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..data.len()).collect();
+    order.sort_by(|&a, &b| {
+        let key = |d: &CycleData| [d.temperature_c, d.preload_n, d.amplitude_n, d.frequency_hz];
+        key(&data[a])
+            .iter()
+            .zip(key(&data[b]).iter())
+            .map(|(x, y)| x.total_cmp(y))
+            .find(|o| o.is_ne())
+            .unwrap_or(std::cmp::Ordering::Equal)
+    });
+    let mut folds = vec![0; data.len()];
+    for (rank, &i) in order.iter().enumerate() {
+        folds[i] = rank % n_folds.max(1);
+    }
+    folds
+}
+
+/// Runs `work` on every item with up to `n_threads` threads, items handed out one at a
+/// time (so one slow item does not hold a whole share back). Results are in item order and
+/// do not depend on the thread count.
+pub fn run_parallel<T: Sync, R: Send>(
+    items: &[T],
+    n_threads: usize,
+    work: impl Fn(&T) -> R + Sync,
+) -> Vec<R> {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::sync::Mutex;
+    let next = AtomicUsize::new(0);
+    let results: Vec<Mutex<Option<R>>> = items.iter().map(|_| Mutex::new(None)).collect();
+    let n_workers = n_threads.clamp(1, items.len().max(1));
+    std::thread::scope(|scope| {
+        for _ in 0..n_workers {
+            scope.spawn(|| loop {
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                let Some(item) = items.get(i) else { break };
+                let result = work(item);
+                *results[i]
+                    .lock()
+                    .expect("no worker panics while holding it") = Some(result);
+            });
+        }
+    });
+    results
+        .into_iter()
+        .map(|m| {
+            m.into_inner()
+                .expect("no worker panicked")
+                .expect("every item was processed")
+        })
+        .collect()
+}
+
+/// Fits on all data (multi-start), then refits without each fold (starting from the full
+/// fit, folds in parallel) and predicts the fold.
+pub fn cross_validate(
+    template: &Template,
+    data: &[CycleData],
+    folds: &[usize],
+    n_folds: usize,
+    max_iterations: usize,
+    n_threads: usize,
+) -> CrossValidation {
+    let all: Vec<&CycleData> = data.iter().collect();
+    let full_fit = fit_template(template, &all, &template.starts(data), max_iterations);
+    let fold_ids: Vec<usize> = (0..n_folds).collect();
+    let fold_errors = run_parallel(&fold_ids, n_threads, |&fold| {
+        let train: Vec<&CycleData> = data
+            .iter()
+            .zip(folds)
+            .filter(|(_, &f)| f != fold)
+            .map(|(d, _)| d)
+            .collect();
+        if train.len() == data.len() {
+            return Vec::new();
+        }
+        let fit = fit_template(
+            template,
+            &train,
+            std::slice::from_ref(&full_fit.params),
+            max_iterations,
+        );
+        let model = template.model(&fit.params);
+        data.iter()
+            .enumerate()
+            .filter(|(i, _)| folds[*i] == fold)
+            .map(|(i, d)| (i, relative_error(&model, d)))
+            .collect::<Vec<_>>()
+    });
+    let mut held_out_error = vec![0.0; data.len()];
+    for (i, e) in fold_errors.into_iter().flatten() {
+        held_out_error[i] = e;
+    }
+    CrossValidation {
+        full_fit,
+        held_out_error,
+    }
+}

@@ -1,0 +1,754 @@
+//! The effect library (SPEC 5) and `ModelStepper`, the element plus its effects.
+//!
+//! Owns: the `[[effect]]` tables of a model file (validation into `Effect`s and rendering
+//! back), and a fixed-step force-from-displacement stepper that composes `ForceStepper`
+//! (paper Eq. 1-3, consistent form) with the effects:
+//!
+//! - `preload-stiffening`: sets `chi` and `P0` of the Zener element (paper Eq. 1).
+//! - `amplitude-friction`: an Iwan friction element in parallel: `IWAN_ELEMENTS` Jenkins
+//!   elements (spring `k_f / N` in series with a Coulomb slider) whose slip forces follow
+//!   a log-normal spread `s` around `F_slip / N` (normalised so the full-slip force is
+//!   `F_slip`). `s = 0` is one Jenkins element (bilinear loop); `s ~ 1` is a smooth
+//!   Dahl/Berg-like transition. Rate-independent and exact for any step (a clamp each).
+//! - `fractional-damping`: a springpot `c_a s^alpha` in parallel, realised by a fixed bank
+//!   of Maxwell branches (log-spaced relaxation rates, stiffnesses from the springpot's
+//!   relaxation spectrum `c_a sin(pi alpha)/pi r^(alpha-1)`), plus a spring for the rates
+//!   below the bank and a dashpot for those above, so `c_a (i W)^alpha` is matched to a
+//!   few per mille between 0.1 Hz and 1 kHz.
+//! - `temperature-shift`: at operating temperature T, moduli scale by
+//!   `b_T = exp(-m (T - T_ref))` and relaxation times by `a_T = 10^(-s (T - T_ref))`
+//!   (a local Arrhenius/WLF slope); applied to the Zener element and the springpot.
+//! - `channel-delay`: the force channel lags the displacement channel by `tau`.
+//! - `moving-mass`: `m z''` added to the force (mass between load cell and sample).
+//!
+//! Channel delay and moving mass are artefacts of how a rig *measures* the element, not
+//! properties of the elastomer. `StepperMode::Emulation` (what the HIL emulator runs)
+//! leaves them out, so the emulated element force is the elastomer's own;
+//! `StepperMode::Measurement` includes them, to simulate what a lab rig would record.
+//!
+//! Must not: allocate, read a clock or do I/O in `ModelStepper::step` (the delay line is
+//! allocated once in `new`). Identical inputs give bit-identical outputs.
+
+use super::element::{phi_functions, ForceStepper, StepFlags};
+use super::file::{render_model_toml, ModelFileError, ModelSpec};
+use super::params::ElementModel;
+
+/// The effect vocabulary of SPEC 5, in the order the library tries them.
+pub const EFFECT_NAMES: [&str; 6] = [
+    "preload-stiffening",
+    "amplitude-friction",
+    "fractional-damping",
+    "temperature-shift",
+    "channel-delay",
+    "moving-mass",
+];
+
+/// Temperature assumed when a model or test does not state one, degC.
+pub const DEFAULT_TEMPERATURE_C: f64 = 23.0;
+
+/// One effect with its parameters, per element (per-metre values times length).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Effect {
+    PreloadStiffening {
+        chi: f64,
+        p0_n: f64,
+    },
+    AmplitudeFriction {
+        /// Initial (sticking) stiffness of the friction element, N/m.
+        stiffness_n_per_m: f64,
+        /// Force at full slip, N.
+        slip_force_n: f64,
+        /// Log-normal spread of the slip forces of the Jenkins elements (0: one slider).
+        slip_spread: f64,
+    },
+    FractionalDamping {
+        /// Springpot coefficient `c_a` in `F = c_a d^alpha z / dt^alpha`, N s^alpha / m.
+        coefficient_ns_alpha_per_m: f64,
+        /// Springpot order, 0 < alpha < 1.
+        alpha: f64,
+    },
+    TemperatureShift {
+        reference_temperature_c: f64,
+        /// Operating temperature of the stepper (the rig or test temperature), degC.
+        operating_temperature_c: f64,
+        /// `s` in `log10 a_T = -s (T - T_ref)`, 1/degC.
+        log10_time_shift_per_c: f64,
+        /// `m` in `ln b_T = -m (T - T_ref)`, 1/degC.
+        ln_modulus_shift_per_c: f64,
+    },
+    ChannelDelay {
+        /// Lag of the force channel behind the displacement channel, s (negative: lead).
+        force_lag_s: f64,
+    },
+    MovingMass {
+        mass_kg: f64,
+    },
+}
+
+impl Effect {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Effect::PreloadStiffening { .. } => EFFECT_NAMES[0],
+            Effect::AmplitudeFriction { .. } => EFFECT_NAMES[1],
+            Effect::FractionalDamping { .. } => EFFECT_NAMES[2],
+            Effect::TemperatureShift { .. } => EFFECT_NAMES[3],
+            Effect::ChannelDelay { .. } => EFFECT_NAMES[4],
+            Effect::MovingMass { .. } => EFFECT_NAMES[5],
+        }
+    }
+
+    /// The parameters as they appear in a model file (per metre where stiffness-like).
+    pub fn file_params(&self, length_m: f64) -> Vec<(&'static str, f64)> {
+        match *self {
+            Effect::PreloadStiffening { chi, p0_n } => vec![("chi", chi), ("p0_n", p0_n)],
+            Effect::AmplitudeFriction {
+                stiffness_n_per_m,
+                slip_force_n,
+                slip_spread,
+            } => vec![
+                ("stiffness_n_per_m2", stiffness_n_per_m / length_m),
+                ("slip_force_n_per_m", slip_force_n / length_m),
+                ("slip_spread", slip_spread),
+            ],
+            Effect::FractionalDamping {
+                coefficient_ns_alpha_per_m,
+                alpha,
+            } => vec![
+                (
+                    "coefficient_ns_alpha_per_m2",
+                    coefficient_ns_alpha_per_m / length_m,
+                ),
+                ("alpha", alpha),
+            ],
+            Effect::TemperatureShift {
+                reference_temperature_c,
+                operating_temperature_c,
+                log10_time_shift_per_c,
+                ln_modulus_shift_per_c,
+            } => vec![
+                ("reference_temperature_c", reference_temperature_c),
+                ("operating_temperature_c", operating_temperature_c),
+                ("log10_time_shift_per_c", log10_time_shift_per_c),
+                ("ln_modulus_shift_per_c", ln_modulus_shift_per_c),
+            ],
+            Effect::ChannelDelay { force_lag_s } => vec![("force_lag_s", force_lag_s)],
+            Effect::MovingMass { mass_kg } => vec![("mass_kg", mass_kg)],
+        }
+    }
+}
+
+/// Validates `[[effect]]` tables (`origin` names the file in errors).
+pub fn parse_effects(
+    tables: &[toml::Table],
+    length_m: f64,
+    origin: &str,
+) -> Result<Vec<Effect>, ModelFileError> {
+    let mut effects: Vec<Effect> = Vec::with_capacity(tables.len());
+    for (index, table) in tables.iter().enumerate() {
+        let effect = parse_effect(table, length_m, origin, index)?;
+        if effects.iter().any(|e| e.name() == effect.name()) {
+            return Err(ModelFileError {
+                path: origin.to_string(),
+                message: format!(
+                    "[[effect]] {index}: effect \"{}\" appears twice",
+                    effect.name()
+                ),
+            });
+        }
+        effects.push(effect);
+    }
+    Ok(effects)
+}
+
+fn parse_effect(
+    table: &toml::Table,
+    length_m: f64,
+    origin: &str,
+    index: usize,
+) -> Result<Effect, ModelFileError> {
+    let err = |message: String| ModelFileError {
+        path: origin.to_string(),
+        message: format!("[[effect]] {index}: {message}"),
+    };
+    let name = match table.get("name") {
+        Some(toml::Value::String(s)) => s.clone(),
+        Some(other) => return Err(err(format!("key `name` = {other}: expected a string"))),
+        None => {
+            return Err(err(format!(
+                "missing key `name`: expected one of {}",
+                EFFECT_NAMES.join(", ")
+            )))
+        }
+    };
+    let keys: &[&str] = match name.as_str() {
+        "preload-stiffening" => &["chi", "p0_n"],
+        "amplitude-friction" => &["stiffness_n_per_m2", "slip_force_n_per_m", "slip_spread"],
+        "fractional-damping" => &["coefficient_ns_alpha_per_m2", "alpha"],
+        "temperature-shift" => &[
+            "reference_temperature_c",
+            "operating_temperature_c",
+            "log10_time_shift_per_c",
+            "ln_modulus_shift_per_c",
+        ],
+        "channel-delay" => &["force_lag_s"],
+        "moving-mass" => &["mass_kg"],
+        other => {
+            return Err(err(format!(
+                "key `name` = \"{other}\": expected one of {}",
+                EFFECT_NAMES.join(", ")
+            )))
+        }
+    };
+    for key in table.keys() {
+        if key != "name" && key != "description" && !keys.contains(&key.as_str()) {
+            return Err(err(format!(
+                "unknown key `{key}` for effect \"{name}\": valid keys are {}",
+                keys.join(", ")
+            )));
+        }
+    }
+    let number = |key: &str| -> Result<f64, ModelFileError> {
+        match table.get(key) {
+            None => Err(err(format!(
+                "missing key `{key}` (required for effect \"{name}\")"
+            ))),
+            Some(toml::Value::Float(x)) if x.is_finite() => Ok(*x),
+            Some(toml::Value::Integer(i)) => Ok(*i as f64),
+            Some(other) => Err(err(format!(
+                "key `{key}` = {other}: expected a finite number"
+            ))),
+        }
+    };
+    let positive = |key: &str| -> Result<f64, ModelFileError> {
+        let x = number(key)?;
+        if x > 0.0 {
+            Ok(x)
+        } else {
+            Err(err(format!("key `{key}` = {x}: must be positive")))
+        }
+    };
+    Ok(match name.as_str() {
+        "preload-stiffening" => {
+            let chi = number("chi")?;
+            if !(0.0..1.0).contains(&chi) {
+                return Err(err(format!("key `chi` = {chi}: must be in [0, 1)")));
+            }
+            Effect::PreloadStiffening {
+                chi,
+                p0_n: positive("p0_n")?,
+            }
+        }
+        "amplitude-friction" => {
+            let slip_spread = number("slip_spread")?;
+            if !(0.0..=5.0).contains(&slip_spread) {
+                return Err(err(format!(
+                    "key `slip_spread` = {slip_spread}: must be in [0, 5]"
+                )));
+            }
+            Effect::AmplitudeFriction {
+                stiffness_n_per_m: positive("stiffness_n_per_m2")? * length_m,
+                slip_force_n: positive("slip_force_n_per_m")? * length_m,
+                slip_spread,
+            }
+        }
+        "fractional-damping" => {
+            let alpha = number("alpha")?;
+            if !(alpha > 0.0 && alpha < 1.0) {
+                return Err(err(format!("key `alpha` = {alpha}: must be in (0, 1)")));
+            }
+            Effect::FractionalDamping {
+                coefficient_ns_alpha_per_m: positive("coefficient_ns_alpha_per_m2")? * length_m,
+                alpha,
+            }
+        }
+        "temperature-shift" => Effect::TemperatureShift {
+            reference_temperature_c: number("reference_temperature_c")?,
+            operating_temperature_c: number("operating_temperature_c")?,
+            log10_time_shift_per_c: number("log10_time_shift_per_c")?,
+            ln_modulus_shift_per_c: number("ln_modulus_shift_per_c")?,
+        },
+        "channel-delay" => Effect::ChannelDelay {
+            force_lag_s: number("force_lag_s")?,
+        },
+        _ => Effect::MovingMass {
+            mass_kg: number("mass_kg")?,
+        },
+    })
+}
+
+/// A baseline element plus effects: what a model file with `[[effect]]` tables describes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AugmentedModel {
+    pub element: ElementModel,
+    pub length_m: f64,
+    pub effects: Vec<Effect>,
+}
+
+impl AugmentedModel {
+    /// Validates the effect tables of a parsed model file.
+    pub fn from_spec(spec: &ModelSpec, origin: &str) -> Result<AugmentedModel, ModelFileError> {
+        let effects = parse_effects(&spec.effect_tables, spec.length_m, origin)?;
+        let model = AugmentedModel {
+            element: spec.element,
+            length_m: spec.length_m,
+            effects,
+        };
+        if model.element.zener().is_none() && model.find("preload-stiffening").is_some() {
+            return Err(ModelFileError {
+                path: origin.to_string(),
+                message: "effect \"preload-stiffening\" needs a Zener element (form \"consistent\" or \"paper\")".into(),
+            });
+        }
+        Ok(model)
+    }
+
+    pub fn find(&self, name: &str) -> Option<&Effect> {
+        self.effects.iter().find(|e| e.name() == name)
+    }
+
+    /// The same model at another operating temperature (no-op without temperature-shift).
+    pub fn at_temperature(&self, temperature_c: f64) -> AugmentedModel {
+        let mut out = self.clone();
+        for effect in &mut out.effects {
+            if let Effect::TemperatureShift {
+                operating_temperature_c,
+                ..
+            } = effect
+            {
+                *operating_temperature_c = temperature_c;
+            }
+        }
+        out
+    }
+
+    /// Modulus factor `b_T` and time factor `a_T` at the operating temperature.
+    pub fn temperature_factors(&self) -> (f64, f64) {
+        match self.find("temperature-shift") {
+            Some(&Effect::TemperatureShift {
+                reference_temperature_c,
+                operating_temperature_c,
+                log10_time_shift_per_c,
+                ln_modulus_shift_per_c,
+            }) => {
+                let dt_c = operating_temperature_c - reference_temperature_c;
+                (
+                    (-ln_modulus_shift_per_c * dt_c).exp(),
+                    10f64.powf(-log10_time_shift_per_c * dt_c),
+                )
+            }
+            _ => (1.0, 1.0),
+        }
+    }
+
+    /// The element with preload-stiffening and temperature-shift folded into its parameters.
+    pub fn effective_element(&self) -> ElementModel {
+        let (modulus_factor, time_factor) = self.temperature_factors();
+        let mut element = self.element;
+        match &mut element {
+            ElementModel::Consistent(p) | ElementModel::Paper(p) => {
+                if let Some(&Effect::PreloadStiffening { chi, p0_n }) =
+                    self.find("preload-stiffening")
+                {
+                    p.chi = chi;
+                    p.p0_n = p0_n;
+                }
+                p.k1_0_n_per_m *= modulus_factor;
+                p.k2_0_n_per_m *= modulus_factor;
+                p.c2_0_ns_per_m *= modulus_factor * time_factor;
+                // P0 is a force scale: with softer moduli the same preload strains more,
+                // but the paper's Eq. 1 is in force, so it stays.
+            }
+            ElementModel::KelvinVoigt(p) => {
+                p.k_n_per_m *= modulus_factor;
+                p.c_ns_per_m *= modulus_factor * time_factor;
+            }
+        }
+        element
+    }
+
+    /// Model file text (SPEC 2.3) with one `[[effect]]` table per effect.
+    pub fn render_toml(&self, header: &str) -> String {
+        let mut out = render_model_toml(&self.element, self.length_m, header);
+        for effect in &self.effects {
+            out.push_str(&format!("\n[[effect]]\nname = \"{}\"\n", effect.name()));
+            for (key, value) in effect.file_params(self.length_m) {
+                out.push_str(&format!("{key} = {value:?}\n"));
+            }
+        }
+        out
+    }
+}
+
+/// Which effects a `ModelStepper` includes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StepperMode {
+    /// The elastomer's own force: channel-delay and moving-mass are left out.
+    Emulation,
+    /// What a lab rig records: every effect.
+    Measurement,
+}
+
+/// Number of Maxwell branches realising the springpot (4 per decade, 1e-2 .. 1e4 Hz).
+pub const SPRINGPOT_BRANCHES: usize = 25;
+const SPRINGPOT_LOWEST_RATE_HZ: f64 = 1e-2;
+const SPRINGPOT_BRANCHES_PER_DECADE: f64 = 4.0;
+
+/// Maxwell-bank realisation of a springpot `c (i W)^alpha`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SpringpotBank {
+    pub rates_per_s: [f64; SPRINGPOT_BRANCHES],
+    pub stiffnesses_n_per_m: [f64; SPRINGPOT_BRANCHES],
+    /// Spring standing in for the relaxation rates below the bank, N/m.
+    pub low_tail_stiffness_n_per_m: f64,
+    /// Dashpot standing in for the rates above the bank, N s/m.
+    pub high_tail_damping_ns_per_m: f64,
+}
+
+impl SpringpotBank {
+    pub fn new(coefficient: f64, alpha: f64) -> SpringpotBank {
+        let du = std::f64::consts::LN_10 / SPRINGPOT_BRANCHES_PER_DECADE;
+        let density = coefficient * (std::f64::consts::PI * alpha).sin() / std::f64::consts::PI;
+        let mut rates = [0.0; SPRINGPOT_BRANCHES];
+        let mut stiffnesses = [0.0; SPRINGPOT_BRANCHES];
+        let r0 = 2.0 * std::f64::consts::PI * SPRINGPOT_LOWEST_RATE_HZ;
+        for j in 0..SPRINGPOT_BRANCHES {
+            let r = r0 * (j as f64 * du).exp();
+            rates[j] = r;
+            // c s^alpha = int_0^inf density r^(alpha-1) s/(s+r) dr, with dr = r d(ln r).
+            stiffnesses[j] = density * r.powf(alpha) * du;
+        }
+        let r_low = r0 * (-0.5 * du).exp();
+        let r_high = r0 * ((SPRINGPOT_BRANCHES as f64 - 0.5) * du).exp();
+        SpringpotBank {
+            rates_per_s: rates,
+            stiffnesses_n_per_m: stiffnesses,
+            low_tail_stiffness_n_per_m: density * r_low.powf(alpha) / alpha,
+            high_tail_damping_ns_per_m: density * r_high.powf(alpha - 1.0) / (1.0 - alpha),
+        }
+    }
+
+    /// Complex modulus of the bank at circular frequency `omega` (for checks and plots).
+    pub fn modulus(&self, omega_rad_per_s: f64) -> (f64, f64) {
+        let mut re = self.low_tail_stiffness_n_per_m;
+        let mut im = self.high_tail_damping_ns_per_m * omega_rad_per_s;
+        for (r, k) in self.rates_per_s.iter().zip(&self.stiffnesses_n_per_m) {
+            // k i W / (r + i W)
+            let den = r * r + omega_rad_per_s * omega_rad_per_s;
+            re += k * omega_rad_per_s * omega_rad_per_s / den;
+            im += k * omega_rad_per_s * r / den;
+        }
+        (re, im)
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+struct BankState {
+    decay: [f64; SPRINGPOT_BRANCHES],
+    /// `k_j phi1(r_j dt)`: branch force per unit displacement increment over a step.
+    gain: [f64; SPRINGPOT_BRANCHES],
+    force_n: [f64; SPRINGPOT_BRANCHES],
+    low_tail_stiffness_n_per_m: f64,
+    high_tail_damping_ns_per_m: f64,
+}
+
+/// Number of Jenkins elements of the Iwan friction element.
+pub const IWAN_ELEMENTS: usize = 12;
+
+/// Iwan element: per-slider stiffness (N/m), slip forces (N) and current forces (N).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IwanElement {
+    pub slider_stiffness_n_per_m: f64,
+    pub slip_forces_n: [f64; IWAN_ELEMENTS],
+    pub forces_n: [f64; IWAN_ELEMENTS],
+}
+
+impl IwanElement {
+    /// At rest (all sliders unloaded).
+    pub fn new(stiffness_n_per_m: f64, slip_force_n: f64, slip_spread: f64) -> IwanElement {
+        // Slider j sits at the standard-normal quantile (j + 1/2) / N of the spread.
+        let mut weights = [0.0; IWAN_ELEMENTS];
+        for (j, w) in weights.iter_mut().enumerate() {
+            let p = (j as f64 + 0.5) / IWAN_ELEMENTS as f64;
+            *w = (slip_spread * normal_quantile(p)).exp();
+        }
+        let total: f64 = weights.iter().sum();
+        let mut slip_forces_n = [0.0; IWAN_ELEMENTS];
+        for (f, w) in slip_forces_n.iter_mut().zip(&weights) {
+            *f = slip_force_n * w / total;
+        }
+        IwanElement {
+            slider_stiffness_n_per_m: stiffness_n_per_m / IWAN_ELEMENTS as f64,
+            slip_forces_n,
+            forces_n: [0.0; IWAN_ELEMENTS],
+        }
+    }
+
+    /// Advances by a displacement increment; returns the total friction force.
+    #[inline]
+    pub fn step(&mut self, dz_m: f64) -> f64 {
+        let mut total = 0.0;
+        for (f, limit) in self.forces_n.iter_mut().zip(&self.slip_forces_n) {
+            // max/min rather than clamp: never panics, whatever the parameters.
+            *f = (*f + self.slider_stiffness_n_per_m * dz_m)
+                .min(*limit)
+                .max(-limit);
+            total += *f;
+        }
+        total
+    }
+
+    pub fn force_n(&self) -> f64 {
+        self.forces_n.iter().sum()
+    }
+}
+
+/// Standard normal quantile (Acklam's rational approximation, |error| < 1.2e-9).
+fn normal_quantile(p: f64) -> f64 {
+    const A: [f64; 6] = [
+        -3.969683028665376e1,
+        2.209460984245205e2,
+        -2.759285104469687e2,
+        1.38357751867269e2,
+        -3.066479806614716e1,
+        2.506628277459239,
+    ];
+    const B: [f64; 5] = [
+        -5.447609879822406e1,
+        1.615858368580409e2,
+        -1.556989798598866e2,
+        6.680131188771972e1,
+        -1.328068155288572e1,
+    ];
+    const C: [f64; 6] = [
+        -7.784894002430293e-3,
+        -3.223964580411365e-1,
+        -2.400758277161838,
+        -2.549732539343734,
+        4.374664141464968,
+        2.938163982698783,
+    ];
+    const D: [f64; 4] = [
+        7.784695709041462e-3,
+        3.224671290700398e-1,
+        2.445134137142996,
+        3.754408661907416,
+    ];
+    let p_low = 0.02425;
+    if p < p_low {
+        let q = (-2.0 * p.ln()).sqrt();
+        (((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5])
+            / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
+    } else if p <= 1.0 - p_low {
+        let q = p - 0.5;
+        let r = q * q;
+        (((((A[0] * r + A[1]) * r + A[2]) * r + A[3]) * r + A[4]) * r + A[5]) * q
+            / (((((B[0] * r + B[1]) * r + B[2]) * r + B[3]) * r + B[4]) * r + 1.0)
+    } else {
+        -normal_quantile(1.0 - p)
+    }
+}
+
+/// Force-from-displacement stepper of an augmented model at a fixed step `dt`.
+#[derive(Debug, Clone)]
+pub struct ModelStepper {
+    base: ForceStepper,
+    dt_s: f64,
+    friction: Option<IwanElement>,
+    bank: Option<BankState>,
+    /// Moving mass in the force (0 in emulation mode), kg.
+    mass_kg: f64,
+    /// Starting displacement (the springpot's low-tail spring acts about it), m.
+    z_start_m: f64,
+    /// Last four displacements, newest first (for a second-order backward `z''`).
+    z_history_m: [f64; 4],
+    /// Force lag in steps (0 in emulation mode).
+    lag_steps: f64,
+    /// Ring buffer of past forces before the channel delay (allocated in `new` only).
+    delay_line: Vec<f64>,
+    delay_head: usize,
+    force_n: f64,
+}
+
+impl ModelStepper {
+    /// A stepper with step `dt_s`, starting at rest in static equilibrium at `z0_m`.
+    pub fn new(model: &AugmentedModel, mode: StepperMode, dt_s: f64, z0_m: f64) -> ModelStepper {
+        let base = ForceStepper::new(model.effective_element(), dt_s, z0_m);
+        let (modulus_factor, time_factor) = model.temperature_factors();
+        let mut friction = None;
+        let mut bank = None;
+        let mut mass_kg = 0.0;
+        let mut lag_s = 0.0;
+        for effect in &model.effects {
+            match *effect {
+                Effect::AmplitudeFriction {
+                    stiffness_n_per_m,
+                    slip_force_n,
+                    slip_spread,
+                } => {
+                    friction = Some(IwanElement::new(
+                        stiffness_n_per_m,
+                        slip_force_n,
+                        slip_spread,
+                    ))
+                }
+                Effect::FractionalDamping {
+                    coefficient_ns_alpha_per_m,
+                    alpha,
+                } => {
+                    // c (a_T s)^alpha b_T: the temperature shift scales the coefficient.
+                    let coefficient =
+                        coefficient_ns_alpha_per_m * modulus_factor * time_factor.powf(alpha);
+                    let springpot = SpringpotBank::new(coefficient, alpha);
+                    let mut state = BankState {
+                        decay: [0.0; SPRINGPOT_BRANCHES],
+                        gain: [0.0; SPRINGPOT_BRANCHES],
+                        force_n: [0.0; SPRINGPOT_BRANCHES],
+                        low_tail_stiffness_n_per_m: springpot.low_tail_stiffness_n_per_m,
+                        high_tail_damping_ns_per_m: springpot.high_tail_damping_ns_per_m,
+                    };
+                    for j in 0..SPRINGPOT_BRANCHES {
+                        let x = springpot.rates_per_s[j] * dt_s;
+                        state.decay[j] = (-x).exp();
+                        state.gain[j] = springpot.stiffnesses_n_per_m[j] * phi_functions(x).0;
+                    }
+                    bank = Some(state);
+                }
+                Effect::MovingMass { mass_kg: m } if mode == StepperMode::Measurement => {
+                    mass_kg = m
+                }
+                Effect::ChannelDelay { force_lag_s } if mode == StepperMode::Measurement => {
+                    lag_s = force_lag_s
+                }
+                _ => {}
+            }
+        }
+        let lag_steps = lag_s / dt_s;
+        let capacity = if lag_steps > 0.0 {
+            lag_steps.ceil() as usize + 2
+        } else {
+            2
+        };
+        let mut stepper = ModelStepper {
+            base,
+            dt_s,
+            friction,
+            bank,
+            mass_kg,
+            z_start_m: z0_m,
+            z_history_m: [z0_m; 4],
+            lag_steps,
+            delay_line: vec![0.0; capacity],
+            delay_head: 0,
+            force_n: 0.0,
+        };
+        let f0 = stepper.undelayed_force_n(z0_m);
+        stepper.delay_line.fill(f0);
+        stepper.force_n = f0;
+        stepper
+    }
+
+    pub fn dt_s(&self) -> f64 {
+        self.dt_s
+    }
+
+    /// Force of the last step (as returned by `step`), N.
+    pub fn force_n(&self) -> f64 {
+        self.force_n
+    }
+
+    fn undelayed_force_n(&self, z_m: f64) -> f64 {
+        let mut force = self.base.force_n();
+        if let Some(iwan) = &self.friction {
+            force += iwan.force_n();
+        }
+        if let Some(bank) = &self.bank {
+            force += bank.low_tail_stiffness_n_per_m * (z_m - self.z_start_m);
+            force += bank.force_n.iter().sum::<f64>();
+        }
+        force
+    }
+
+    /// Advances one step to displacement `z_m`; returns the force at the step's end.
+    #[inline]
+    pub fn step(&mut self, z_m: f64) -> (f64, StepFlags) {
+        if !z_m.is_finite() {
+            return (self.force_n, StepFlags::NONFINITE_INPUT);
+        }
+        let (mut force, flags) = self.base.step(z_m);
+        let z_prev = self.z_history_m[0];
+        let dz = z_m - z_prev;
+        if let Some(iwan) = &mut self.friction {
+            force += iwan.step(dz);
+        }
+        if let Some(bank) = &mut self.bank {
+            let mut branch_sum = 0.0;
+            for j in 0..SPRINGPOT_BRANCHES {
+                bank.force_n[j] = bank.decay[j] * bank.force_n[j] + bank.gain[j] * dz;
+                branch_sum += bank.force_n[j];
+            }
+            // The low tail is a spring about the starting point (a springpot holds no
+            // static force); the high tail is a dashpot on the step's mean velocity.
+            force += branch_sum
+                + bank.low_tail_stiffness_n_per_m * (z_m - self.z_start_m)
+                + bank.high_tail_damping_ns_per_m * dz / self.dt_s;
+        }
+        self.z_history_m = [
+            z_m,
+            self.z_history_m[0],
+            self.z_history_m[1],
+            self.z_history_m[2],
+        ];
+        if self.mass_kg != 0.0 {
+            force += self.mass_kg * self.acceleration_m_per_s2();
+        }
+        if self.lag_steps != 0.0 {
+            force = self.delay(force);
+        }
+        self.force_n = force;
+        (force, flags)
+    }
+
+    /// Second-order backward difference of the displacement history.
+    fn acceleration_m_per_s2(&self) -> f64 {
+        let [z0, z1, z2, z3] = self.z_history_m;
+        (2.0 * z0 - 5.0 * z1 + 4.0 * z2 - z3) / (self.dt_s * self.dt_s)
+    }
+
+    fn delay(&mut self, force: f64) -> f64 {
+        let n = self.delay_line.len();
+        let previous = self.delay_line[self.delay_head];
+        self.delay_head = (self.delay_head + 1) % n;
+        self.delay_line[self.delay_head] = force;
+        if self.lag_steps < 0.0 {
+            // A lead cannot be realised causally: linear extrapolation over the lead.
+            return force + (-self.lag_steps) * (force - previous);
+        }
+        let whole = self.lag_steps.floor();
+        let frac = self.lag_steps - whole;
+        let i0 = (self.delay_head + n - whole as usize) % n;
+        let i1 = (i0 + n - 1) % n;
+        (1.0 - frac) * self.delay_line[i0] + frac * self.delay_line[i1]
+    }
+}
+
+/// Simulates the force of an augmented model for a displacement history (offline helper).
+pub fn simulate_model_force(
+    model: &AugmentedModel,
+    mode: StepperMode,
+    dt_s: f64,
+    displacement_m: &[f64],
+) -> (Vec<f64>, StepFlags) {
+    let mut forces = Vec::with_capacity(displacement_m.len());
+    let Some(&z0) = displacement_m.first() else {
+        return (forces, StepFlags::NONE);
+    };
+    let mut stepper = ModelStepper::new(model, mode, dt_s, z0);
+    let mut all_flags = StepFlags::NONE;
+    forces.push(stepper.force_n());
+    for &z in &displacement_m[1..] {
+        let (force, flags) = stepper.step(z);
+        all_flags |= flags;
+        forces.push(force);
+    }
+    (forces, all_flags)
+}

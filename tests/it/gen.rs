@@ -1,0 +1,422 @@
+//! The project's synthetic-campaign generator (for the diagnose/identify tests).
+//!
+//! Independent of the crate's effect implementations where it reasonably can be:
+//! - the nonlinear Zener element (consistent form) and the friction element are
+//!   integrated with classical RK4 on a fine sub-step grid from analytic `z(t)`, `z'(t)`;
+//! - friction is a Bouc-Wen element with exponent 2 (the library's is Dahl, exponent 1);
+//! - fractional damping is an exact steady-state springpot `c (i h W)^alpha` per harmonic
+//!   of the imposed displacement (the library's is a Maxwell bank in time domain);
+//! - temperature follows WLF with a linear modulus factor (the library's law is
+//!   exponential-linear);
+//! - the channel delay is an exact time shift (interpolated on the fine grid) and the
+//!   moving mass uses the analytic `z''`.
+//!
+//! Tests are "force-controlled style": the displacement is the harmonic that gives the
+//! nominal force amplitude on the truth's linearised modulus, with a small 2nd harmonic
+//! (imperfect control), so displacement amplitudes vary with stiffness, amplitude and
+//! temperature. Both channels get white noise; the force also gets coloured noise (AR(1)
+//! plus a slow drift).
+
+use std::f64::consts::PI;
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// Deterministic SplitMix64 + Box-Muller normal generator.
+pub struct Rng(u64);
+
+impl Rng {
+    pub fn new(seed: u64) -> Rng {
+        Rng(seed)
+    }
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E3779B97F4A7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58476D1CE4E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D049BB133111EB);
+        z ^ (z >> 31)
+    }
+    pub fn uniform(&mut self) -> f64 {
+        ((self.next_u64() >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    }
+    pub fn normal(&mut self) -> f64 {
+        let (u1, u2) = (self.uniform(), self.uniform());
+        (-2.0 * u1.ln()).sqrt() * (2.0 * PI * u2).cos()
+    }
+}
+
+/// The truth behind a synthetic campaign (per element of `length_m`).
+#[derive(Debug, Clone, Copy)]
+pub struct Truth {
+    pub length_m: f64,
+    pub k1_0_n_per_m2: f64,
+    pub k2_0_n_per_m2: f64,
+    pub c2_0_ns_per_m2: f64,
+    pub chi: f64,
+    pub p0_n: f64,
+    /// Bouc-Wen friction: initial stiffness (N/m^2) and slip force (N/m), per metre.
+    pub friction: Option<(f64, f64)>,
+    /// Bouc-Wen exponent (2 by default; large values approach a Jenkins element).
+    pub friction_exponent: f64,
+    /// Fractional Zener: the Maxwell dashpot replaced by a springpot of this order
+    /// (Cole-Cole branch `k2 (i W tau)^a / (1 + (i W tau)^a)`, linear, at the preload).
+    pub fractional_maxwell_order: Option<f64>,
+    /// Springpot coefficient per metre (N s^alpha / m^2) and order.
+    pub springpot: Option<(f64, f64)>,
+    /// WLF C1, C2, reference temperature and modulus slope per degC.
+    pub wlf: Option<(f64, f64, f64, f64)>,
+    pub force_lag_s: f64,
+    pub mass_kg: f64,
+}
+
+impl Truth {
+    pub fn paper_like() -> Truth {
+        Truth {
+            length_m: 0.75,
+            k1_0_n_per_m2: 60e6,
+            k2_0_n_per_m2: 10e6,
+            c2_0_ns_per_m2: 0.75e6,
+            chi: 0.2,
+            p0_n: 64e3,
+            friction: None,
+            friction_exponent: 2.0,
+            fractional_maxwell_order: None,
+            springpot: None,
+            wlf: None,
+            force_lag_s: 0.0,
+            mass_kg: 0.0,
+        }
+    }
+
+    /// Modulus factor and time factor at temperature `t_c`.
+    fn temperature_factors(&self, t_c: f64) -> (f64, f64) {
+        match self.wlf {
+            Some((c1, c2, t_ref, slope)) => {
+                let dt = t_c - t_ref;
+                (1.0 - slope * dt, 10f64.powf(-c1 * dt / (c2 + dt)))
+            }
+            None => (1.0, 1.0),
+        }
+    }
+}
+
+/// Noise levels relative to the force amplitude / displacement amplitude.
+#[derive(Debug, Clone, Copy)]
+pub struct Noise {
+    pub white_force: f64,
+    pub white_displacement: f64,
+    /// AR(1) coloured force noise: relative std and correlation per sample.
+    pub coloured_force: f64,
+    pub coloured_rho: f64,
+    /// Slow drift of the force channel (relative amplitude, period 7 s).
+    pub drift_force: f64,
+}
+
+impl Noise {
+    pub fn typical() -> Noise {
+        Noise {
+            white_force: 0.01,
+            white_displacement: 0.01,
+            coloured_force: 0.01,
+            coloured_rho: 0.98,
+            drift_force: 0.01,
+        }
+    }
+}
+
+/// One test of the design.
+#[derive(Debug, Clone, Copy)]
+pub struct TestPoint {
+    pub preload_n: f64,
+    pub amplitude_n: f64,
+    pub frequency_hz: f64,
+    pub temperature_c: f64,
+}
+
+/// The design used in every campaign: the paper grid at 5 kN and 23 degC, an amplitude
+/// series and a temperature series (so no design leaks which effect is hidden).
+pub fn standard_design() -> Vec<TestPoint> {
+    let mut out = Vec::new();
+    for p in [6e3, 18e3, 37e3, 55e3] {
+        for f in [1.0, 3.0, 5.0, 10.0, 20.0] {
+            out.push(TestPoint {
+                preload_n: p,
+                amplitude_n: 5e3,
+                frequency_hz: f,
+                temperature_c: 23.0,
+            });
+        }
+    }
+    for p in [18e3, 37e3] {
+        for a in [2e3, 9e3] {
+            for f in [3.0, 10.0] {
+                out.push(TestPoint {
+                    preload_n: p,
+                    amplitude_n: a,
+                    frequency_hz: f,
+                    temperature_c: 23.0,
+                });
+            }
+        }
+        for t in [10.0, 35.0] {
+            for f in [1.0, 5.0, 20.0] {
+                out.push(TestPoint {
+                    preload_n: p,
+                    amplitude_n: 5e3,
+                    frequency_hz: f,
+                    temperature_c: t,
+                });
+            }
+        }
+    }
+    out
+}
+
+/// Static displacement of the consistent form under force `p` (per element params).
+fn static_displacement(k1: f64, chi: f64, p0: f64, p: f64) -> f64 {
+    ((1.0 + p / p0).powf(1.0 - chi) - 1.0) * p0 / ((1.0 - chi) * k1)
+}
+
+/// Simulates one test; returns (t, z, F) without noise.
+pub fn simulate_test(
+    truth: &Truth,
+    point: &TestPoint,
+    n_cycles: usize,
+    samples_per_cycle: f64,
+    min_rate_hz: f64,
+) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let l = truth.length_m;
+    let (b, a) = truth.temperature_factors(point.temperature_c);
+    let k1 = truth.k1_0_n_per_m2 * l * b;
+    let k2 = truth.k2_0_n_per_m2 * l * b;
+    let c2 = truth.c2_0_ns_per_m2 * l * b * a;
+    let (chi, p0) = (truth.chi, truth.p0_n);
+    let w = 2.0 * PI * point.frequency_hz;
+    let g = (1.0 + point.preload_n / p0).powf(chi);
+    // Linearised modulus of the truth at the preload, for the displacement amplitude.
+    let mut modulus = {
+        let (k1g, k2g, c2g) = (k1 * g, k2 * g, c2 * g);
+        let x = (c2g * w / k2g).powi(2);
+        (k1g + k2g * x / (1.0 + x), w * c2g / (1.0 + x))
+    };
+    if let Some(order) = truth.fractional_maxwell_order {
+        // Replace the Maxwell part by the Cole-Cole branch for the amplitude estimate.
+        let x = (c2 * w / k2).powi(2);
+        modulus.0 -= k2 * g * x / (1.0 + x);
+        modulus.1 -= w * c2 * g / (1.0 + x);
+        let mag = (w * c2 / k2).powf(order);
+        modulus.0 += k2 * g * mag / (1.0 + mag);
+        modulus.1 += k2 * g * mag * 0.5 / (1.0 + mag);
+    }
+    if let Some((kf, _)) = truth.friction {
+        modulus.0 += 0.3 * kf * l;
+    }
+    if let Some((c, alpha)) = truth.springpot {
+        let mag = c * l * b * (a * w).powf(alpha);
+        modulus.0 += mag * (PI * alpha / 2.0).cos();
+        modulus.1 += mag * (PI * alpha / 2.0).sin();
+    }
+    let z_amp = point.amplitude_n / modulus.0.hypot(modulus.1);
+    let z_static = static_displacement(k1, chi, p0, point.preload_n);
+    // Imperfect control: 2 % second harmonic.
+    let (a1, a2, phi2) = (z_amp, 0.02 * z_amp, 0.7);
+    let z_of = |t: f64| z_static + a1 * (w * t).cos() + a2 * (2.0 * w * t + phi2).cos();
+    let v_of = |t: f64| -a1 * w * (w * t).sin() - 2.0 * a2 * w * (2.0 * w * t + phi2).sin();
+    let acc_of =
+        |t: f64| -a1 * w * w * (w * t).cos() - 4.0 * a2 * w * w * (2.0 * w * t + phi2).cos();
+
+    let fs_hz = (samples_per_cycle * point.frequency_hz).max(min_rate_hz);
+    let dt = 1.0 / fs_hz;
+    let n = (n_cycles as f64 * fs_hz / point.frequency_hz).round() as usize;
+    let sub = 16usize;
+    let h = dt / sub as f64;
+    // Settle: start 1.5 s early from the static state at z_static + a1 + a2 cos(phi2).
+    let settle = (1.5 * fs_hz).round() as usize;
+    let t0 = -(settle as f64) * dt;
+    let z0 = z_of(t0);
+    // Elastic force Fs of the consistent form at z0 (closed form), Fm = 0, friction 0.
+    let fs0 = p0 * ((1.0 + (1.0 - chi) * k1 * (z0 - 0.0) / p0).powf(1.0 / (1.0 - chi)) - 1.0);
+    let mut state = [fs0, 0.0, 0.0];
+    let (kf, ff_slip) = truth.friction.map_or((0.0, 1.0), |(k, f)| (k * l, f * l));
+    let deriv = |t: f64, s: &[f64; 3]| -> [f64; 3] {
+        let v = v_of(t);
+        let gg = (1.0 + s[0] / p0).max(1e-6).powf(chi);
+        let dfs = k1 * gg * v;
+        let dfm = if truth.fractional_maxwell_order.is_some() {
+            0.0
+        } else {
+            k2 * gg * v - (k2 / c2) * s[1]
+        };
+        // Bouc-Wen, exponent n, beta = gamma = 1/2: saturates at the slip force.
+        let wn = s[2] / ff_slip;
+        let dff = if kf > 0.0 {
+            let pow = wn.abs().powf(truth.friction_exponent - 1.0);
+            kf * (v - 0.5 * v.abs() * pow * wn - 0.5 * v * pow * wn.abs())
+        } else {
+            0.0
+        };
+        [dfs, dfm, dff]
+    };
+    let total = settle + n;
+    // Fine grid of the nonlinear force (elastic + Maxwell + friction).
+    let mut fine = Vec::with_capacity(total * sub + 1);
+    let mut t = t0;
+    fine.push(state[0] + state[1] + state[2]);
+    for _ in 0..total * sub {
+        let k_1 = deriv(t, &state);
+        let s2 = std::array::from_fn(|i| state[i] + 0.5 * h * k_1[i]);
+        let k_2 = deriv(t + 0.5 * h, &s2);
+        let s3 = std::array::from_fn(|i| state[i] + 0.5 * h * k_2[i]);
+        let k_3 = deriv(t + 0.5 * h, &s3);
+        let s4 = std::array::from_fn(|i| state[i] + h * k_3[i]);
+        let k_4 = deriv(t + h, &s4);
+        for i in 0..3 {
+            state[i] += h / 6.0 * (k_1[i] + 2.0 * k_2[i] + 2.0 * k_3[i] + k_4[i]);
+        }
+        t += h;
+        fine.push(state[0] + state[1] + state[2]);
+    }
+    let springpot = truth.springpot.map(|(c, alpha)| {
+        let c_eff = c * l * b * a.powf(alpha);
+        // c (i h W)^alpha per harmonic.
+        let m1 = c_eff * w.powf(alpha);
+        let m2 = c_eff * (2.0 * w).powf(alpha);
+        (m1, m2, PI * alpha / 2.0)
+    });
+    // Cole-Cole Maxwell branch at the preload: k2 g (i h W tau)^a / (1 + (i h W tau)^a).
+    let cole = truth.fractional_maxwell_order.map(|order| {
+        let tau = c2 / k2;
+        let branch = |w_h: f64| {
+            let mag = (w_h * tau).powf(order);
+            let (re, im) = (
+                mag * (PI * order / 2.0).cos(),
+                mag * (PI * order / 2.0).sin(),
+            );
+            // x / (1 + x)
+            let (dr, di) = (1.0 + re, im);
+            let den = dr * dr + di * di;
+            let (qr, qi) = ((re * dr + im * di) / den, (im * dr - re * di) / den);
+            (k2 * g * qr, k2 * g * qi)
+        };
+        (branch(w), branch(2.0 * w))
+    });
+    let force_at = |t: f64| -> f64 {
+        let x = (t - t0) / h;
+        let i = (x.floor() as usize).min(fine.len() - 2);
+        let frac = x - i as f64;
+        let mut f = fine[i] * (1.0 - frac) + fine[i + 1] * frac;
+        if let Some((m1, m2, phase)) = springpot {
+            f += m1 * a1 * (w * t + phase).cos() + m2 * a2 * (2.0 * w * t + phi2 + phase).cos();
+        }
+        if let Some((b1, b2)) = cole {
+            // Re(K Z e^{i phase}) for z = a cos(W t + phi): a (K_r cos - K_i sin).
+            let (p1, p2) = (w * t, 2.0 * w * t + phi2);
+            f +=
+                a1 * (b1.0 * p1.cos() - b1.1 * p1.sin()) + a2 * (b2.0 * p2.cos() - b2.1 * p2.sin());
+        }
+        f + truth.mass_kg * acc_of(t)
+    };
+    let mut ts = Vec::with_capacity(n);
+    let mut zs = Vec::with_capacity(n);
+    let mut fs = Vec::with_capacity(n);
+    for i in 0..n {
+        let t = i as f64 * dt;
+        ts.push(t);
+        zs.push(z_of(t));
+        fs.push(force_at(t - truth.force_lag_s));
+    }
+    (ts, zs, fs)
+}
+
+/// Writes a campaign directory for `truth` over `design`.
+/// How tests are sampled: samples per cycle (at least `min_rate_hz`), cycles recorded
+/// below and above 2 Hz, and white noise on the displacement relative to the force's.
+#[derive(Debug, Clone, Copy)]
+pub struct Acquisition {
+    pub samples_per_cycle: f64,
+    pub min_rate_hz: f64,
+    pub cycles_below_2_hz: usize,
+    pub cycles_above_2_hz: usize,
+}
+
+impl Acquisition {
+    pub fn typical() -> Acquisition {
+        Acquisition {
+            samples_per_cycle: 64.0,
+            min_rate_hz: 500.0,
+            cycles_below_2_hz: 4,
+            cycles_above_2_hz: 8,
+        }
+    }
+}
+
+pub fn write_campaign(dir: &Path, truth: &Truth, design: &[TestPoint], noise: &Noise, seed: u64) {
+    write_campaign_with(dir, truth, design, noise, seed, &Acquisition::typical());
+}
+
+pub fn write_campaign_with(
+    dir: &Path,
+    truth: &Truth,
+    design: &[TestPoint],
+    noise: &Noise,
+    seed: u64,
+    acquisition: &Acquisition,
+) {
+    std::fs::create_dir_all(dir).unwrap();
+    let mut rng = Rng::new(seed);
+    let mut toml = format!("sample_length_m = {:?}\n", truth.length_m);
+    for (idx, point) in design.iter().enumerate() {
+        let id = format!(
+            "T{idx:02}-P{:02}-F{}-A{}-T{}",
+            (point.preload_n / 1e3).round(),
+            point.frequency_hz,
+            point.amplitude_n / 1e3,
+            point.temperature_c
+        );
+        let n_cycles = if point.frequency_hz < 2.0 {
+            acquisition.cycles_below_2_hz
+        } else {
+            acquisition.cycles_above_2_hz
+        };
+        let (t, mut z, mut f) = simulate_test(
+            truth,
+            point,
+            n_cycles,
+            acquisition.samples_per_cycle,
+            acquisition.min_rate_hz,
+        );
+        let z_amp = {
+            let lo = z.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = z.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            0.5 * (hi - lo)
+        };
+        let mut ar = 0.0;
+        let drift_phase = rng.uniform() * 2.0 * PI;
+        let innovation = (1.0 - noise.coloured_rho * noise.coloured_rho).sqrt();
+        for i in 0..t.len() {
+            ar = noise.coloured_rho * ar + innovation * rng.normal();
+            f[i] += point.amplitude_n
+                * (noise.white_force * rng.normal()
+                    + noise.coloured_force * ar
+                    + noise.drift_force * (2.0 * PI * t[i] / 7.0 + drift_phase).sin());
+            z[i] += z_amp * noise.white_displacement * rng.normal();
+        }
+        let mut csv = String::from("t_s,displacement_m,force_n\n");
+        for i in 0..t.len() {
+            let _ = writeln!(csv, "{:?},{:?},{:?}", t[i], z[i], f[i]);
+        }
+        std::fs::write(dir.join(format!("{id}.csv")), csv).unwrap();
+        let _ = write!(
+            toml,
+            "\n[[test]]\nid = \"{id}\"\nfile = \"{id}.csv\"\nkind = \"harmonic\"\npreload_n = {:?}\namplitude_n = {:?}\nfrequency_hz = {:?}\ntemperature_c = {:?}\n",
+            point.preload_n, point.amplitude_n, point.frequency_hz, point.temperature_c
+        );
+    }
+    std::fs::write(dir.join("campaign.toml"), toml).unwrap();
+}
+
+/// A baseline model file whose parameters are off (and chi as given).
+pub fn off_baseline_toml(chi: f64) -> String {
+    format!(
+        "form = \"consistent\"\nlength_m = 0.75\nk1_0_n_per_m2 = 75e6\nk2_0_n_per_m2 = 7e6\nc2_0_ns_per_m2 = 0.5e6\nchi = {chi:?}\np0_n = 64e3\n"
+    )
+}
