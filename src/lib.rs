@@ -4,8 +4,10 @@
 pub mod bench;
 pub mod cli;
 pub mod csvio;
+pub mod hil;
 pub mod ipc;
 pub mod model;
 pub mod plot;
+pub mod rig;
 pub mod rt;
 pub mod track;

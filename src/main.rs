@@ -25,6 +25,14 @@ enum Command {
     /// Benchmarks (model step speed, transport latency).
     #[command(subcommand)]
     Bench(cli::bench::BenchCommand),
+    /// Run the closed loop: simulated rig, emulator and controller (the main command).
+    Hil(cli::hil::HilArgs),
+    /// The emulator process (fixed-step loop; started by `hil`).
+    Emulator(cli::loopproc::LoopProcessArgs),
+    /// The actuator-controller process (event-driven; started by `hil`).
+    Controller(cli::loopproc::LoopProcessArgs),
+    /// Re-run the emulator's model on a recorded input stream; verify bit-identical forces.
+    Replay(cli::replay::ReplayArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -33,6 +41,10 @@ fn main() -> std::process::ExitCode {
         Command::Simulate(cmd) => cli::simulate::run(cmd),
         Command::Equiv(args) => cli::equiv::run(args),
         Command::Bench(cmd) => cli::bench::run(cmd),
+        Command::Hil(args) => cli::hil::run(args),
+        Command::Emulator(args) => cli::loopproc::run_emulator_command(args),
+        Command::Controller(args) => cli::loopproc::run_controller_command(args),
+        Command::Replay(args) => cli::replay::run(args),
     };
     match result {
         Ok(code) => code,

@@ -3,6 +3,9 @@
 
 pub mod bench;
 pub mod equiv;
+pub mod hil;
+pub mod loopproc;
+pub mod replay;
 pub mod simulate;
 
 use anyhow::Context;

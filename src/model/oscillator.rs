@@ -51,6 +51,9 @@ pub struct Oscillator {
     v_m_per_s: f64,
     /// Internal element state: `Fm` (consistent), `F` (paper), unused (Kelvin-Voigt).
     q_n: f64,
+    /// Viscous damping to ground in parallel with the element (the HIL rig's own
+    /// damping in the offline reference), N s/m; 0 by default.
+    extra_damping_ns_per_m: f64,
 }
 
 impl Oscillator {
@@ -71,7 +74,14 @@ impl Oscillator {
             x_m: 0.0,
             v_m_per_s: 0.0,
             q_n: 0.0,
+            extra_damping_ns_per_m: 0.0,
         }
+    }
+
+    /// Adds a viscous damper to ground in parallel with the element, N s/m.
+    pub fn with_extra_damping(mut self, damping_ns_per_m: f64) -> Oscillator {
+        self.extra_damping_ns_per_m = damping_ns_per_m;
+        self
     }
 
     pub fn substeps(&self) -> u32 {
@@ -133,6 +143,7 @@ impl Oscillator {
 
     #[inline]
     fn derivative(&self, x: f64, v: f64, q: f64, external_n: f64) -> (Derivative, bool) {
+        let external_n = external_n - self.extra_damping_ns_per_m * v;
         match &self.model {
             ElementModel::Consistent(p) => {
                 let (fs, clamped) = consistent_static_force(p, x);
