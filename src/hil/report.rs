@@ -65,6 +65,53 @@ pub struct Stability {
     pub resonant_residual_max_m: f64,
     /// Last window's >100 Hz residual RMS over the median window's.
     pub resonant_residual_last_over_median: f64,
+    /// Least-squares growth rate of the >100 Hz residual's amplitude (peak per 10 ms
+    /// window), from the start to the emulator's trip (or the end), 1/s.
+    pub resonant_amplitude_growth_per_s: f64,
+    /// `-growth / omega_0` with `omega_0 = sqrt(k_tangent(preload) / m)`: the net damping
+    /// ratio the loop showed (negative: the loop delay's negative damping wins).
+    pub equivalent_damping_ratio: f64,
+    /// Rows analysed for the growth (up to the trip).
+    pub growth_rows: usize,
+}
+
+/// High-pass (>~100 Hz at `rate_hz`): subtracts a centred moving average over 1/100 s.
+fn high_pass(residual: &[f64], rate_hz: f64) -> Vec<f64> {
+    let half = ((rate_hz / 200.0) as usize).max(1);
+    let n = residual.len();
+    let mut prefix = vec![0.0; n + 1];
+    for i in 0..n {
+        prefix[i + 1] = prefix[i] + residual[i];
+    }
+    (0..n)
+        .map(|i| {
+            let (a, b) = (i.saturating_sub(half), (i + half + 1).min(n));
+            residual[i] - (prefix[b] - prefix[a]) / (b - a) as f64
+        })
+        .collect()
+}
+
+fn slope(ys: &[f64], dx: f64) -> f64 {
+    if ys.len() < 2 {
+        return 0.0;
+    }
+    let xs: Vec<f64> = (0..ys.len()).map(|i| i as f64 * dx).collect();
+    let (mx, my) = (mean(&xs), mean(ys));
+    let sxy: f64 = xs.iter().zip(ys).map(|(x, y)| (x - mx) * (y - my)).sum();
+    let sxx: f64 = xs.iter().map(|x| (x - mx) * (x - mx)).sum();
+    sxy / sxx
+}
+
+/// Growth rate of the residual's resonant amplitude over `residual[..end]`, 1/s.
+pub fn amplitude_growth_per_s(residual: &[f64], rate_hz: f64) -> f64 {
+    let hp = high_pass(residual, rate_hz);
+    let window = ((rate_hz * 0.01) as usize).max(1);
+    let peaks: Vec<f64> = hp
+        .chunks(window)
+        .filter(|c| c.len() == window)
+        .map(|c| c.iter().fold(1e-15f64, |m, x| m.max(x.abs())).ln())
+        .collect();
+    slope(&peaks, 0.01)
 }
 
 /// Results of the analysis of one run's records.
@@ -159,19 +206,7 @@ pub fn band_errors(
 
 /// Stability from the >100 Hz residual between HIL and reference displacement.
 pub fn stability(residual: &[f64], rate_hz: f64) -> Stability {
-    let half = ((rate_hz / 200.0) as usize).max(1);
-    // High-pass: subtract a centred moving average over 1/100 s.
-    let n = residual.len();
-    let mut prefix = vec![0.0; n + 1];
-    for i in 0..n {
-        prefix[i + 1] = prefix[i] + residual[i];
-    }
-    let hp: Vec<f64> = (0..n)
-        .map(|i| {
-            let (a, b) = (i.saturating_sub(half), (i + half + 1).min(n));
-            residual[i] - (prefix[b] - prefix[a]) / (b - a) as f64
-        })
-        .collect();
+    let hp = high_pass(residual, rate_hz);
     let window = ((rate_hz * 0.25) as usize).max(1);
     let energies: Vec<f64> = hp
         .chunks(window)
@@ -205,6 +240,7 @@ pub fn stability(residual: &[f64], rate_hz: f64) -> Stability {
         resonant_energy_growth_per_s: growth,
         resonant_residual_max_m: max_abs,
         resonant_residual_last_over_median: last_over_median,
+        ..Stability::default()
     }
 }
 
@@ -226,7 +262,7 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
     )?;
     let emu = column(
         &dir.join("emulator.csv"),
-        &["cycle_idx", "wake_late_ns", "force_n"],
+        &["cycle_idx", "wake_late_ns", "force_n", "state"],
     )?;
     let ctl = column(
         &dir.join("controller.csv"),
@@ -276,7 +312,24 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
         displacement_error_rms_m: rms(&err),
         bands: band_errors(x_hil, &x_ref, rate, &band_refs),
     };
-    let stability = stability(&err, rate);
+    let mut stability = stability(&err, rate);
+    // Growth up to the emulator's trip (after it the controller ramps to safe).
+    let trip_cycle = emu[3]
+        .iter()
+        .position(|&s| s as u32 == crate::ipc::messages::emulator_state::TRIPPED)
+        .map(|i| emu[0][i] as usize);
+    let growth_rows = trip_cycle.map_or(err.len(), |c| c.min(err.len()));
+    stability.growth_rows = growth_rows;
+    stability.resonant_amplitude_growth_per_s = amplitude_growth_per_s(&err[..growth_rows], rate);
+    let k_tangent = cfg
+        .model
+        .element
+        .high_frequency_stiffness_n_per_m(cfg.scenario.preload_n);
+    let omega0 = (k_tangent / cfg.rig.specimen_mass_kg).sqrt();
+    stability.equivalent_damping_ratio = -stability.resonant_amplitude_growth_per_s / omega0;
+    if trip_cycle.is_some() {
+        stability.stable = false;
+    }
     let latency_ns = Latency {
         end_to_end: percentiles(ctl[0].iter().filter(|&&v| v > 0.0).map(|&v| v as u64)),
         wake_jitter: percentiles(emu[1].iter().map(|&v| v as u64)),

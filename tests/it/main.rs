@@ -1,1 +1,4 @@
+//! Integration tests: one binary, one module per feature.
 
+mod hil_core;
+mod hil_processes;
