@@ -203,9 +203,9 @@ fn kill_test(needle: &str, name: &str, survivor_fault: &str) {
 
 #[test]
 fn sigkill_of_each_process_ends_the_run_naming_it_and_the_next_run_works() {
-    kill_test("emulator", "emulator", "controller: ");
-    kill_test("controller", "controller", "bench_rig: commands-stale");
-    kill_test("bench_rig", "bench_rig", "emulator: too-many-stale-samples");
+    kill_test(" emulator --config", "emulator", "controller: ");
+    kill_test(" controller --config", "controller", "bench_rig: commands-stale");
+    kill_test("bench_rig --config", "bench_rig", "emulator: too-many-stale-samples");
     // The next run works.
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let dir = scratch_dir("after-kills");
@@ -221,7 +221,7 @@ fn sigstop_of_the_emulator_trips_the_controller_watchdog() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let dir = scratch_dir("sigstop");
     let mut hil = spawn_hil(None, &dir.join("report"), 5.0);
-    let pid = wait_for_child(&hil, "emulator");
+    let pid = wait_for_child(&hil, " emulator --config");
     std::thread::sleep(Duration::from_millis(1500));
     unsafe { libc::kill(pid as i32, libc::SIGSTOP) };
     let (code, json) = finish(&mut hil, Duration::from_secs(20));
