@@ -425,18 +425,19 @@ pub fn parse_hil_config(
             ),
         ));
     }
-    let limit_action =
-        match c.limit_action.as_str() {
-            "saturate" => LimitAction::Saturate,
-            "hold" => LimitAction::Hold,
-            "ramp-to-zero" => LimitAction::RampToZero,
-            other => return Err(err(
+    let limit_action = match c.limit_action.as_str() {
+        "saturate" => LimitAction::Saturate,
+        "hold" => LimitAction::Hold,
+        "ramp-to-zero" => LimitAction::RampToZero,
+        other => {
+            return Err(err(
                 "controller.limit_action",
                 format!(
                     "\"{other}\" is not valid: expected \"saturate\", \"hold\" or \"ramp-to-zero\""
                 ),
-            )),
-        };
+            ))
+        }
+    };
     let force_min_n = finite("controller.force_min_n", c.force_min_n)?;
     let force_max_n = finite("controller.force_max_n", c.force_max_n)?;
     if force_min_n >= force_max_n {

@@ -241,6 +241,18 @@ pub fn run_processes(plan: &RunPlan, progress: bool) -> Result<RunOutcome, Proce
         cmd.stdin(Stdio::null())
             .stdout(Stdio::null())
             .stderr(Stdio::inherit());
+        // If the orchestrator itself is killed (SIGKILL cannot be handled), the kernel
+        // kills the children too; the next run then clears the dead run's files.
+        // SAFETY: prctl is async-signal-safe and touches no memory of the parent.
+        unsafe {
+            use std::os::unix::process::CommandExt;
+            cmd.pre_exec(|| {
+                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
         let child = cmd.spawn().map_err(|e| {
             ProcessError(format!("cannot start {name} ({}): {e}", exes[i].display()))
         })?;

@@ -336,7 +336,8 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
         .high_frequency_stiffness_n_per_m(cfg.scenario.preload_n);
     let omega0 = (k_tangent / cfg.rig.specimen_mass_kg).sqrt();
     stability.equivalent_damping_ratio = -stability.resonant_amplitude_growth_per_s / omega0;
-    if trip_cycle.is_some() || stability.resonant_amplitude_growth_per_s >= STABLE_MAX_GROWTH_PER_S {
+    if trip_cycle.is_some() || stability.resonant_amplitude_growth_per_s >= STABLE_MAX_GROWTH_PER_S
+    {
         stability.stable = false;
     }
     let latency_ns = Latency {

@@ -93,7 +93,10 @@ fn z_of(k: u64) -> f64 {
 }
 
 /// Runs the emulator core over `script` on a mock clock; returns records and the core.
-fn run_core(cfg: &HilConfig, script: Vec<Option<DisplacementSample>>) -> (Vec<EmulatorRecord>, EmulatorCore) {
+fn run_core(
+    cfg: &HilConfig,
+    script: Vec<Option<DisplacementSample>>,
+) -> (Vec<EmulatorRecord>, EmulatorCore) {
     let clock = MockClock::new(0);
     let mut scheduler = Scheduler::new(cfg.loop_.period_ns, 1_000, WaitMode::Sleep);
     let mut core = EmulatorCore::new(cfg.model.element, &cfg.loop_, cfg.emulator);
@@ -115,7 +118,15 @@ fn run_core(cfg: &HilConfig, script: Vec<Option<DisplacementSample>>) -> (Vec<Em
 fn emulator_cycle_does_not_allocate() {
     let cfg = config();
     let n = 2000u64;
-    let script: Vec<_> = (0..n).map(|k| if k % 7 == 3 { None } else { Some(sample(k, z_of(k))) }).collect();
+    let script: Vec<_> = (0..n)
+        .map(|k| {
+            if k % 7 == 3 {
+                None
+            } else {
+                Some(sample(k, z_of(k)))
+            }
+        })
+        .collect();
     let clock = MockClock::new(0);
     let mut scheduler = Scheduler::new(cfg.loop_.period_ns, 1_000, WaitMode::Sleep);
     let mut core = EmulatorCore::new(cfg.model.element, &cfg.loop_, cfg.emulator);
@@ -126,11 +137,16 @@ fn emulator_cycle_does_not_allocate() {
     };
     let dir = std::env::temp_dir().join(format!("fastemu-alloc-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let sink: RecordSink<EmulatorRecord> = RecordSink::create(&dir.join("emulator.csv"), 4096).unwrap();
+    let sink: RecordSink<EmulatorRecord> =
+        RecordSink::create(&dir.join("emulator.csv"), 4096).unwrap();
     // Every few cycles the mock clock wakes late by more than a period (catch-up steps).
     let ((), allocations) = count_allocations(|| {
         for k in 0..n {
-            clock.set_wake_lateness_ns(if k % 500 == 499 { 3 * cfg.loop_.period_ns } else { 0 });
+            clock.set_wake_lateness_ns(if k % 500 == 499 {
+                3 * cfg.loop_.period_ns
+            } else {
+                0
+            });
             let stats = scheduler.wait_next(&clock);
             clock.advance_ns(1);
             core.cycle(&stats, &mut io, &mut |r| sink.push(r));
@@ -188,12 +204,22 @@ fn missing_samples_are_held_counted_and_trip_after_the_limit() {
     script.extend((13..18).map(|k| Some(sample(k, z_of(k)))));
     script.extend(std::iter::repeat_n(None, 8));
     let (records, core) = run_core(&cfg, script);
-    assert_eq!(records[10].z_used_m, records[9].z_used_m, "a missing sample holds the last one");
+    assert_eq!(
+        records[10].z_used_m, records[9].z_used_m,
+        "a missing sample holds the last one"
+    );
     assert_eq!(records[10].stale, 1);
     assert_eq!(core.counts.skipped_samples, 3);
     assert_eq!(core.fault(), Some(Fault::TooManyStaleSamples));
-    let first_tripped = records.iter().position(|r| r.state == emulator_state::TRIPPED).unwrap();
-    assert_eq!(first_tripped, 18 + 5, "trips on the 6th consecutive missing sample");
+    let first_tripped = records
+        .iter()
+        .position(|r| r.state == emulator_state::TRIPPED)
+        .unwrap();
+    assert_eq!(
+        first_tripped,
+        18 + 5,
+        "trips on the 6th consecutive missing sample"
+    );
 }
 
 fn check_trip(bad: DisplacementSample, expected: Fault) {
@@ -204,9 +230,13 @@ fn check_trip(bad: DisplacementSample, expected: Fault) {
     let (records, core) = run_core(&cfg, script);
     assert_eq!(core.fault(), Some(expected));
     assert_eq!(records[19].state, emulator_state::RUNNING);
-    assert!(records[20..].iter().all(|r| r.state == emulator_state::TRIPPED && r.fault_code == expected.code()));
+    assert!(records[20..]
+        .iter()
+        .all(|r| r.state == emulator_state::TRIPPED && r.fault_code == expected.code()));
     // The safe state holds the last good force.
-    assert!(records[20..].iter().all(|r| r.force_n.to_bits() == records[19].force_n.to_bits()));
+    assert!(records[20..]
+        .iter()
+        .all(|r| r.force_n.to_bits() == records[19].force_n.to_bits()));
 }
 
 #[test]
@@ -224,11 +254,24 @@ fn invalid_samples_trip_with_their_reason() {
 #[test]
 fn same_inputs_give_identical_records() {
     let cfg = config();
-    let script = || -> Vec<_> { (0..3000).map(|k| if k % 11 == 5 { None } else { Some(sample(k, z_of(k))) }).collect() };
+    let script = || -> Vec<_> {
+        (0..3000)
+            .map(|k| {
+                if k % 11 == 5 {
+                    None
+                } else {
+                    Some(sample(k, z_of(k)))
+                }
+            })
+            .collect()
+    };
     let (a, _) = run_core(&cfg, script());
     let (b, _) = run_core(&cfg, script());
     assert_eq!(a.len(), b.len());
-    assert!(a.iter().zip(&b).all(|(x, y)| x.force_n.to_bits() == y.force_n.to_bits() && x == y));
+    assert!(a
+        .iter()
+        .zip(&b)
+        .all(|(x, y)| x.force_n.to_bits() == y.force_n.to_bits() && x == y));
 }
 
 #[test]
@@ -253,10 +296,17 @@ fn compensation_predicts_a_smooth_force_at_the_target_time() {
             reserved: 0,
         };
         let now = k * period_ns + 60_000;
-        last = core.on_setpoint(&sp, now).map(|(c, _)| (c, core.target_time_s(now)));
+        last = core
+            .on_setpoint(&sp, now)
+            .map(|(c, _)| (c, core.target_time_s(now)));
     }
     let (cmd, t_target) = last.unwrap();
-    assert!((cmd.force_n - force(t_target)).abs() < 1.0, "{} vs {}", cmd.force_n, force(t_target));
+    assert!(
+        (cmd.force_n - force(t_target)).abs() < 1.0,
+        "{} vs {}",
+        cmd.force_n,
+        force(t_target)
+    );
 }
 
 #[test]
@@ -284,7 +334,10 @@ fn watchdog_latches_stale_setpoints_and_ramps_to_the_safe_force() {
     for _ in 0..2000 {
         t += period_ns;
         if let Some((cmd, _)) = core.on_tick(t) {
-            assert!((cmd.force_n - last_force).abs() <= cfg.controller.safe_ramp_n_per_s * period_ns as f64 * 1e-9 + 1e-6);
+            assert!(
+                (cmd.force_n - last_force).abs()
+                    <= cfg.controller.safe_ramp_n_per_s * period_ns as f64 * 1e-9 + 1e-6
+            );
             last_force = cmd.force_n;
         }
     }
