@@ -99,13 +99,16 @@ pub fn parse_columns(text: &str, origin: &str, wanted: &[&str]) -> Result<Column
         }
     }
     let needed = index.iter().copied().max().unwrap_or(0) + 1;
-    let mut data: Vec<Vec<f64>> = vec![Vec::new(); wanted.len()];
+    let mut data: Vec<Vec<f64>> = vec![Vec::with_capacity(text.len() / 32); wanted.len()];
+    // Fields of the current line, reused across lines (no allocation per row).
+    let mut fields: Vec<&str> = Vec::with_capacity(needed.max(names.len()));
     for (i, line) in lines {
         let line_no = i + 1;
         if line.trim().is_empty() {
             continue;
         }
-        let fields: Vec<&str> = line.split(',').collect();
+        fields.clear();
+        fields.extend(line.split(',').take(needed));
         if fields.len() < needed {
             return Err(err(
                 Some(line_no),
@@ -182,24 +185,22 @@ pub fn uniform_step(time_s: &[f64], origin: &str, column: &str) -> Result<f64, C
     Ok(dt)
 }
 
-/// Writes columns as CSV with a header line. Numbers use Rust's shortest round-trip form.
+/// Writes columns as CSV with a header line. Numbers use the shortest form that reads
+/// back to the same `f64` (zmij), so nothing is lost between tools.
 pub fn write_columns(path: &Path, names: &[&str], columns: &[&[f64]]) -> std::io::Result<()> {
     let file = std::fs::File::create(path)?;
     let mut out = BufWriter::with_capacity(1 << 20, file);
     writeln!(out, "{}", names.join(","))?;
     let rows = columns.first().map_or(0, |c| c.len());
-    let mut line = String::with_capacity(128);
+    let mut number = zmij::Buffer::new();
     for row in 0..rows {
-        line.clear();
         for (i, col) in columns.iter().enumerate() {
             if i > 0 {
-                line.push(',');
+                out.write_all(b",")?;
             }
-            use std::fmt::Write as _;
-            let _ = write!(line, "{:?}", col[row]);
+            out.write_all(number.format(col[row]).as_bytes())?;
         }
-        line.push('\n');
-        out.write_all(line.as_bytes())?;
+        out.write_all(b"\n")?;
     }
     out.flush()
 }

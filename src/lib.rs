@@ -7,6 +7,7 @@ pub mod csvio;
 pub mod hil;
 pub mod ipc;
 pub mod model;
+pub mod paper;
 pub mod plot;
 pub mod rig;
 pub mod rt;

@@ -22,6 +22,8 @@ enum Command {
     Simulate(cli::simulate::SimulateCommand),
     /// Equivalent stiffness and damping table (paper Eq. 2).
     Equiv(cli::equiv::EquivArgs),
+    /// Reproduces the paper's tables and figures (CSV + PNG + summary.json/.md).
+    Paper(cli::paper::PaperArgs),
     /// Benchmarks (model step speed, transport latency).
     #[command(subcommand)]
     Bench(cli::bench::BenchCommand),
@@ -40,6 +42,7 @@ fn main() -> std::process::ExitCode {
     let result = match cli.command {
         Command::Simulate(cmd) => cli::simulate::run(cmd),
         Command::Equiv(args) => cli::equiv::run(args),
+        Command::Paper(args) => cli::paper::run(args),
         Command::Bench(cmd) => cli::bench::run(cmd),
         Command::Hil(args) => cli::hil::run(args),
         Command::Emulator(args) => cli::loopproc::run_emulator_command(args),

@@ -1,7 +1,11 @@
-//! Benchmarks: model step speed (`model`). Timing lives here and in reports, never in
-//! pass/fail tests.
+//! Benchmarks: model step speed (`model`), offline rail simulation (`rail`), and the
+//! loop's latency and jitter (`latency`, with its child-process guard in `child`).
+//! Timing lives here and in reports, never in pass/fail tests.
 
+pub mod child;
+pub mod latency;
 pub mod model;
+pub mod rail;
 
 /// Median of a slice (sorts a copy). Empty slices give NaN.
 pub fn median(values: &[f64]) -> f64 {

@@ -1,15 +1,118 @@
 //! `fastemu bench ...`: benchmark commands.
 
+use std::path::PathBuf;
 use std::process::ExitCode;
 
+use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
 
+use crate::bench::latency::transport::{serve_peer, PeerConfig};
+use crate::bench::latency::{run_latency_bench, LatencyConfig};
 use crate::bench::model::time_all_forms;
+use crate::bench::rail::time_simulate_rail;
+use crate::csvio::{read_columns, uniform_step};
+use crate::model::oscillator::StartCondition;
+use crate::rt::setup::parse_cpu_list;
+use crate::rt::RtSetup;
 
 #[derive(Subcommand)]
 pub enum BenchCommand {
     /// Nanoseconds per model step for each form (median of interleaved runs).
     Model(ModelBenchArgs),
+    /// Seconds per `simulate rail` computation (no CSV I/O), median of repeated runs.
+    Rail(RailBenchArgs),
+    /// Transport hop latency (iceoryx2, UDP, Unix socket, crossbeam), scheduler wake-up
+    /// jitter and the loop's end-to-end latency, with hdrhistogram percentiles.
+    Latency(LatencyArgs),
+    /// Echo peer of `bench latency` (spawned by it; not for direct use).
+    #[command(hide = true)]
+    LatencyPeer(LatencyPeerArgs),
+}
+
+#[derive(Args)]
+pub struct LatencyArgs {
+    /// Print one JSON object on stdout instead of the table (progress stays on stderr).
+    #[arg(long)]
+    pub json: bool,
+    /// Measured ping-pongs per transport.
+    #[arg(long, default_value_t = 100_000)]
+    pub samples: u64,
+    /// Rounds the samples are split into; transports alternate within each round.
+    #[arg(long, default_value_t = 10)]
+    pub rounds: u64,
+    /// Unrecorded ping-pongs at the start of each round of each transport.
+    #[arg(long, default_value_t = 200)]
+    pub warmup: u64,
+    /// CPUs to pin to, e.g. `2,3`: this process takes the first, the echo peer the
+    /// rest (a single CPU is shared by both).
+    #[arg(long, value_name = "CPUS")]
+    pub pin: Option<String>,
+    /// SCHED_FIFO priority (1-99) for both processes; also locks memory.
+    #[arg(long, value_name = "P")]
+    pub priority: Option<i32>,
+    /// Output directory for latency.hlog and latency_percentiles.png.
+    #[arg(long, value_name = "DIR", default_value = "out/latency")]
+    pub out: PathBuf,
+    /// Seconds of scheduler wake-up measurement per configuration.
+    #[arg(long, default_value_t = 2.0)]
+    pub jitter_s: f64,
+    /// Final spin of the sleep+spin scheduler mode, us.
+    #[arg(long, default_value_t = 100)]
+    pub spin_us: u64,
+    /// Timer slack for the thread measuring wake-up jitter, ns (kernel default 50000;
+    /// ignored under SCHED_FIFO). Unset keeps the kernel's.
+    #[arg(long, value_name = "NS")]
+    pub timer_slack_ns: Option<u64>,
+    /// Length of the `hil` run that gives the end-to-end latency, s.
+    #[arg(long, default_value_t = 2.0)]
+    pub hil_duration_s: f64,
+    /// Do not run `hil` for the end-to-end latency.
+    #[arg(long)]
+    pub skip_hil: bool,
+}
+
+#[derive(Args)]
+pub struct LatencyPeerArgs {
+    #[arg(long)]
+    pub control: PathBuf,
+    #[arg(long)]
+    pub iox_prefix: String,
+    #[arg(long)]
+    pub parent_udp_port: u16,
+    #[arg(long)]
+    pub parent_uds: PathBuf,
+    #[arg(long)]
+    pub peer_uds: PathBuf,
+    #[arg(long)]
+    pub pin: Option<String>,
+    #[arg(long)]
+    pub priority: Option<i32>,
+    #[arg(long)]
+    pub lock_memory: bool,
+    #[arg(long)]
+    pub yield_spin: bool,
+}
+
+#[derive(Args)]
+pub struct RailBenchArgs {
+    /// Model file (SPEC 2.3).
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Mass on the element, kg.
+    #[arg(long = "mass-kg", allow_negative_numbers = true)]
+    pub mass_kg: f64,
+    /// External force CSV: `t_s,force_n`, uniform step (read once, outside the timing).
+    #[arg(long)]
+    pub input: PathBuf,
+    /// Initial condition: `rest` or `static`.
+    #[arg(long, default_value = "rest")]
+    pub start: String,
+    /// Timed runs.
+    #[arg(long, default_value_t = 7)]
+    pub runs: usize,
+    /// Print one JSON object.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Args)]
@@ -28,7 +131,130 @@ pub struct ModelBenchArgs {
 pub fn run(cmd: BenchCommand) -> anyhow::Result<ExitCode> {
     match cmd {
         BenchCommand::Model(args) => run_model(args),
+        BenchCommand::Rail(args) => run_rail(args),
+        BenchCommand::Latency(args) => run_latency(args),
+        BenchCommand::LatencyPeer(args) => run_latency_peer(args),
     }
+}
+
+fn run_latency(args: LatencyArgs) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(args.samples > 0, "--samples must be positive, got 0");
+    anyhow::ensure!(args.rounds > 0, "--rounds must be positive, got 0");
+    anyhow::ensure!(
+        args.jitter_s > 0.0 && args.jitter_s.is_finite(),
+        "--jitter-s must be a positive number of seconds, got {}",
+        args.jitter_s
+    );
+    let cpus = match &args.pin {
+        Some(text) => parse_cpu_list(text).map_err(|e| anyhow::anyhow!("--pin {text}: {e}"))?,
+        None => Vec::new(),
+    };
+    // This process takes the first CPU, the peer the rest; one CPU is shared.
+    let (main_cpus, peer_cpus) = match cpus.split_first() {
+        Some((&first, rest)) if !rest.is_empty() => (vec![first], rest.to_vec()),
+        Some((&first, _)) => (vec![first], vec![first]),
+        None => (Vec::new(), Vec::new()),
+    };
+    let yield_while_spinning = cpus.len() == 1;
+    let setup = |cpus: Vec<usize>| RtSetup {
+        lock_memory: args.priority.is_some(),
+        fifo_priority: args.priority,
+        cpus,
+    };
+    let config = LatencyConfig {
+        samples_per_transport: args.samples,
+        rounds: args.rounds,
+        warmup_per_round: args.warmup,
+        jitter_seconds: args.jitter_s,
+        spin_ns: args.spin_us * 1000,
+        timer_slack_ns: args.timer_slack_ns,
+        main_rt: setup(main_cpus),
+        peer_rt: setup(peer_cpus),
+        yield_while_spinning,
+        hil_duration_s: (!args.skip_hil).then_some(args.hil_duration_s),
+        exe: std::env::current_exe().context("cannot locate the running executable")?,
+        out_dir: args.out.clone(),
+    };
+    if yield_while_spinning {
+        eprintln!(
+            "bench latency: both sides share CPU {}: busy-polling receivers yield on every miss",
+            cpus[0]
+        );
+    }
+    let mut progress = |line: &str| eprintln!("bench latency: {line}");
+    let report = run_latency_bench(&config, &mut progress)?;
+    for w in &report.warnings {
+        eprintln!("bench latency: warning: {w}");
+    }
+    if args.json {
+        println!("{}", serde_json::to_string(&report.to_json())?);
+    } else {
+        print!("{}", report.table());
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn run_rail(args: RailBenchArgs) -> anyhow::Result<ExitCode> {
+    let Some(start) = StartCondition::from_name(&args.start) else {
+        bail!("--start {}: expected `rest` or `static`", args.start);
+    };
+    if !(args.mass_kg.is_finite() && args.mass_kg > 0.0) {
+        bail!(
+            "--mass-kg {}: must be a positive finite number",
+            args.mass_kg
+        );
+    }
+    anyhow::ensure!(args.runs > 0, "--runs must be positive");
+    let spec = super::load_model(&args.model)?;
+    let cols = read_columns(&args.input, &["t_s", "force_n"])?;
+    let dt = uniform_step(&cols.data[0], &args.input.display().to_string(), "t_s")?;
+    let timing = time_simulate_rail(
+        spec.element,
+        args.mass_kg,
+        dt,
+        &cols.data[1],
+        start,
+        args.runs,
+    );
+    if args.json {
+        println!("{}", serde_json::to_string(&timing)?);
+    } else {
+        println!(
+            "{} form, {} samples at dt {:e} s, {} sub-step(s): median {:.6} s (min {:.6}, max {:.6}) over {} runs, {:.1} ns/step",
+            timing.form,
+            timing.n_samples,
+            timing.dt_s,
+            timing.substeps_per_step,
+            timing.median_s,
+            timing.min_s,
+            timing.max_s,
+            timing.runs,
+            timing.median_ns_per_step
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn run_latency_peer(args: LatencyPeerArgs) -> anyhow::Result<ExitCode> {
+    let cpus = match &args.pin {
+        Some(text) => parse_cpu_list(text).map_err(|e| anyhow::anyhow!("--pin {text}: {e}"))?,
+        None => Vec::new(),
+    };
+    let config = PeerConfig {
+        control_path: args.control,
+        iox_prefix: args.iox_prefix,
+        parent_udp_port: args.parent_udp_port,
+        parent_uds_path: args.parent_uds,
+        peer_uds_path: args.peer_uds,
+        rt: RtSetup {
+            lock_memory: args.lock_memory,
+            fifo_priority: args.priority,
+            cpus,
+        },
+        yield_while_spinning: args.yield_spin,
+    };
+    serve_peer(&config)?;
+    Ok(ExitCode::SUCCESS)
 }
 
 fn run_model(args: ModelBenchArgs) -> anyhow::Result<ExitCode> {

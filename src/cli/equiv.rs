@@ -14,10 +14,18 @@ pub struct EquivArgs {
     #[arg(long)]
     pub model: PathBuf,
     /// Preloads, N (comma-separated; default: the paper's Table 2 grid 6, 18, 37, 55 kN).
-    #[arg(long = "preload-n", value_delimiter = ',')]
+    #[arg(
+        long = "preload-n",
+        value_delimiter = ',',
+        allow_negative_numbers = true
+    )]
     pub preload_n: Vec<f64>,
     /// Frequencies, Hz (comma-separated; default: 1, 3, 5, 10, 20 Hz).
-    #[arg(long = "frequency-hz", value_delimiter = ',')]
+    #[arg(
+        long = "frequency-hz",
+        value_delimiter = ',',
+        allow_negative_numbers = true
+    )]
     pub frequency_hz: Vec<f64>,
     /// Print one JSON object instead of a table.
     #[arg(long)]

@@ -5,6 +5,7 @@ pub mod bench;
 pub mod equiv;
 pub mod hil;
 pub mod loopproc;
+pub mod paper;
 pub mod replay;
 pub mod simulate;
 

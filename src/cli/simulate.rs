@@ -38,7 +38,7 @@ pub struct RailArgs {
     #[arg(long)]
     pub model: PathBuf,
     /// Mass on the element, kg (60.21 for one metre of UIC60 rail).
-    #[arg(long = "mass-kg")]
+    #[arg(long = "mass-kg", allow_negative_numbers = true)]
     pub mass_kg: f64,
     /// External force CSV: `t_s,force_n`, uniform step.
     #[arg(long)]

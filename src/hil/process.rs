@@ -229,7 +229,7 @@ pub fn run_emulator(
         if outcome == CycleOutcome::EndOfRun || stats.cycle_idx > max_cycles {
             break;
         }
-        if stats.cycle_idx % heartbeat_every == 0 {
+        if stats.cycle_idx.is_multiple_of(heartbeat_every) {
             heartbeat.publish(Heartbeat {
                 process: process_id::EMULATOR,
                 state: core.state(),

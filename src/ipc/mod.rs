@@ -11,3 +11,4 @@ pub use transport::{
     cleanup_dead_nodes, count_nodes, file_prefix, quiet_iceoryx2_logs, In, IpcError, IpcNode, Out,
     Wake, WakeListener,
 };
+pub mod pingpong;

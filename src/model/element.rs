@@ -196,7 +196,8 @@ impl ForceStepper {
 #[inline]
 pub(crate) fn paper_factor(chi: f64, p0_n: f64, force_n: f64) -> (f64, bool) {
     let raw = 1.0 + force_n / p0_n;
-    let clamped = !(raw >= BASE_MIN);
+    // NaN counts as clamped too, so a NaN base can never reach `powf`.
+    let clamped = raw.is_nan() || raw < BASE_MIN;
     (if clamped { BASE_MIN } else { raw }.powf(chi), clamped)
 }
 

@@ -8,7 +8,7 @@
 //! (phase error ~1e-6 per cycle, so long free responses keep their phase), and the
 //! relaxation rate `k2/c2` is far below it. `step` does not allocate.
 
-use super::element::{paper_factor, StepFlags};
+use super::element::StepFlags;
 use super::params::{consistent_static_force, paper_static_force, ElementModel, BASE_MIN};
 
 /// Largest `omega h` allowed in one Runge-Kutta sub-step.
@@ -44,16 +44,64 @@ struct Derivative {
 #[derive(Debug, Clone, Copy)]
 pub struct Oscillator {
     model: ElementModel,
-    mass_kg: f64,
     dt_s: f64,
     n_sub: u32,
     x_m: f64,
     v_m_per_s: f64,
     /// Internal element state: `Fm` (consistent), `F` (paper), unused (Kelvin-Voigt).
     q_n: f64,
+    /// Constants of the derivative, computed once so a stage needs no division but one.
+    coef: Coefficients,
     /// Viscous damping to ground in parallel with the element (the HIL rig's own
     /// damping in the offline reference), N s/m; 0 by default.
     extra_damping_ns_per_m: f64,
+}
+
+/// Per-oscillator constants of the right-hand side (see `Oscillator::derivative`).
+#[derive(Debug, Clone, Copy, Default)]
+struct Coefficients {
+    inv_mass_per_kg: f64,
+    /// Consistent: `(1 - chi) k1_0 / P0`; paper: `1 / P0`.
+    base_slope: f64,
+    /// Consistent: `1 / (1 - chi)`; paper: `chi`.
+    exponent: f64,
+    /// `k2/c2`, 1/s.
+    rate_per_s: f64,
+    /// Consistent: `k2_0 / k1_0 * k1_0 = k2_0` (tangent Maxwell stiffness factor).
+    maxwell_n_per_m: f64,
+    /// Paper: `k1_0 + k2_0`.
+    k12_n_per_m: f64,
+    /// Paper: `a k1_0`.
+    a_k1_n_per_m_s: f64,
+}
+
+impl Coefficients {
+    fn of(model: &ElementModel, mass_kg: f64) -> Coefficients {
+        let inv_mass_per_kg = 1.0 / mass_kg;
+        match model {
+            ElementModel::Consistent(p) => Coefficients {
+                inv_mass_per_kg,
+                base_slope: (1.0 - p.chi) * p.k1_0_n_per_m / p.p0_n,
+                exponent: 1.0 / (1.0 - p.chi),
+                rate_per_s: p.relaxation_rate_per_s(),
+                maxwell_n_per_m: p.k2_0_n_per_m,
+                ..Coefficients::default()
+            },
+            ElementModel::Paper(p) => Coefficients {
+                inv_mass_per_kg,
+                base_slope: 1.0 / p.p0_n,
+                exponent: p.chi,
+                rate_per_s: p.relaxation_rate_per_s(),
+                k12_n_per_m: p.k1_0_n_per_m + p.k2_0_n_per_m,
+                a_k1_n_per_m_s: p.relaxation_rate_per_s() * p.k1_0_n_per_m,
+                ..Coefficients::default()
+            },
+            ElementModel::KelvinVoigt(_) => Coefficients {
+                inv_mass_per_kg,
+                ..Coefficients::default()
+            },
+        }
+    }
 }
 
 impl Oscillator {
@@ -68,12 +116,12 @@ impl Oscillator {
         let n_sub = ((omega * dt_s / MAX_OMEGA_H).ceil() as u32).max(1);
         Oscillator {
             model,
-            mass_kg,
             dt_s,
             n_sub,
             x_m: 0.0,
             v_m_per_s: 0.0,
             q_n: 0.0,
+            coef: Coefficients::of(&model, mass_kg),
             extra_damping_ns_per_m: 0.0,
         }
     }
@@ -143,40 +191,45 @@ impl Oscillator {
 
     #[inline]
     fn derivative(&self, x: f64, v: f64, q: f64, external_n: f64) -> (Derivative, bool) {
+        let c = &self.coef;
         let external_n = external_n - self.extra_damping_ns_per_m * v;
         match &self.model {
             ElementModel::Consistent(p) => {
-                let (fs, clamped) = consistent_static_force(p, x);
-                // dFs/dz = k1_0 g(Fs) and g(Fs) = base^(chi/(1-chi)) = (1 + Fs/P0)/base.
-                let base = (1.0 + (1.0 - p.chi) * p.k1_0_n_per_m * x / p.p0_n).max(BASE_MIN);
-                let tangent = if clamped {
+                // Fs = P0 (base^(1/(1-chi)) - 1) and dFs/dz = k1_0 g(Fs) = k1_0 base^(1/(1-chi)) / base;
+                // the Maxwell spring's stiffness is k2_0 g(Fs) = k2_0 base^(1/(1-chi)) / base.
+                let raw_base = 1.0 + c.base_slope * x;
+                let clamped = raw_base.is_nan() || raw_base < BASE_MIN;
+                let base = if clamped { BASE_MIN } else { raw_base };
+                let power = base.powf(c.exponent);
+                let fs = p.p0_n * (power - 1.0);
+                let maxwell = if clamped {
                     0.0
                 } else {
-                    p.k1_0_n_per_m * (1.0 + fs / p.p0_n) / base
+                    c.maxwell_n_per_m * power / base
                 };
-                let ratio = p.k2_0_n_per_m / p.k1_0_n_per_m;
                 let d = Derivative {
                     dx: v,
-                    dv: (external_n - fs - q) / self.mass_kg,
-                    dq: ratio * tangent * v - p.relaxation_rate_per_s() * q,
+                    dv: (external_n - fs - q) * c.inv_mass_per_kg,
+                    dq: maxwell * v - c.rate_per_s * q,
                 };
                 (d, clamped)
             }
-            ElementModel::Paper(p) => {
-                let a = p.relaxation_rate_per_s();
-                let (g, clamped) = paper_factor(p.chi, p.p0_n, q);
-                let u = (p.k1_0_n_per_m + p.k2_0_n_per_m) * v + a * p.k1_0_n_per_m * x;
+            ElementModel::Paper(_) => {
+                let raw_base = 1.0 + q * c.base_slope;
+                let clamped = raw_base.is_nan() || raw_base < BASE_MIN;
+                let g = if clamped { BASE_MIN } else { raw_base }.powf(c.exponent);
+                let u = c.k12_n_per_m * v + c.a_k1_n_per_m_s * x;
                 let d = Derivative {
                     dx: v,
-                    dv: (external_n - q) / self.mass_kg,
-                    dq: g * u - a * q,
+                    dv: (external_n - q) * c.inv_mass_per_kg,
+                    dq: g * u - c.rate_per_s * q,
                 };
                 (d, clamped)
             }
             ElementModel::KelvinVoigt(p) => {
                 let d = Derivative {
                     dx: v,
-                    dv: (external_n - p.k_n_per_m * x - p.c_ns_per_m * v) / self.mass_kg,
+                    dv: (external_n - p.k_n_per_m * x - p.c_ns_per_m * v) * c.inv_mass_per_kg,
                     dq: 0.0,
                 };
                 (d, false)
@@ -192,13 +245,14 @@ impl Oscillator {
             return StepFlags::NONFINITE_INPUT;
         }
         let n = self.n_sub;
-        let h = self.dt_s / n as f64;
+        let inv_n = 1.0 / n as f64;
+        let h = self.dt_s * inv_n;
         let mut clamped = false;
         let (mut x, mut v, mut q) = (self.x_m, self.v_m_per_s, self.q_n);
         for i in 0..n {
-            let s0 = i as f64 / n as f64;
-            let s_half = (i as f64 + 0.5) / n as f64;
-            let s1 = (i + 1) as f64 / n as f64;
+            let s0 = i as f64 * inv_n;
+            let s_half = (i as f64 + 0.5) * inv_n;
+            let s1 = (i + 1) as f64 * inv_n;
             let fa = f0_n + (f1_n - f0_n) * s0;
             let fm = f0_n + (f1_n - f0_n) * s_half;
             let fb = f0_n + (f1_n - f0_n) * s1;
@@ -227,7 +281,13 @@ impl Oscillator {
         self.x_m = x;
         self.v_m_per_s = v;
         self.q_n = q;
-        if clamped || self.element_force_at(x, v, q).1 {
+        // The end state is out of the domain if its power-law base is (no power needed).
+        let end_base = match &self.model {
+            ElementModel::Consistent(_) => 1.0 + self.coef.base_slope * x,
+            ElementModel::Paper(_) => 1.0 + self.coef.base_slope * q,
+            ElementModel::KelvinVoigt(_) => 1.0,
+        };
+        if clamped || end_base.is_nan() || end_base < BASE_MIN {
             StepFlags::TENSION_CLAMPED
         } else {
             StepFlags::NONE

@@ -174,7 +174,8 @@ impl ElementModel {
 pub fn consistent_static_force(p: &ZenerParams, z_m: f64) -> (f64, bool) {
     let one_minus_chi = 1.0 - p.chi;
     let raw_base = 1.0 + one_minus_chi * p.k1_0_n_per_m * z_m / p.p0_n;
-    let clamped = !(raw_base >= BASE_MIN);
+    // NaN counts as clamped too, so a NaN base can never reach `powf`.
+    let clamped = raw_base.is_nan() || raw_base < BASE_MIN;
     let base = if clamped { BASE_MIN } else { raw_base };
     (p.p0_n * (base.powf(1.0 / one_minus_chi) - 1.0), clamped)
 }

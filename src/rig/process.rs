@@ -167,7 +167,7 @@ pub fn run_rig(cfg: &HilConfig, run_id: &str, out_dir: &Path) -> Result<RigSumma
             state,
         });
         physics.advance(t, dt, command_n, &load);
-        if k % heartbeat_every == 0 {
+        if k.is_multiple_of(heartbeat_every) {
             heartbeat.publish(Heartbeat {
                 process: process_id::RIG,
                 state,

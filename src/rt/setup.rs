@@ -45,7 +45,11 @@ pub fn apply_rt_setup(setup: &RtSetup) -> Vec<String> {
         }
     }
     if !setup.cpus.is_empty() {
-        let n_cpus = std::thread::available_parallelism().map_or(1, |n| n.get());
+        // Count the machine's CPUs, not `available_parallelism()`: that reports the
+        // caller's current affinity, so a thread or child process that inherited a
+        // one-CPU mask could never be moved to another CPU.
+        // SAFETY: sysconf with a constant name has no preconditions.
+        let n_cpus = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_CONF) }.max(1) as usize;
         // SAFETY: cpu_set_t is plain data; CPU_ZERO/CPU_SET write within it.
         let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
         let mut any = false;

@@ -1,4 +1,15 @@
-//! Integration tests: one binary, one module per feature.
+//! The one integration-test binary (STYLE: one binary, shared helpers). Each module
+//! checks a feature against an independent calculation written in the test itself.
 
+mod alloc_counter;
+mod cli_errors;
+mod common;
 mod hil_core;
 mod hil_processes;
+mod latency_bench;
+mod model_alloc;
+mod model_closed_form;
+mod model_determinism;
+mod model_modulus;
+mod model_tension;
+mod paper;

@@ -1,0 +1,462 @@
+//! The `fastemu` binary's error paths and output shapes (SPEC 2.3 contract), run as a
+//! user would run it. Errors must exit non-zero and name the file and key or line.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use crate::common::{path_str, TempDir};
+
+const CONSISTENT_MODEL: &str = "form = \"consistent\"\nlength_m = 0.75\nk1_0_n_per_m2 = 62e6\n\
+k2_0_n_per_m2 = 9.6e6\nc2_0_ns_per_m2 = 0.7e6\nchi = 0.21\np0_n = 64e3\n";
+const KV_MODEL: &str =
+    "form = \"kelvin-voigt\"\nlength_m = 1.0\nk_n_per_m2 = 80e6\nc_ns_per_m2 = 1e3\n";
+
+fn fastemu(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_fastemu"))
+        .args(args)
+        .output()
+        .expect("run fastemu")
+}
+
+/// Runs `fastemu` expecting failure; every `needles` entry must appear in stderr.
+fn assert_fails(args: &[&str], needles: &[&str]) {
+    let out = fastemu(args);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success(),
+        "{args:?} succeeded; stderr: {stderr}"
+    );
+    for needle in needles {
+        assert!(
+            stderr.contains(needle),
+            "{args:?}: stderr lacks {needle:?}:\n{stderr}"
+        );
+    }
+    // One-line errors (SPEC 2.3).
+    assert_eq!(stderr.trim_end().lines().count(), 1, "{args:?}: {stderr}");
+}
+
+fn displacement_csv(rows: usize) -> String {
+    let mut s = String::from("t_s,displacement_m\n");
+    for i in 0..rows {
+        s.push_str(&format!("{},{}\n", i as f64 * 1e-3, 1e-4 * i as f64));
+    }
+    s
+}
+
+fn load_csv(rows: usize) -> String {
+    let mut s = String::from("t_s,force_n\n");
+    for i in 0..rows {
+        s.push_str(&format!("{},{}\n", i as f64 * 1e-4, 55e3));
+    }
+    s
+}
+
+fn simulate_force(model: &Path, input: &Path, out: &Path) -> Vec<String> {
+    [
+        "simulate",
+        "force",
+        "--model",
+        path_str(model),
+        "--input",
+        path_str(input),
+        "--out",
+        path_str(out),
+    ]
+    .map(String::from)
+    .to_vec()
+}
+
+fn as_strs(args: &[String]) -> Vec<&str> {
+    args.iter().map(String::as_str).collect()
+}
+
+/// Each broken model file: (label, text, words stderr must contain besides the path).
+fn broken_models() -> Vec<(&'static str, String, Vec<&'static str>)> {
+    let replace = |from: &str, to: &str| CONSISTENT_MODEL.replace(from, to);
+    vec![
+        (
+            "missing-chi",
+            replace("chi = 0.21\n", ""),
+            vec!["missing key `chi`"],
+        ),
+        (
+            "missing-form",
+            replace("form = \"consistent\"\n", ""),
+            vec!["missing key `form`"],
+        ),
+        (
+            "missing-kv-c",
+            KV_MODEL.replace("c_ns_per_m2 = 1e3\n", ""),
+            vec!["c_ns_per_m2"],
+        ),
+        (
+            "unknown-key",
+            format!("{CONSISTENT_MODEL}k3_n_per_m2 = 1.0\n"),
+            vec!["unknown key `k3_n_per_m2`"],
+        ),
+        (
+            "kv-key-in-zener",
+            format!("{CONSISTENT_MODEL}k_n_per_m2 = 1.0\n"),
+            vec!["unknown key `k_n_per_m2`"],
+        ),
+        (
+            "zero-k1",
+            replace("k1_0_n_per_m2 = 62e6", "k1_0_n_per_m2 = 0"),
+            vec!["k1_0_n_per_m2", "positive"],
+        ),
+        (
+            "negative-k2",
+            replace("k2_0_n_per_m2 = 9.6e6", "k2_0_n_per_m2 = -9.6e6"),
+            vec!["k2_0_n_per_m2", "positive"],
+        ),
+        (
+            "zero-c2",
+            replace("c2_0_ns_per_m2 = 0.7e6", "c2_0_ns_per_m2 = 0.0"),
+            vec!["c2_0_ns_per_m2", "positive"],
+        ),
+        (
+            "negative-p0",
+            replace("p0_n = 64e3", "p0_n = -64e3"),
+            vec!["p0_n", "positive"],
+        ),
+        (
+            "zero-length",
+            replace("length_m = 0.75", "length_m = 0.0"),
+            vec!["length_m", "positive"],
+        ),
+        (
+            "nan-length",
+            replace("length_m = 0.75", "length_m = nan"),
+            vec!["length_m", "positive"],
+        ),
+        (
+            "kv-zero-k",
+            KV_MODEL.replace("k_n_per_m2 = 80e6", "k_n_per_m2 = 0"),
+            vec!["k_n_per_m2", "positive"],
+        ),
+        (
+            "kv-negative-c",
+            KV_MODEL.replace("c_ns_per_m2 = 1e3", "c_ns_per_m2 = -1"),
+            vec!["c_ns_per_m2", "positive"],
+        ),
+        (
+            "chi-one",
+            replace("chi = 0.21", "chi = 1.0"),
+            vec!["chi", "[0, 1)"],
+        ),
+        (
+            "chi-negative",
+            replace("chi = 0.21", "chi = -0.1"),
+            vec!["chi", "[0, 1)"],
+        ),
+        (
+            "chi-string",
+            replace("chi = 0.21", "chi = \"0.21\""),
+            vec!["chi", "number"],
+        ),
+        (
+            "bad-form",
+            replace("\"consistent\"", "\"maxwell\""),
+            vec!["form", "maxwell", "kelvin-voigt"],
+        ),
+        ("form-number", replace("\"consistent\"", "3"), vec!["form"]),
+        (
+            "malformed-toml",
+            replace("chi = 0.21", "chi = = 0.21"),
+            vec!["not valid TOML", "line 6"],
+        ),
+    ]
+}
+
+#[test]
+fn broken_model_files_fail_naming_file_and_key() {
+    let dir = TempDir::new("models");
+    let input = dir.write("z.csv", &displacement_csv(10));
+    let load = dir.write("load.csv", &load_csv(10));
+    let out = dir.join("out.csv");
+    for (label, text, needles) in broken_models() {
+        let model = dir.write(&format!("{label}.toml"), &text);
+        let mut expected = vec![path_str(&model)];
+        expected.extend(&needles);
+        assert_fails(&as_strs(&simulate_force(&model, &input, &out)), &expected);
+        assert_fails(
+            &[
+                "simulate",
+                "rail",
+                "--model",
+                path_str(&model),
+                "--mass-kg",
+                "60.21",
+                "--input",
+                path_str(&load),
+                "--out",
+                path_str(&out),
+            ],
+            &expected,
+        );
+        assert_fails(&["equiv", "--model", path_str(&model)], &expected);
+        assert!(!out.exists(), "{label}: no output on error");
+    }
+    let missing = dir.join("no-such-model.toml");
+    assert_fails(
+        &["equiv", "--model", path_str(&missing)],
+        &[path_str(&missing), "cannot read"],
+    );
+}
+
+#[test]
+fn broken_csv_inputs_fail_naming_file_line_and_column() {
+    let dir = TempDir::new("csv");
+    let model = dir.write("m.toml", CONSISTENT_MODEL);
+    let out = dir.join("out.csv");
+    let cases: Vec<(&str, String, Vec<String>)> = vec![
+        (
+            "not-a-number",
+            displacement_csv(6).replace("0.0004\n", "0.0004x\n"),
+            // Header is line 1, so the 5th data row (i = 4) is line 6, column 2.
+            vec![":6:2:".into(), "displacement_m".into(), "0.0004x".into()],
+        ),
+        (
+            "not-a-number-time",
+            displacement_csv(6).replacen("0.002,", "abc,", 1),
+            vec![":4:1:".into(), "t_s".into(), "not a number".into()],
+        ),
+        (
+            "missing-column",
+            displacement_csv(5).replace("displacement_m", "z_m"),
+            vec![":1:".into(), "displacement_m".into()],
+        ),
+        (
+            "short-row",
+            displacement_csv(5).replacen("0.002,0.0002", "0.002", 1),
+            vec![":4:".into()],
+        ),
+        (
+            "non-uniform-step",
+            displacement_csv(6).replacen("0.003,", "0.0031,", 1),
+            vec![":5".into(), "uniform".into()],
+        ),
+        (
+            "decreasing-time",
+            displacement_csv(6).replacen("0.003,", "0.001,", 1),
+            vec![":5".into(), "increase".into()],
+        ),
+        ("one-row", displacement_csv(1), vec!["at least two".into()]),
+        (
+            "header-only",
+            displacement_csv(0),
+            vec!["at least two".into()],
+        ),
+        ("empty", String::new(), vec!["empty".into()]),
+        (
+            "infinite",
+            displacement_csv(4).replacen("0.0002", "inf", 1),
+            vec![":4:2:".into(), "finite".into()],
+        ),
+    ];
+    for (label, text, needles) in cases {
+        let input = dir.write(&format!("{label}.csv"), &text);
+        let mut expected: Vec<&str> = vec![path_str(&input)];
+        expected.extend(needles.iter().map(String::as_str));
+        assert_fails(&as_strs(&simulate_force(&model, &input, &out)), &expected);
+    }
+    // The rail primitive reads `t_s,force_n` through the same reader.
+    let input = dir.write("load-bad.csv", &load_csv(5).replacen("55000", "55 kN", 1));
+    assert_fails(
+        &[
+            "simulate",
+            "rail",
+            "--model",
+            path_str(&model),
+            "--mass-kg",
+            "60.21",
+            "--input",
+            path_str(&input),
+            "--out",
+            path_str(&out),
+        ],
+        &[path_str(&input), ":2:2:", "force_n"],
+    );
+    let input = dir.write("load-nocol.csv", "t_s,displacement_m\n0,0\n1,0\n");
+    assert_fails(
+        &[
+            "simulate",
+            "rail",
+            "--model",
+            path_str(&model),
+            "--mass-kg",
+            "60.21",
+            "--input",
+            path_str(&input),
+            "--out",
+            path_str(&out),
+        ],
+        &[path_str(&input), "force_n"],
+    );
+    let missing = dir.join("missing.csv");
+    assert_fails(
+        &as_strs(&simulate_force(&model, &missing, &out)),
+        &[path_str(&missing)],
+    );
+}
+
+#[test]
+fn bad_rail_arguments_fail() {
+    let dir = TempDir::new("args");
+    let model = dir.write("m.toml", CONSISTENT_MODEL);
+    let load = dir.write("load.csv", &load_csv(10));
+    let out = dir.join("out.csv");
+    let rail = |extra: &[&str]| {
+        let mut args = vec![
+            "simulate",
+            "rail",
+            "--model",
+            path_str(&model),
+            "--input",
+            path_str(&load),
+            "--out",
+            path_str(&out),
+        ];
+        args.extend(extra);
+        args.into_iter().map(String::from).collect::<Vec<_>>()
+    };
+    assert_fails(
+        &as_strs(&rail(&["--mass-kg", "60.21", "--start", "moving"])),
+        &["--start", "moving", "rest", "static"],
+    );
+    for mass in ["0", "-60.21", "nan", "inf"] {
+        assert_fails(
+            &as_strs(&rail(&["--mass-kg", mass])),
+            &["--mass-kg", "positive"],
+        );
+    }
+    // clap's own parse error: not a number.
+    let out_err = fastemu(&as_strs(&rail(&["--mass-kg", "heavy"])));
+    assert!(!out_err.status.success());
+    assert!(String::from_utf8_lossy(&out_err.stderr).contains("--mass-kg"));
+    assert!(!out.exists());
+}
+
+fn read_lines(path: &Path) -> Vec<String> {
+    std::fs::read_to_string(path)
+        .expect("output written")
+        .lines()
+        .map(String::from)
+        .collect()
+}
+
+#[test]
+fn simulate_force_and_rail_write_the_contracted_columns() {
+    let dir = TempDir::new("happy");
+    let model = dir.write("m.toml", CONSISTENT_MODEL);
+    let input = dir.write("z.csv", &displacement_csv(50));
+    let out = dir.join("sub/dir/f.csv");
+    let result = fastemu(&as_strs(&simulate_force(&model, &input, &out)));
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let lines = read_lines(&out);
+    assert_eq!(lines[0], "t_s,displacement_m,force_n");
+    assert_eq!(lines.len(), 51);
+    // The first row is the static equilibrium at the first displacement (0 m -> 0 N).
+    assert_eq!(lines[1], "0.0,0.0,0.0");
+    let last: Vec<f64> = lines[50].split(',').map(|s| s.parse().unwrap()).collect();
+    assert_eq!(last.len(), 3);
+    assert!(last[2] > 0.0);
+
+    for start in ["rest", "static"] {
+        let load = dir.write("load.csv", &load_csv(100));
+        let out = dir.join(&format!("x-{start}.csv"));
+        let result = fastemu(&[
+            "simulate",
+            "rail",
+            "--model",
+            path_str(&model),
+            "--mass-kg",
+            "45",
+            "--input",
+            path_str(&load),
+            "--out",
+            path_str(&out),
+            "--start",
+            start,
+        ]);
+        assert!(
+            result.status.success(),
+            "{}",
+            String::from_utf8_lossy(&result.stderr)
+        );
+        let lines = read_lines(&out);
+        assert_eq!(
+            lines[0],
+            "t_s,displacement_m,velocity_m_per_s,element_force_n"
+        );
+        assert_eq!(lines.len(), 101);
+        let first: Vec<f64> = lines[1].split(',').map(|s| s.parse().unwrap()).collect();
+        if start == "rest" {
+            assert_eq!(first, [0.0, 0.0, 0.0, 0.0]);
+        } else {
+            // Static start: the element already carries the first force sample.
+            assert!((first[3] - 55e3).abs() < 1e-6 * 55e3, "{first:?}");
+        }
+    }
+}
+
+#[test]
+fn equiv_json_has_the_documented_shape() {
+    let dir = TempDir::new("equiv");
+    let model = dir.write("m.toml", &CONSISTENT_MODEL.replace("consistent", "paper"));
+    let result = fastemu(&["equiv", "--model", path_str(&model), "--json"]);
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&result.stdout).expect("one JSON object");
+    assert_eq!(json["form"], "paper");
+    assert_eq!(json["length_m"], 0.75);
+    assert_eq!(json["per_metre"], true);
+    assert_eq!(json["model"], path_str(&model));
+    let rows = json["rows"].as_array().expect("rows array");
+    // Table 2 grid: 4 preloads x 5 frequencies.
+    assert_eq!(rows.len(), 20);
+    for row in rows {
+        for key in [
+            "preload_n",
+            "frequency_hz",
+            "k_eq_n_per_m2",
+            "c_eq_ns_per_m2",
+            "k_time_domain_n_per_m2",
+            "c_time_domain_ns_per_m2",
+        ] {
+            assert!(row[key].is_f64(), "{key} in {row}");
+        }
+    }
+    // Eq. 2 at 55 kN, 1 Hz (SPEC 2.1: 72.5 MN/m^2, 0.659 MN s/m^2), per metre even
+    // though the sample is 0.75 m, and the paper form's own 78.9 / 0.215.
+    let row = rows
+        .iter()
+        .find(|r| r["preload_n"] == 55e3 && r["frequency_hz"] == 1.0)
+        .expect("55 kN, 1 Hz row");
+    let get = |key: &str| row[key].as_f64().unwrap() / 1e6;
+    assert!((get("k_eq_n_per_m2") - 72.5).abs() < 0.05);
+    assert!((get("c_eq_ns_per_m2") - 0.659).abs() < 5e-4);
+    assert!((get("k_time_domain_n_per_m2") - 78.9).abs() < 0.05);
+    assert!((get("c_time_domain_ns_per_m2") - 0.215).abs() < 5e-4);
+
+    let result = fastemu(&[
+        "equiv",
+        "--model",
+        path_str(&model),
+        "--json",
+        "--preload-n",
+        "6000",
+        "--frequency-hz",
+        "1,2,3",
+    ]);
+    let json: serde_json::Value = serde_json::from_slice(&result.stdout).unwrap();
+    assert_eq!(json["rows"].as_array().unwrap().len(), 3);
+}
