@@ -280,13 +280,13 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
     let rate = cfg.loop_.rate_hz;
     let n = rig[0].len();
     anyhow::ensure!(n > 16, "rig record has only {n} rows");
-    let x_ref_all = reference_displacement_m(cfg, n);
+    // Rows skipped by a late wake-up are absent from the rig record, so the step index
+    // runs past the row count: simulate the reference up to the last step index.
+    let last_step = rig[0].iter().fold(0.0f64, |m, &k| m.max(k)) as usize;
+    let x_ref_all = reference_displacement_m(cfg, last_step);
     // Rig rows are on the sample grid; rows skipped by a late wake-up are absent, so
     // pair by step index.
-    let x_ref: Vec<f64> = rig[0]
-        .iter()
-        .map(|&k| x_ref_all[(k as usize).min(n)])
-        .collect();
+    let x_ref: Vec<f64> = rig[0].iter().map(|&k| x_ref_all[k as usize]).collect();
     let x_hil = &rig[2];
     let err: Vec<f64> = x_hil.iter().zip(&x_ref).map(|(h, r)| h - r).collect();
     let (m_hil, m_ref) = (mean(x_hil), mean(&x_ref));
