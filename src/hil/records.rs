@@ -48,6 +48,7 @@ impl<R: CsvRecord> RecordSink<R> {
                 out.write_all(R::HEADER.as_bytes())?;
                 out.write_all(b"\n")?;
                 let mut written = 0u64;
+                let mut unflushed = false;
                 loop {
                     let stopping = s.load(Ordering::Acquire);
                     let mut any = false;
@@ -55,11 +56,18 @@ impl<R: CsvRecord> RecordSink<R> {
                         r.write_csv(&mut out)?;
                         written += 1;
                         any = true;
+                        unflushed = true;
                     }
                     if stopping && q.is_empty() {
                         break;
                     }
                     if !any {
+                        // Flush while idle, so a killed process leaves its records up to
+                        // the last few ms on disk.
+                        if unflushed {
+                            out.flush()?;
+                            unflushed = false;
+                        }
                         std::thread::sleep(std::time::Duration::from_millis(2));
                     }
                 }
