@@ -33,6 +33,10 @@ enum Command {
     Emulator(cli::loopproc::LoopProcessArgs),
     /// The actuator-controller process (event-driven; started by `hil`).
     Controller(cli::loopproc::LoopProcessArgs),
+    /// The simulated rig in this binary (what `bench_rig` runs; used by `hil` when the
+    /// `bench_rig` binary was not built, e.g. after `cargo run --release -- hil`).
+    #[command(hide = true)]
+    Rig(cli::loopproc::LoopProcessArgs),
     /// Re-run the emulator's model on a recorded input stream; verify bit-identical forces.
     Replay(cli::replay::ReplayArgs),
 }
@@ -48,6 +52,7 @@ fn main() -> std::process::ExitCode {
         Command::Emulator(args) => cli::loopproc::run_emulator_command(args),
         Command::Controller(args) => cli::loopproc::run_controller_command(args),
         Command::Replay(args) => cli::replay::run(args),
+        Command::Rig(args) => cli::loopproc::run_rig_command(args),
     };
     match result {
         Ok(code) => code,

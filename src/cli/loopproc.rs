@@ -94,3 +94,25 @@ pub fn run_controller_command(args: LoopProcessArgs) -> anyhow::Result<ExitCode>
         ExitCode::SUCCESS
     })
 }
+
+pub fn run_rig_command(args: LoopProcessArgs) -> anyhow::Result<ExitCode> {
+    quiet_iceoryx2_logs();
+    let (cfg, _, _) = args.load()?;
+    let summary =
+        crate::rig::process::run_rig(&cfg, &args.run_id, &args.out).context("bench_rig")?;
+    eprintln!(
+        "bench_rig: {} steps, {} missed deadlines, {} periods without a new command{}",
+        summary.steps,
+        summary.missed_deadlines,
+        summary.held_commands,
+        summary
+            .fault
+            .as_ref()
+            .map_or(String::new(), |f| format!(", interlock: {f}"))
+    );
+    Ok(if summary.fault.is_some() {
+        ExitCode::from(3)
+    } else {
+        ExitCode::SUCCESS
+    })
+}

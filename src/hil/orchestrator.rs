@@ -222,8 +222,16 @@ pub fn run_processes(plan: &RunPlan, progress: bool) -> Result<RunOutcome, Proce
 
     let fastemu = std::env::current_exe()
         .map_err(|e| ProcessError(format!("cannot find own executable: {e}")))?;
-    let exes = [plan.bin_dir.join("bench_rig"), fastemu.clone(), fastemu];
-    let subcommands: [Option<&str>; 3] = [None, Some("emulator"), Some("controller")];
+    // `bench_rig` next to this executable; if it was not built (`cargo run` builds only
+    // the binary it runs), the same rig from this binary's hidden `rig` subcommand.
+    let bench_rig = plan.bin_dir.join("bench_rig");
+    let (rig_exe, rig_sub) = if bench_rig.exists() {
+        (bench_rig, None)
+    } else {
+        (fastemu.clone(), Some("rig"))
+    };
+    let exes = [rig_exe, fastemu.clone(), fastemu];
+    let subcommands: [Option<&str>; 3] = [rig_sub, Some("emulator"), Some("controller")];
     for (i, name) in PROCESS_NAMES.iter().enumerate() {
         let mut cmd = Command::new(&exes[i]);
         if let Some(sub) = subcommands[i] {
