@@ -11,7 +11,7 @@ use serde_json::json;
 
 use crate::hil::config::{load_or_default, DEFAULT_CONFIG_TOML};
 use crate::hil::orchestrator::{
-    clear_stale_runs, install_signal_handlers, new_run_id, run_processes, RunPlan,
+    clear_stale_runs, install_signal_handlers, lock_machine, new_run_id, run_processes, RunPlan,
 };
 use crate::hil::report::{analyse_run, Analysis};
 use crate::ipc::quiet_iceoryx2_logs;
@@ -103,6 +103,9 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
             p
         }
     };
+    let _machine_lock = lock_machine(std::time::Duration::from_secs(300), || {
+        eprintln!("hil: waiting for another hil run on this machine to finish")
+    })?;
     let stale = clear_stale_runs();
     if !stale.is_empty() {
         eprintln!(

@@ -431,3 +431,44 @@ pub fn run_processes(plan: &RunPlan, progress: bool) -> Result<RunOutcome, Proce
     outcome.leftover_files = clear_run(&plan.run_id);
     Ok(outcome)
 }
+
+/// Machine-wide lock serialising `hil` runs: two real-time loops sharing the CPUs would
+/// spoil each other's timing (and their reports). Released when dropped.
+pub struct MachineLock {
+    _file: std::fs::File,
+}
+
+/// Path of the machine-wide `hil` lock file.
+pub const MACHINE_LOCK_PATH: &str = "/tmp/fastemu-hil.lock";
+
+/// Takes the machine-wide lock, waiting up to `timeout` for another run to finish;
+/// calls `on_wait` once if it has to wait.
+pub fn lock_machine(
+    timeout: Duration,
+    on_wait: impl FnOnce(),
+) -> Result<MachineLock, ProcessError> {
+    use std::os::unix::io::AsRawFd;
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(MACHINE_LOCK_PATH)
+        .map_err(|e| ProcessError(format!("cannot open {MACHINE_LOCK_PATH}: {e}")))?;
+    let t0 = Instant::now();
+    let mut on_wait = Some(on_wait);
+    loop {
+        // SAFETY: flock on a valid descriptor we own.
+        if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } == 0 {
+            return Ok(MachineLock { _file: file });
+        }
+        if let Some(f) = on_wait.take() {
+            f();
+        }
+        if t0.elapsed() > timeout || INTERRUPTED.load(Ordering::SeqCst) {
+            return Err(ProcessError(format!(
+                "another hil run held {MACHINE_LOCK_PATH} for more than {timeout:?}"
+            )));
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
