@@ -17,6 +17,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Run the closed loop: simulated rig, emulator and controller (the main command).
+    Hil(cli::hil::HilArgs),
     /// Offline simulation primitives (SPEC 2.3): force from displacement, mass on element.
     #[command(subcommand)]
     Simulate(cli::simulate::SimulateCommand),
@@ -31,6 +33,16 @@ enum Command {
     /// Benchmarks (model step speed, transport latency).
     #[command(subcommand)]
     Bench(cli::bench::BenchCommand),
+    /// The emulator process (fixed-step loop; started by `hil`).
+    Emulator(cli::loopproc::LoopProcessArgs),
+    /// The actuator-controller process (event-driven; started by `hil`).
+    Controller(cli::loopproc::LoopProcessArgs),
+    /// The simulated rig in this binary (what `bench_rig` runs; used by `hil` when the
+    /// `bench_rig` binary was not built, e.g. after `cargo run --release -- hil`).
+    #[command(hide = true)]
+    Rig(cli::loopproc::LoopProcessArgs),
+    /// Re-run the emulator's model on a recorded input stream; verify bit-identical forces.
+    Replay(cli::replay::ReplayArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -42,6 +54,11 @@ fn main() -> std::process::ExitCode {
         Command::Bench(cmd) => cli::bench::run(cmd),
         Command::Identify(args) => cli::identify::run(args),
         Command::Diagnose(args) => cli::diagnose::run(args),
+        Command::Hil(args) => cli::hil::run(args),
+        Command::Emulator(args) => cli::loopproc::run_emulator_command(args),
+        Command::Controller(args) => cli::loopproc::run_controller_command(args),
+        Command::Replay(args) => cli::replay::run(args),
+        Command::Rig(args) => cli::loopproc::run_rig_command(args),
     };
     match result {
         Ok(code) => code,

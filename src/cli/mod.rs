@@ -4,9 +4,12 @@
 pub mod bench;
 pub mod diagnose;
 pub mod equiv;
+pub mod hil;
+pub mod loopproc;
 pub mod paper;
 pub mod fitplots;
 pub mod identify;
+pub mod replay;
 pub mod simulate;
 
 use anyhow::Context;

@@ -102,3 +102,55 @@ pub struct Heartbeat {
     pub fault_code: u32,
     pub reserved: u32,
 }
+
+/// Controller state carried in `ActuatorCommand::controller_state` and heartbeats.
+pub mod controller_state {
+    pub const STARTING: u32 = 0;
+    pub const RUNNING: u32 = 1;
+    /// A fault is latched: the command ramps to the safe force.
+    pub const RAMPING_TO_SAFE: u32 = 2;
+    /// A fault is latched and the command has reached the safe force.
+    pub const SAFE: u32 = 3;
+    pub const STOPPED: u32 = 4;
+}
+
+/// Rig state carried in heartbeats.
+pub mod rig_state {
+    pub const STARTING: u32 = 0;
+    pub const RUNNING: u32 = 1;
+    /// The rig's own interlock ramped the actuator to the safe force (commands stale).
+    pub const INTERLOCK: u32 = 2;
+    pub const FINISHED: u32 = 3;
+}
+
+/// Process ids carried in `Heartbeat::process`.
+pub mod process_id {
+    pub const RIG: u32 = 0;
+    pub const EMULATOR: u32 = 1;
+    pub const CONTROLLER: u32 = 2;
+}
+
+/// Heartbeat state meaning "ports created, waiting for the start command" (all processes).
+pub const HEARTBEAT_READY: u32 = 100;
+
+/// Run-control commands (`RunControl::command`).
+pub mod run_command {
+    /// Start the loops: first deadline at `RunControl::start_time_ns`.
+    pub const START: u32 = 1;
+    /// Stop now: flush records and exit.
+    pub const STOP: u32 = 2;
+}
+
+/// Orchestrator -> every process: start time and stop requests.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("fastemu::RunControl")]
+#[repr(C)]
+pub struct RunControl {
+    pub sequence: u64,
+    /// `CLOCK_MONOTONIC` time of the rig's first sample, ns; every loop's grid is
+    /// `start_time_ns + k * period` (plus its own phase offset).
+    pub start_time_ns: u64,
+    /// One of `run_command`.
+    pub command: u32,
+    pub reserved: u32,
+}

@@ -5,4 +5,10 @@
 //! path.
 
 pub mod messages;
+pub mod transport;
+
+pub use transport::{
+    cleanup_dead_nodes, count_nodes, file_prefix, quiet_iceoryx2_logs, In, IpcError, IpcNode, Out,
+    Wake, WakeListener,
+};
 pub mod pingpong;

@@ -52,6 +52,9 @@ pub struct Oscillator {
     q_n: f64,
     /// Constants of the derivative, computed once so a stage needs no division but one.
     coef: Coefficients,
+    /// Viscous damping to ground in parallel with the element (the HIL rig's own
+    /// damping in the offline reference), N s/m; 0 by default.
+    extra_damping_ns_per_m: f64,
 }
 
 /// Per-oscillator constants of the right-hand side (see `Oscillator::derivative`).
@@ -119,7 +122,14 @@ impl Oscillator {
             v_m_per_s: 0.0,
             q_n: 0.0,
             coef: Coefficients::of(&model, mass_kg),
+            extra_damping_ns_per_m: 0.0,
         }
+    }
+
+    /// Adds a viscous damper to ground in parallel with the element, N s/m.
+    pub fn with_extra_damping(mut self, damping_ns_per_m: f64) -> Oscillator {
+        self.extra_damping_ns_per_m = damping_ns_per_m;
+        self
     }
 
     pub fn substeps(&self) -> u32 {
@@ -182,6 +192,7 @@ impl Oscillator {
     #[inline]
     fn derivative(&self, x: f64, v: f64, q: f64, external_n: f64) -> (Derivative, bool) {
         let c = &self.coef;
+        let external_n = external_n - self.extra_damping_ns_per_m * v;
         match &self.model {
             ElementModel::Consistent(p) => {
                 // Fs = P0 (base^(1/(1-chi)) - 1) and dFs/dz = k1_0 g(Fs) = k1_0 base^(1/(1-chi)) / base;

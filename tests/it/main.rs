@@ -5,6 +5,8 @@ mod alloc_counter;
 mod campaign_loading;
 mod cli_errors;
 mod common;
+mod hil_core;
+mod hil_processes;
 mod latency_bench;
 mod diagnose_campaigns;
 mod effects_model;

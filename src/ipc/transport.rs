@@ -1,0 +1,355 @@
+//! The loop's iceoryx2 services and ports: one `IpcNode` per process, services named
+//! `fastemu/<run_id>/<stream>`, all iceoryx2 files named with a per-run file prefix.
+//!
+//! Must not: allocate, lock or log on `publish`/`receive_newest` (the per-sample path).
+//! Every service is opened-or-created with the same settings by every process, so the
+//! start order of the processes does not matter.
+
+use std::fmt;
+use std::time::Duration;
+
+use iceoryx2::config::Config;
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+
+use super::messages::{ActuatorCommand, DisplacementSample, ForceSetpoint, Heartbeat, RunControl};
+
+/// An IPC setup error: which step failed and the iceoryx2 error text.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct IpcError {
+    pub what: String,
+    pub detail: String,
+}
+
+impl fmt::Display for IpcError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "iceoryx2: {}: {}", self.what, self.detail)
+    }
+}
+
+impl std::error::Error for IpcError {}
+
+fn ipc_err(what: impl Into<String>) -> impl FnOnce(String) -> IpcError {
+    let what = what.into();
+    move |detail| IpcError { what, detail }
+}
+
+/// The streams of a run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stream {
+    Displacement,
+    Setpoint,
+    Command,
+    Heartbeat,
+    Control,
+}
+
+impl Stream {
+    pub fn name(self) -> &'static str {
+        match self {
+            Stream::Displacement => "displacement",
+            Stream::Setpoint => "setpoint",
+            Stream::Command => "command",
+            Stream::Heartbeat => "heartbeat",
+            Stream::Control => "control",
+        }
+    }
+}
+
+/// File-name prefix of every iceoryx2 file of run `run_id` (`/dev/shm/<prefix>*`,
+/// `/tmp/iceoryx2/**/<prefix>*`). Run ids are `fe<orchestrator pid>x<counter>`, so a
+/// crashed run's files can be found and its orchestrator checked for life.
+pub fn file_prefix(run_id: &str) -> String {
+    format!("{run_id}_")
+}
+
+/// Quiets iceoryx2's own logging (warnings such as "no config file was loaded").
+pub fn quiet_iceoryx2_logs() {
+    set_log_level(LogLevel::Error);
+}
+
+/// The iceoryx2 config of run `run_id`: the default config with a per-run file prefix.
+pub fn run_config(run_id: &str) -> Result<Config, IpcError> {
+    let mut config = Config::default();
+    config.global.prefix = FileName::new(file_prefix(run_id).as_bytes())
+        .map_err(|e| ipc_err(format!("run id `{run_id}` as file prefix"))(format!("{e:?}")))?;
+    Ok(config)
+}
+
+/// Removes the iceoryx2 resources of dead nodes of run `run_id`; returns (cleaned, failed).
+pub fn cleanup_dead_nodes(run_id: &str) -> Result<(u64, u64), IpcError> {
+    let config = run_config(run_id)?;
+    let mut cleaned = 0;
+    let mut failed = 0;
+    let mut dead = Vec::new();
+    Node::<ipc::Service>::list(&config, |state| {
+        if let NodeState::Dead(view) = state {
+            dead.push(view);
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| ipc_err("listing nodes")(format!("{e:?}")))?;
+    for view in dead {
+        match view.try_remove_stale_resources() {
+            Ok(()) => cleaned += 1,
+            Err(_) => failed += 1,
+        }
+    }
+    Ok((cleaned, failed))
+}
+
+/// Number of live (or undecidable) iceoryx2 nodes of run `run_id`.
+pub fn count_nodes(run_id: &str) -> Result<usize, IpcError> {
+    let config = run_config(run_id)?;
+    let mut n = 0;
+    Node::<ipc::Service>::list(&config, |_| {
+        n += 1;
+        CallbackProgression::Continue
+    })
+    .map_err(|e| ipc_err("listing nodes")(format!("{e:?}")))?;
+    Ok(n)
+}
+
+/// One process's iceoryx2 node for run `run_id`.
+pub struct IpcNode {
+    node: Node<ipc::Service>,
+    run_id: String,
+}
+
+type Pub<T> = Publisher<ipc::Service, T, ()>;
+type Sub<T> = Subscriber<ipc::Service, T, ()>;
+
+/// A publisher that does not allocate on `publish`.
+pub struct Out<T: fmt::Debug + ZeroCopySend + Copy + 'static> {
+    publisher: Pub<T>,
+}
+
+impl<T: fmt::Debug + ZeroCopySend + Copy + 'static> Out<T> {
+    /// Publishes a copy of `value`; returns false if iceoryx2 refused it.
+    #[inline]
+    pub fn publish(&self, value: T) -> bool {
+        self.publisher.send_copy(value).is_ok()
+    }
+}
+
+/// A subscriber with a small overwrite-oldest buffer.
+pub struct In<T: fmt::Debug + ZeroCopySend + Copy + 'static> {
+    subscriber: Sub<T>,
+}
+
+impl<T: fmt::Debug + ZeroCopySend + Copy + 'static> In<T> {
+    /// Drains the buffer and returns the newest value, if any arrived.
+    #[inline]
+    pub fn receive_newest(&self) -> Option<T> {
+        let mut newest = None;
+        while let Ok(Some(sample)) = self.subscriber.receive() {
+            newest = Some(*sample);
+        }
+        newest
+    }
+
+    /// Calls `f` on every value received since the last call, oldest first.
+    #[inline]
+    pub fn receive_each(&self, mut f: impl FnMut(T)) {
+        while let Ok(Some(sample)) = self.subscriber.receive() {
+            f(*sample);
+        }
+    }
+}
+
+/// Wakes a blocked listener.
+pub struct Wake {
+    notifier: Notifier<ipc::Service>,
+}
+
+impl Wake {
+    #[inline]
+    pub fn notify(&self) {
+        let _ = self.notifier.notify();
+    }
+}
+
+/// Blocks until woken (event-driven, no busy polling).
+pub struct WakeListener {
+    listener: Listener<ipc::Service>,
+}
+
+impl WakeListener {
+    /// Blocks until a notification arrives or `timeout` passes; returns whether woken.
+    ///
+    /// Waits through a `WaitSet` with the listener attached, so the process sleeps in the
+    /// kernel until the notifier fires.
+    pub fn wait(&self, waitset: &WaitSet<ipc::Service>, timeout: Duration) -> bool {
+        let mut woken = false;
+        let _ = waitset.wait_and_process_once_with_timeout(
+            |_| {
+                woken = true;
+                CallbackProgression::Stop
+            },
+            timeout,
+        );
+        // Consume all pending notifications so the next wait blocks again.
+        let _ = self.listener.try_wait(|_| {});
+        woken
+    }
+
+    /// Creates a waitset with this listener attached and passes it to `f`.
+    pub fn with_waitset<R>(
+        &self,
+        f: impl FnOnce(&WaitSet<ipc::Service>) -> R,
+    ) -> Result<R, IpcError> {
+        let waitset = WaitSetBuilder::new()
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ipc::Service>()
+            .map_err(|e| ipc_err("creating waitset")(format!("{e:?}")))?;
+        let _guard = waitset
+            .attach_notification(&self.listener)
+            .map_err(|e| ipc_err("attaching listener")(format!("{e:?}")))?;
+        Ok(f(&waitset))
+    }
+}
+
+impl IpcNode {
+    /// Creates the node of process `process_name` in run `run_id`.
+    pub fn new(run_id: &str, process_name: &str) -> Result<IpcNode, IpcError> {
+        let config = run_config(run_id)?;
+        let name =
+            NodeName::new(process_name).map_err(|e| ipc_err("node name")(format!("{e:?}")))?;
+        let node = NodeBuilder::new()
+            .name(&name)
+            .config(&config)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ipc::Service>()
+            .map_err(|e| ipc_err("creating node")(format!("{e:?}")))?;
+        Ok(IpcNode {
+            node,
+            run_id: run_id.to_string(),
+        })
+    }
+
+    fn service_name(&self, stream: &str) -> Result<ServiceName, IpcError> {
+        let text = format!("fastemu/{}/{}", self.run_id, stream);
+        ServiceName::new(&text)
+            .map_err(|e| ipc_err(format!("service name {text}"))(format!("{e:?}")))
+    }
+
+    fn pubsub<T: fmt::Debug + ZeroCopySend + Copy + 'static>(
+        &self,
+        stream: Stream,
+    ) -> Result<
+        iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>,
+        IpcError,
+    > {
+        // Loop streams keep the newest few samples (the reader wants the newest; older
+        // ones are overwritten, never block the writer). Heartbeats and control messages
+        // are rarer; control keeps its last message for late subscribers.
+        let (history, buffer, max_publishers, max_subscribers) = match stream {
+            Stream::Displacement | Stream::Setpoint | Stream::Command => (0, 8, 1, 4),
+            Stream::Heartbeat => (0, 64, 4, 4),
+            Stream::Control => (1, 8, 2, 4),
+        };
+        self.node
+            .service_builder(&self.service_name(stream.name())?)
+            .publish_subscribe::<T>()
+            .history_size(history)
+            .subscriber_max_buffer_size(buffer)
+            .enable_safe_overflow(true)
+            .max_publishers(max_publishers)
+            .max_subscribers(max_subscribers)
+            .max_nodes(8)
+            .open_or_create()
+            .map_err(|e| ipc_err(format!("opening service {}", stream.name()))(format!("{e:?}")))
+    }
+
+    fn out<T: fmt::Debug + ZeroCopySend + Copy + 'static>(
+        &self,
+        stream: Stream,
+    ) -> Result<Out<T>, IpcError> {
+        let publisher = self
+            .pubsub::<T>(stream)?
+            .publisher_builder()
+            .create()
+            .map_err(|e| ipc_err(format!("publisher on {}", stream.name()))(format!("{e:?}")))?;
+        Ok(Out { publisher })
+    }
+
+    fn input<T: fmt::Debug + ZeroCopySend + Copy + 'static>(
+        &self,
+        stream: Stream,
+    ) -> Result<In<T>, IpcError> {
+        let subscriber = self
+            .pubsub::<T>(stream)?
+            .subscriber_builder()
+            .create()
+            .map_err(|e| ipc_err(format!("subscriber on {}", stream.name()))(format!("{e:?}")))?;
+        Ok(In { subscriber })
+    }
+
+    fn event(
+        &self,
+        stream: Stream,
+    ) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, IpcError> {
+        self.node
+            .service_builder(&self.service_name(&format!("{}_event", stream.name()))?)
+            .event()
+            .max_notifiers(2)
+            .max_listeners(2)
+            .max_nodes(8)
+            .open_or_create()
+            .map_err(|e| ipc_err(format!("opening event {}", stream.name()))(format!("{e:?}")))
+    }
+
+    pub fn displacement_out(&self) -> Result<Out<DisplacementSample>, IpcError> {
+        self.out(Stream::Displacement)
+    }
+    pub fn displacement_in(&self) -> Result<In<DisplacementSample>, IpcError> {
+        self.input(Stream::Displacement)
+    }
+    pub fn setpoint_out(&self) -> Result<Out<ForceSetpoint>, IpcError> {
+        self.out(Stream::Setpoint)
+    }
+    pub fn setpoint_in(&self) -> Result<In<ForceSetpoint>, IpcError> {
+        self.input(Stream::Setpoint)
+    }
+    pub fn command_out(&self) -> Result<Out<ActuatorCommand>, IpcError> {
+        self.out(Stream::Command)
+    }
+    pub fn command_in(&self) -> Result<In<ActuatorCommand>, IpcError> {
+        self.input(Stream::Command)
+    }
+    pub fn heartbeat_out(&self) -> Result<Out<Heartbeat>, IpcError> {
+        self.out(Stream::Heartbeat)
+    }
+    pub fn heartbeat_in(&self) -> Result<In<Heartbeat>, IpcError> {
+        self.input(Stream::Heartbeat)
+    }
+    pub fn control_out(&self) -> Result<Out<RunControl>, IpcError> {
+        self.out(Stream::Control)
+    }
+    pub fn control_in(&self) -> Result<In<RunControl>, IpcError> {
+        self.input(Stream::Control)
+    }
+
+    /// Notifier that wakes whoever waits for new setpoints.
+    pub fn setpoint_wake(&self) -> Result<Wake, IpcError> {
+        let notifier = self
+            .event(Stream::Setpoint)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| ipc_err("setpoint notifier")(format!("{e:?}")))?;
+        Ok(Wake { notifier })
+    }
+
+    /// Listener for new-setpoint notifications.
+    pub fn setpoint_listener(&self) -> Result<WakeListener, IpcError> {
+        let listener = self
+            .event(Stream::Setpoint)?
+            .listener_builder()
+            .create()
+            .map_err(|e| ipc_err("setpoint listener")(format!("{e:?}")))?;
+        Ok(WakeListener { listener })
+    }
+}
