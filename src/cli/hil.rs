@@ -132,6 +132,13 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         cfg.loop_.rate_hz,
         out_dir.display()
     );
+    let effect_names: Vec<&str> = cfg.augmented.effects.iter().map(|e| e.name()).collect();
+    if !effect_names.is_empty() {
+        eprintln!(
+            "hil: the emulator runs the model's effects [{}] (rig artefacts channel-delay and moving-mass are left out); the fidelity reference integrates the base element only",
+            effect_names.join(", ")
+        );
+    }
     let mut outcome = run_processes(&plan, true)?;
     // Process deaths first: they are the cause; the others' safe states follow from them.
     outcome.faults.sort_by_key(|f| !f.contains("process (pid"));
@@ -167,6 +174,11 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         "fidelity": analysis.as_ref().map(|a| serde_json::to_value(&a.fidelity).unwrap_or_default()),
         "stability": analysis.as_ref().map(|a| serde_json::to_value(&a.stability).unwrap_or_default()),
         "latency_ns": analysis.as_ref().map(|a| serde_json::to_value(&a.latency_ns).unwrap_or_default()),
+        "model": {
+            "form": cfg.model.element.form().name(),
+            "length_m": cfg.model.length_m,
+            "effects": effect_names,
+        },
         "compensation": {
             "enabled": cfg.controller.compensation_enabled,
             "order": cfg.controller.compensation_order,

@@ -4,11 +4,11 @@
 pub mod bench;
 pub mod diagnose;
 pub mod equiv;
+pub mod fitplots;
 pub mod hil;
+pub mod identify;
 pub mod loopproc;
 pub mod paper;
-pub mod fitplots;
-pub mod identify;
 pub mod replay;
 pub mod simulate;
 

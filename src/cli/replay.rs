@@ -11,7 +11,7 @@ use crate::csvio::read_columns;
 use crate::hil::config::parse_hil_config;
 use crate::hil::process::EmulatorMeta;
 use crate::ipc::messages::emulator_state;
-use crate::model::element::ForceStepper;
+use crate::model::effects::{ModelStepper, StepperMode};
 
 #[derive(Debug, Clone, Args)]
 pub struct ReplayArgs {
@@ -49,7 +49,12 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayCounts> {
     )?;
     let cols = read_columns(&args.record, &["state", "z_used_m", "force_n"])?;
     let (state, z, force) = (&cols.data[0], &cols.data[1], &cols.data[2]);
-    let mut stepper = ForceStepper::new(cfg.model.element, cfg.loop_.dt_s(), 0.0);
+    let mut stepper = ModelStepper::new(
+        &cfg.augmented,
+        StepperMode::Emulation,
+        cfg.loop_.dt_s(),
+        0.0,
+    );
     let mut started = false;
     let mut counts = ReplayCounts {
         rows: z.len(),

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use crate::model::effects::AugmentedModel;
 use crate::model::file::{load_model_file, parse_model_toml, ModelSpec};
 
 /// The default configuration, embedded so `fastemu hil` runs from any directory.
@@ -241,6 +242,8 @@ pub struct HilConfig {
     pub origin: String,
     pub loop_: LoopConfig,
     pub model: ModelSpec,
+    /// The model with its `[[effect]]` tables validated: what the emulator steps.
+    pub augmented: AugmentedModel,
     pub emulator: EmulatorConfig,
     pub controller: ControllerConfig,
     pub rig: RigConfig,
@@ -401,6 +404,9 @@ pub fn parse_hil_config(
                 .map_err(|e| err("model", e.to_string()))?
         }
     };
+
+    let augmented = AugmentedModel::from_spec(&model, &format!("{origin} [model]"))
+        .map_err(|e| err("model.effect", e.to_string()))?;
 
     // [emulator]
     let e = &raw.emulator;
@@ -568,6 +574,7 @@ pub fn parse_hil_config(
         origin: origin.to_string(),
         loop_,
         model,
+        augmented,
         emulator,
         controller,
         rig,

@@ -12,8 +12,7 @@ use super::config::{EmulatorConfig, LoopConfig};
 use super::fault::Fault;
 use super::records::CsvRecord;
 use crate::ipc::messages::{emulator_state, sample_status, DisplacementSample, ForceSetpoint};
-use crate::model::element::ForceStepper;
-use crate::model::params::ElementModel;
+use crate::model::effects::{AugmentedModel, ModelStepper, StepperMode};
 use crate::rt::CycleStats;
 
 /// The emulator's view of its transport.
@@ -92,7 +91,9 @@ pub struct EmulatorCounts {
 /// The emulator's state between cycles.
 #[derive(Debug, Clone)]
 pub struct EmulatorCore {
-    stepper: ForceStepper,
+    /// The element plus its material effects; rig artefacts (`channel-delay`,
+    /// `moving-mass`) are left out (`StepperMode::Emulation`).
+    stepper: ModelStepper,
     limits: EmulatorConfig,
     trip_after_stale: u32,
     period_ns: u64,
@@ -106,9 +107,9 @@ pub struct EmulatorCore {
 }
 
 impl EmulatorCore {
-    pub fn new(model: ElementModel, loop_: &LoopConfig, limits: EmulatorConfig) -> EmulatorCore {
+    pub fn new(model: &AugmentedModel, loop_: &LoopConfig, limits: EmulatorConfig) -> EmulatorCore {
         EmulatorCore {
-            stepper: ForceStepper::new(model, loop_.dt_s(), 0.0),
+            stepper: ModelStepper::new(model, StepperMode::Emulation, loop_.dt_s(), 0.0),
             limits,
             trip_after_stale: loop_.trip_after_stale_samples,
             period_ns: loop_.period_ns,

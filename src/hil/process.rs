@@ -14,8 +14,8 @@ use super::emulator::{CycleOutcome, EmulatorCore, EmulatorIo, EmulatorRecord};
 use super::fault::Fault;
 use super::records::RecordSink;
 use crate::ipc::messages::{
-    controller_state, emulator_state, process_id, run_command, DisplacementSample, ForceSetpoint,
-    Heartbeat, RunControl, HEARTBEAT_READY,
+    controller_state, emulator_state, process_id, run_command, sample_status, DisplacementSample,
+    ForceSetpoint, Heartbeat, RunControl, HEARTBEAT_READY,
 };
 use crate::ipc::{In, IpcError, IpcNode, Out, Wake};
 use crate::rt::clock::monotonic_now_ns;
@@ -118,6 +118,16 @@ struct IpcEmulatorIo<'a> {
     /// How long to poll for the expected sample after waking, ns.
     sample_wait_ns: u64,
     newest: Option<DisplacementSample>,
+    /// Valid displacement range: a sample outside it, or non-finite, or with a bad
+    /// status is handed to the emulator for validation even when a newer one arrived
+    /// in the same cycle, so a single bad sample can never slip by unchecked.
+    displacement_range_m: (f64, f64),
+}
+
+/// A sample the emulator must see (bad status, non-finite or outside `lo..=hi`).
+#[inline]
+fn is_suspect(s: &DisplacementSample, (lo, hi): (f64, f64)) -> bool {
+    s.status != sample_status::OK || !(s.displacement_m >= lo && s.displacement_m <= hi)
 }
 
 impl EmulatorIo for IpcEmulatorIo<'_> {
@@ -127,10 +137,20 @@ impl EmulatorIo for IpcEmulatorIo<'_> {
         // expects instead of holding the previous one (bounded: `sample_wait_us`).
         let give_up_ns = monotonic_now_ns() + self.sample_wait_ns;
         let mut fresh = None;
+        let mut suspect = None;
+        let range = self.displacement_range_m;
         loop {
-            if let Some(s) = self.input.receive_newest() {
+            let mut newest = self.newest;
+            self.input.receive_each(|s| {
+                if suspect.is_none() && is_suspect(&s, range) {
+                    suspect = Some(s);
+                }
                 fresh = Some(s);
-                self.newest = Some(s);
+                newest = Some(s);
+            });
+            self.newest = newest;
+            if suspect.is_some() {
+                return suspect;
             }
             let arrived = self
                 .newest
@@ -211,13 +231,17 @@ pub fn run_emulator(
             spin_ns: cfg.loop_.spin_ns,
         },
     );
-    let mut core = EmulatorCore::new(cfg.model.element, &cfg.loop_, cfg.emulator);
+    let mut core = EmulatorCore::new(&cfg.augmented, &cfg.loop_, cfg.emulator);
     let mut io = IpcEmulatorIo {
         input: &input,
         output: &output,
         wake: &wake,
         sample_wait_ns: cfg.loop_.sample_wait_ns,
         newest: None,
+        displacement_range_m: (
+            cfg.emulator.displacement_min_m,
+            cfg.emulator.displacement_max_m,
+        ),
     };
     // Hard cap: the scenario plus 30 s, in case both the rig and the orchestrator vanish.
     let max_cycles = ((cfg.scenario.duration_s + 30.0) * cfg.loop_.rate_hz) as u64;

@@ -651,6 +651,25 @@ impl ModelStepper {
         self.dt_s
     }
 
+    /// Puts the model at rest in static equilibrium at `z_m` (relaxed branches, unloaded
+    /// friction sliders, a filled delay line). Does not allocate: the emulator calls it
+    /// on its first sample, inside the loop.
+    pub fn reset_static(&mut self, z_m: f64) {
+        self.base.reset_static(z_m);
+        if let Some(iwan) = &mut self.friction {
+            iwan.forces_n = [0.0; IWAN_ELEMENTS];
+        }
+        if let Some(bank) = &mut self.bank {
+            bank.force_n = [0.0; SPRINGPOT_BRANCHES];
+        }
+        self.z_start_m = z_m;
+        self.z_history_m = [z_m; 4];
+        let f0 = self.undelayed_force_n(z_m);
+        self.delay_line.fill(f0);
+        self.delay_head = 0;
+        self.force_n = f0;
+    }
+
     /// Force of the last step (as returned by `step`), N.
     pub fn force_n(&self) -> f64 {
         self.force_n

@@ -58,7 +58,7 @@ fn run_core(
 ) -> (Vec<EmulatorRecord>, EmulatorCore) {
     let clock = MockClock::new(0);
     let mut scheduler = Scheduler::new(cfg.loop_.period_ns, 1_000, WaitMode::Sleep);
-    let mut core = EmulatorCore::new(cfg.model.element, &cfg.loop_, cfg.emulator);
+    let mut core = EmulatorCore::new(&cfg.augmented, &cfg.loop_, cfg.emulator);
     let n = script.len();
     let mut io = MockIo {
         script,
@@ -88,7 +88,7 @@ fn emulator_cycle_does_not_allocate() {
         .collect();
     let clock = MockClock::new(0);
     let mut scheduler = Scheduler::new(cfg.loop_.period_ns, 1_000, WaitMode::Sleep);
-    let mut core = EmulatorCore::new(cfg.model.element, &cfg.loop_, cfg.emulator);
+    let mut core = EmulatorCore::new(&cfg.augmented, &cfg.loop_, cfg.emulator);
     let mut io = MockIo {
         script,
         cycle: 0,
