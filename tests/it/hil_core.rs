@@ -303,3 +303,61 @@ fn watchdog_latches_stale_setpoints_and_ramps_to_the_safe_force() {
     assert_eq!(last_force, cfg.controller.safe_force_n);
     assert_eq!(core.state(), fastemu::ipc::messages::controller_state::SAFE);
 }
+
+/// The emulator steps the model's effects, not just the element: with an
+/// `amplitude-friction` effect whose slip force is never reached, friction is a linear
+/// spring, so the force is the base element's force plus `k_f (z - z_first)` exactly.
+#[test]
+fn emulator_runs_model_effects_without_allocating() {
+    use fastemu::model::effects::{AugmentedModel, Effect};
+    use fastemu::model::ForceStepper;
+    let mut cfg = config();
+    let friction_stiffness_n_per_m = 3e6;
+    cfg.augmented = AugmentedModel {
+        effects: vec![Effect::AmplitudeFriction {
+            stiffness_n_per_m: friction_stiffness_n_per_m,
+            slip_force_n: 1e9,
+            slip_spread: 0.3,
+        }],
+        ..cfg.augmented.clone()
+    };
+    let n = 1500u64;
+    let script: Vec<_> = (0..n).map(|k| Some(sample(k, z_of(k)))).collect();
+    let clock = MockClock::new(0);
+    let mut scheduler = Scheduler::new(cfg.loop_.period_ns, 1_000, WaitMode::Sleep);
+    let mut core = EmulatorCore::new(&cfg.augmented, &cfg.loop_, cfg.emulator);
+    let mut io = MockIo {
+        script,
+        cycle: 0,
+        published: Vec::with_capacity(n as usize),
+    };
+    let mut records = Vec::with_capacity(n as usize + 8);
+    let allocations = count_allocations(|| {
+        for _ in 0..n {
+            let stats = scheduler.wait_next(&clock);
+            core.cycle(&stats, &mut io, &mut |r| records.push(r));
+        }
+    });
+    assert_eq!(
+        allocations, 0,
+        "the emulator loop body allocated with effects on"
+    );
+    let mut base = ForceStepper::new(cfg.augmented.element, cfg.loop_.dt_s(), z_of(0));
+    let mut compared = 0;
+    for r in records
+        .iter()
+        .filter(|r| r.state == emulator_state::RUNNING && r.sample_seq > 0)
+    {
+        let (base_force, _) = base.step(r.z_used_m);
+        let expected = base_force + friction_stiffness_n_per_m * (r.z_used_m - z_of(0));
+        assert!(
+            (r.force_n - expected).abs() <= 1e-6 * expected.abs(),
+            "step {}: emulator {} N, element + friction spring {} N",
+            r.step_idx,
+            r.force_n,
+            expected
+        );
+        compared += 1;
+    }
+    assert!(compared as u64 > n - 10, "compared only {compared} steps");
+}
