@@ -44,12 +44,17 @@ pub struct LatencyArgs {
     #[arg(long, default_value_t = 200)]
     pub warmup: u64,
     /// CPUs to pin to, e.g. `2,3`: this process takes the first, the echo peer the
-    /// rest (a single CPU is shared by both).
+    /// rest (a single CPU is shared by both). Default: the machine's last two CPUs.
     #[arg(long, value_name = "CPUS")]
     pub pin: Option<String>,
-    /// SCHED_FIFO priority (1-99) for both processes; also locks memory.
-    #[arg(long, value_name = "P")]
+    /// SCHED_FIFO priority (1-99) for both processes; also locks memory. Default: 50.
+    #[arg(long, value_name = "P", allow_negative_numbers = true)]
     pub priority: Option<i32>,
+    /// Measure under normal scheduling, unpinned, unless --pin/--priority say otherwise
+    /// (by default the bench asks for the best real-time setup the OS permits, and
+    /// reports a warning for each step it refuses).
+    #[arg(long)]
+    pub no_rt: bool,
     /// Output directory for latency.hlog and latency_percentiles.png.
     #[arg(long, value_name = "DIR", default_value = "out/latency")]
     pub out: PathBuf,
@@ -145,6 +150,20 @@ fn run_latency(args: LatencyArgs) -> anyhow::Result<ExitCode> {
         "--jitter-s must be a positive number of seconds, got {}",
         args.jitter_s
     );
+    // By default, ask for what a real rig machine would use: two dedicated CPUs and
+    // SCHED_FIFO. Busy-polling transports are otherwise preempted by any third task on
+    // a small machine and their tails measure the scheduler, not the transport.
+    let auto_rt = !args.no_rt && args.pin.is_none() && args.priority.is_none();
+    let n_cpus = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) }.max(1) as usize;
+    let mut args = args;
+    if auto_rt && n_cpus >= 2 {
+        args.pin = Some(format!("{},{}", n_cpus - 2, n_cpus - 1));
+        args.priority = Some(50);
+        eprintln!(
+            "bench latency: pinning to CPUs {} with SCHED_FIFO 50 (the default; --no-rt measures under normal scheduling)",
+            args.pin.as_deref().unwrap_or_default()
+        );
+    }
     let cpus = match &args.pin {
         Some(text) => parse_cpu_list(text).map_err(|e| anyhow::anyhow!("--pin {text}: {e}"))?,
         None => Vec::new(),

@@ -213,8 +213,16 @@ fn child_guard_kills_and_reaps_on_drop() {
 }
 
 fn run_bench(args: &[&str]) -> serde_json::Value {
+    // Tests run in parallel with the HIL process tests: no SCHED_FIFO spinners here
+    // unless a test asks for pinning or priority itself (then `--no-rt` is moot).
+    let explicit_rt = args.iter().any(|a| *a == "--pin" || *a == "--priority");
     let output = Command::new(env!("CARGO_BIN_EXE_fastemu"))
         .args(["bench", "latency", "--json"])
+        .args(if explicit_rt {
+            &[][..]
+        } else {
+            &["--no-rt"][..]
+        })
         .args(args)
         .output()
         .unwrap();
