@@ -357,7 +357,7 @@ fn load_test(
         },
     };
     let cols = read_columns(&file, &["t_s", "displacement_m", "force_n"]).map_err(csv_err)?;
-    let dt_s = uniform_step(&cols.data[0], &file_origin, "t_s").map_err(csv_err)?;
+    let dt_s = uniform_step(&cols.data[0], &cols.lines, &file_origin, "t_s").map_err(csv_err)?;
     let mut columns = cols.data.into_iter();
     let time_s = columns.next().unwrap_or_default();
     let displacement_m = columns.next().unwrap_or_default();

@@ -207,7 +207,12 @@ fn run_rail(args: RailBenchArgs) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(args.runs > 0, "--runs must be positive");
     let spec = super::load_model(&args.model)?;
     let cols = read_columns(&args.input, &["t_s", "force_n"])?;
-    let dt = uniform_step(&cols.data[0], &args.input.display().to_string(), "t_s")?;
+    let dt = uniform_step(
+        &cols.data[0],
+        &cols.lines,
+        &args.input.display().to_string(),
+        "t_s",
+    )?;
     let timing = time_simulate_rail(
         spec.element,
         args.mass_kg,
