@@ -483,6 +483,18 @@ fn equiv_json_has_the_documented_shape() {
     ]);
     let json: serde_json::Value = serde_json::from_slice(&result.stdout).unwrap();
     assert_eq!(json["rows"].as_array().unwrap().len(), 3);
+
+    // A preload at or below -P0 is outside g(P)'s domain: an error, not clamped numbers.
+    assert_fails(
+        &["equiv", "--model", path_str(&model), "--preload-n=-70000"],
+        &["--preload-n -70000", "domain", "-64000"],
+    );
+    // Tension above -P0 is inside the domain, and the linear model has no preload limit.
+    let result = fastemu(&["equiv", "--model", path_str(&model), "--preload-n=-6000"]);
+    assert!(result.status.success());
+    let kv = dir.write("kv.toml", KV_MODEL);
+    let result = fastemu(&["equiv", "--model", path_str(&kv), "--preload-n=-70000"]);
+    assert!(result.status.success());
 }
 
 /// What spreadsheets and other tools write: a UTF-8 byte-order mark, CRLF line endings,
