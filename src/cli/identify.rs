@@ -310,7 +310,13 @@ pub fn run(args: IdentifyArgs) -> anyhow::Result<ExitCode> {
         let se = e
             .standard_error
             .map_or("n/a".to_string(), |s| format!("{s:.4e}"));
-        eprintln!("identify: {name} = {:.6e} (standard error {se})", e.value);
+        let ci = e.ci95.map_or("n/a".to_string(), |(lo, hi)| {
+            format!("[{lo:.4e}, {hi:.4e}]")
+        });
+        eprintln!(
+            "identify: {name} = {:.6e} (standard error {se}, 95 % interval {ci})",
+            e.value
+        );
     }
     eprintln!("identify: in-sample relative RMS force residual {residual:.4e}");
 
