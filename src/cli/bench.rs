@@ -95,7 +95,7 @@ pub struct LatencyPeerArgs {
 
 #[derive(Args)]
 pub struct RailBenchArgs {
-    /// Model file (SPEC 2.3).
+    /// Model file (TOML, e.g. `configs/paper-sample-750mm.toml`; keys in the README).
     #[arg(long)]
     pub model: PathBuf,
     /// Mass on the element, kg.

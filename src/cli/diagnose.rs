@@ -21,7 +21,7 @@ use super::fitplots::{distinct_levels, plot_equivalents, plot_loops, reconstruct
 
 #[derive(Args)]
 pub struct DiagnoseArgs {
-    /// Campaign directory (SPEC 4).
+    /// Campaign directory: `campaign.toml` and one CSV per test (SPEC 4; see README).
     #[arg(long)]
     pub campaign: PathBuf,
     /// Baseline model file (SPEC 2.3); its structure is kept, its parameters recalibrated.

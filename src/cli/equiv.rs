@@ -11,7 +11,7 @@ use crate::model::ElementModel;
 
 #[derive(Args)]
 pub struct EquivArgs {
-    /// Model file (SPEC 2.3).
+    /// Model file (TOML, e.g. `configs/paper-sample-750mm.toml`; keys in the README).
     #[arg(long)]
     pub model: PathBuf,
     /// Preloads, N (comma-separated; default: the paper's Table 2 grid 6, 18, 37, 55 kN).

@@ -31,7 +31,7 @@ use crate::model::params::{ElementModel, Form, ZenerParams};
 
 #[derive(Args)]
 pub struct IdentifyArgs {
-    /// Campaign directory (SPEC 4).
+    /// Campaign directory: `campaign.toml` and one CSV per test (SPEC 4; see README).
     #[arg(long)]
     pub campaign: PathBuf,
     /// Time-domain form of the identified model: `consistent` or `paper`.

@@ -21,7 +21,7 @@ pub enum SimulateCommand {
 
 #[derive(Args)]
 pub struct ForceArgs {
-    /// Model file (SPEC 2.3).
+    /// Model file (TOML, e.g. `configs/paper-sample-750mm.toml`; keys in the README).
     #[arg(long)]
     pub model: PathBuf,
     /// Displacement CSV: `t_s,displacement_m`, uniform step.
@@ -34,7 +34,7 @@ pub struct ForceArgs {
 
 #[derive(Args)]
 pub struct RailArgs {
-    /// Model file (SPEC 2.3).
+    /// Model file (TOML, e.g. `configs/paper-sample-750mm.toml`; keys in the README).
     #[arg(long)]
     pub model: PathBuf,
     /// Mass on the element, kg (60.21 for one metre of UIC60 rail).
