@@ -168,8 +168,17 @@ pub fn cabs(a: Complex) -> f64 {
     a.0.hypot(a.1)
 }
 
-/// Loads and validates a campaign directory.
+/// Loads and validates a campaign directory (or its `campaign.toml`, the path a user
+/// tab-completes to).
 pub fn load_campaign(dir: &Path) -> Result<Campaign, CampaignError> {
+    let dir = if dir.is_file() && dir.file_name().is_some_and(|n| n == "campaign.toml") {
+        match dir.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p,
+            _ => Path::new("."),
+        }
+    } else {
+        dir
+    };
     let toml_path = dir.join("campaign.toml");
     let origin = toml_path.display().to_string();
     let err = |message: String| CampaignError {
@@ -357,7 +366,7 @@ fn load_test(
         },
     };
     let cols = read_columns(&file, &["t_s", "displacement_m", "force_n"]).map_err(csv_err)?;
-    let dt_s = uniform_step(&cols.data[0], &file_origin, "t_s").map_err(csv_err)?;
+    let dt_s = uniform_step(&cols.data[0], &cols.lines, &file_origin, "t_s").map_err(csv_err)?;
     let mut columns = cols.data.into_iter();
     let time_s = columns.next().unwrap_or_default();
     let displacement_m = columns.next().unwrap_or_default();

@@ -34,6 +34,9 @@ impl std::error::Error for CsvError {}
 pub struct Columns {
     pub names: Vec<String>,
     pub data: Vec<Vec<f64>>,
+    /// File line (1-based) of each data row, so later checks name the right line even
+    /// when the file has blank lines.
+    pub lines: Vec<usize>,
 }
 
 impl Columns {
@@ -59,7 +62,12 @@ pub fn read_columns(path: &Path, wanted: &[&str]) -> Result<Columns, CsvError> {
 }
 
 /// Parses CSV text; `origin` names the file in errors.
+///
+/// Tolerates what spreadsheets and other tools write: a UTF-8 byte-order mark, CRLF line
+/// endings, blank lines, spaces around fields and double-quoted fields. Other separators
+/// (`;`, tab) are rejected with an error that says so.
 pub fn parse_columns(text: &str, origin: &str, wanted: &[&str]) -> Result<Columns, CsvError> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let err = |line: Option<usize>, column: Option<usize>, message: String| CsvError {
         path: origin.to_string(),
         line,
@@ -80,7 +88,26 @@ pub fn parse_columns(text: &str, origin: &str, wanted: &[&str]) -> Result<Column
             Some((i, l)) => break (i + 1, l),
         }
     };
-    let names: Vec<&str> = header.1.split(',').map(|s| s.trim()).collect();
+    let names: Vec<&str> = header.1.split(',').map(unquote).collect();
+    if names.len() < wanted.len() {
+        if let Some(sep) = [';', '\t'].into_iter().find(|c| header.1.contains(*c)) {
+            let shown = if sep == '\t' {
+                "tab".to_string()
+            } else {
+                format!("`{sep}`")
+            };
+            return Err(err(
+                Some(header.0),
+                None,
+                format!(
+                    "header `{}` is separated by {shown}: columns must be separated by commas, \
+                     with `.` as the decimal point (expected `{}`)",
+                    header.1.trim(),
+                    wanted.join(",")
+                ),
+            ));
+        }
+    }
     let mut index = Vec::with_capacity(wanted.len());
     for want in wanted {
         match names.iter().position(|n| n == want) {
@@ -100,6 +127,7 @@ pub fn parse_columns(text: &str, origin: &str, wanted: &[&str]) -> Result<Column
     }
     let needed = index.iter().copied().max().unwrap_or(0) + 1;
     let mut data: Vec<Vec<f64>> = vec![Vec::with_capacity(text.len() / 32); wanted.len()];
+    let mut line_numbers = Vec::with_capacity(text.len() / 32);
     // Fields of the current line, reused across lines (no allocation per row).
     let mut fields: Vec<&str> = Vec::with_capacity(needed.max(names.len()));
     for (i, line) in lines {
@@ -110,14 +138,25 @@ pub fn parse_columns(text: &str, origin: &str, wanted: &[&str]) -> Result<Column
         fields.clear();
         fields.extend(line.split(',').take(needed));
         if fields.len() < needed {
+            let missing = index
+                .iter()
+                .filter(|&&col| col >= fields.len())
+                .map(|&col| format!("`{}`", names[col]))
+                .collect::<Vec<_>>()
+                .join(", ");
             return Err(err(
                 Some(line_no),
                 Some(fields.len() + 1),
-                format!("{} fields, expected at least {needed}", fields.len()),
+                format!(
+                    "row has {} field(s), lacks column {missing} (expected `{}`)",
+                    fields.len(),
+                    names.join(",")
+                ),
             ));
         }
+        line_numbers.push(line_no);
         for (out, &col) in data.iter_mut().zip(&index) {
-            let field = fields[col].trim();
+            let field = unquote(fields[col]);
             match field.parse::<f64>() {
                 Ok(x) if x.is_finite() => out.push(x),
                 Ok(_) => {
@@ -143,13 +182,30 @@ pub fn parse_columns(text: &str, origin: &str, wanted: &[&str]) -> Result<Column
     Ok(Columns {
         names: wanted.iter().map(|s| s.to_string()).collect(),
         data,
+        lines: line_numbers,
     })
+}
+
+/// A field without surrounding spaces and double quotes.
+fn unquote(field: &str) -> &str {
+    let f = field.trim();
+    f.strip_prefix('"')
+        .and_then(|g| g.strip_suffix('"'))
+        .map_or(f, str::trim)
 }
 
 /// Checks that a time column is strictly increasing with a uniform step; returns the step.
 ///
 /// Uniform means every step within 1e-6 relative of the mean step (CSV round-off).
-pub fn uniform_step(time_s: &[f64], origin: &str, column: &str) -> Result<f64, CsvError> {
+/// `line_numbers` gives the file line of each row (`Columns::lines`) for the errors;
+/// if it is shorter than `time_s`, row i is taken to be line i + 2 (header, no blanks).
+pub fn uniform_step(
+    time_s: &[f64],
+    line_numbers: &[usize],
+    origin: &str,
+    column: &str,
+) -> Result<f64, CsvError> {
+    let line_of = |row: usize| line_numbers.get(row).copied().unwrap_or(row + 2);
     let err = |line: Option<usize>, message: String| CsvError {
         path: origin.to_string(),
         line,
@@ -165,10 +221,9 @@ pub fn uniform_step(time_s: &[f64], origin: &str, column: &str) -> Result<f64, C
     let dt = (time_s[time_s.len() - 1] - time_s[0]) / (time_s.len() - 1) as f64;
     for (i, pair) in time_s.windows(2).enumerate() {
         let step = pair[1] - pair[0];
-        // Data row i + 1 is file line i + 3 (header is line 1), assuming no blank lines.
         if step <= 0.0 {
             return Err(err(
-                Some(i + 3),
+                Some(line_of(i + 1)),
                 format!(
                     "`{column}` = {} does not increase (previous {})",
                     pair[1], pair[0]
@@ -177,7 +232,7 @@ pub fn uniform_step(time_s: &[f64], origin: &str, column: &str) -> Result<f64, C
         }
         if (step - dt).abs() > 1e-6 * dt.abs().max(1e-300) + 1e-12 {
             return Err(err(
-                Some(i + 3),
+                Some(line_of(i + 1)),
                 format!("`{column}` step {step:e} s differs from the mean step {dt:e} s: the time step must be uniform"),
             ));
         }

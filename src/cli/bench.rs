@@ -100,7 +100,7 @@ pub struct LatencyPeerArgs {
 
 #[derive(Args)]
 pub struct RailBenchArgs {
-    /// Model file (SPEC 2.3).
+    /// Model file (TOML, e.g. `configs/paper-sample-750mm.toml`; keys in the README).
     #[arg(long)]
     pub model: PathBuf,
     /// Mass on the element, kg.
@@ -226,7 +226,12 @@ fn run_rail(args: RailBenchArgs) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(args.runs > 0, "--runs must be positive");
     let spec = super::load_model(&args.model)?;
     let cols = read_columns(&args.input, &["t_s", "force_n"])?;
-    let dt = uniform_step(&cols.data[0], &args.input.display().to_string(), "t_s")?;
+    let dt = uniform_step(
+        &cols.data[0],
+        &cols.lines,
+        &args.input.display().to_string(),
+        "t_s",
+    )?;
     let timing = time_simulate_rail(
         spec.element,
         args.mass_kg,

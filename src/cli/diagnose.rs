@@ -21,7 +21,7 @@ use super::fitplots::{distinct_levels, plot_equivalents, plot_loops, reconstruct
 
 #[derive(Args)]
 pub struct DiagnoseArgs {
-    /// Campaign directory (SPEC 4).
+    /// Campaign directory: `campaign.toml` and one CSV per test (SPEC 4; see README).
     #[arg(long)]
     pub campaign: PathBuf,
     /// Baseline model file (SPEC 2.3); its structure is kept, its parameters recalibrated.
@@ -33,7 +33,7 @@ pub struct DiagnoseArgs {
     /// Print the SPEC 5 JSON object on stdout.
     #[arg(long)]
     pub json: bool,
-    /// Cross-validation folds.
+    /// Cross-validation folds (at least 2; more than the tests gives leave-one-out).
     #[arg(long, default_value_t = 5)]
     pub folds: usize,
     /// Worker threads.
@@ -42,7 +42,12 @@ pub struct DiagnoseArgs {
 }
 
 /// What the gap measures (the `metric` of the JSON object).
-pub const METRIC: &str = "held-out relative RMS residual of the force at the test frequency in excess of measurement noise: sqrt(mean_i |F_sim,1 - F_meas,1|^2 / |F_meas,1|^2 - mean_i nu_i) over the harmonic tests, F_sim,1 from the steady-state force simulated from each test's measured displacement cycle by a model fitted without that test (5-fold cross-validation), nu_i the noise share of that residual estimated from neighbouring DFT bins (floored at a tenth of the noise RMS; raw_gap_* include the noise)";
+/// What the gap measures, for `metric` in the JSON and the report.
+pub fn metric(n_folds: usize) -> String {
+    format!(
+        "held-out relative RMS residual of the force at the test frequency in excess of measurement noise: sqrt(mean_i |F_sim,1 - F_meas,1|^2 / |F_meas,1|^2 - mean_i nu_i) over the harmonic tests, F_sim,1 from the steady-state force simulated from each test's measured displacement cycle by a model fitted without that test ({n_folds}-fold cross-validation), nu_i the noise share of that residual estimated from neighbouring DFT bins (floored at a tenth of the noise RMS; raw_gap_* include the noise)"
+    )
+}
 
 pub fn run(args: DiagnoseArgs) -> anyhow::Result<ExitCode> {
     let started = Instant::now();
@@ -78,6 +83,14 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<ExitCode> {
         },
         args.campaign.display()
     );
+    anyhow::ensure!(
+        args.folds >= 2,
+        "--folds {}: cross-validation needs at least 2 folds",
+        args.folds
+    );
+    // Fail on an unusable --out before the analysis, not after it.
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
     let options = DiagnoseOptions {
         n_folds: args.folds,
         n_threads: args.threads.max(1),
@@ -191,11 +204,16 @@ pub fn json_summary(d: &Diagnosis, model_path: &std::path::Path) -> serde_json::
         "raw_gap_before": d.raw_gap_before,
         "raw_gap_after": d.raw_gap_after,
         "noise_floor": d.noise_floor,
-        "metric": METRIC,
+        "metric": metric(n_folds(d)),
         "candidates": candidates,
         "not_identifiable": d.not_tried.iter().filter(|n| n.not_identifiable).map(|n| n.kind.name()).collect::<Vec<_>>(),
         "model_out": model_path.display().to_string(),
     })
+}
+
+/// Folds actually used (`--folds` is capped at the number of tests).
+fn n_folds(d: &Diagnosis) -> usize {
+    d.folds.iter().max().map_or(0, |m| m + 1)
 }
 
 /// RMS gap per level of a design variable: (level, gap before, gap after, n tests).
@@ -269,9 +287,9 @@ fn write_plots(
         let rows = gap_by(d, data, key);
         let x: Vec<f64> = rows.iter().map(|r| r.0).collect();
         let mut panel = Panel::new(
-            format!("held-out gap by {label}"),
+            format!("held-out raw residual by {label}"),
             label,
-            "relative RMS force residual",
+            "relative RMS force residual (noise incl.)",
         )
         .log_y()
         .with(Series::line(
@@ -399,7 +417,7 @@ fn render_report(
         "- Raw held-out RMS residual (noise included): {:.4e} -> {:.4e}; estimated noise floor {:.4e}",
         d.raw_gap_before, d.raw_gap_after, d.noise_floor
     );
-    let _ = writeln!(r, "- Gap metric: {METRIC}.");
+    let _ = writeln!(r, "- Gap metric: {}.", metric(n_folds(d)));
     let _ = writeln!(r, "- Augmented model: `{}`", model_path.display());
     let _ = writeln!(
         r,

@@ -6,11 +6,12 @@ use std::process::ExitCode;
 use clap::Args;
 
 use crate::model::equiv::{equivalent, zener_eq2, TABLE2_FREQUENCIES_HZ, TABLE2_PRELOADS_N};
+use crate::model::params::BASE_MIN;
 use crate::model::ElementModel;
 
 #[derive(Args)]
 pub struct EquivArgs {
-    /// Model file (SPEC 2.3).
+    /// Model file (TOML, e.g. `configs/paper-sample-750mm.toml`; keys in the README).
     #[arg(long)]
     pub model: PathBuf,
     /// Preloads, N (comma-separated; default: the paper's Table 2 grid 6, 18, 37, 55 kN).
@@ -46,6 +47,16 @@ pub fn run(args: EquivArgs) -> anyhow::Result<ExitCode> {
     };
     for &p in &preloads {
         anyhow::ensure!(p.is_finite(), "--preload-n {p}: must be a finite number");
+        // g(P) = (1 + P/P0)^chi needs P > -P0: below, the model clamps and the table
+        // would show numbers that mean nothing.
+        if let ElementModel::Consistent(z) | ElementModel::Paper(z) = &spec.element {
+            anyhow::ensure!(
+                1.0 + p / z.p0_n > BASE_MIN,
+                "--preload-n {p}: outside the model's domain: the preload (compression \
+                 positive) must be greater than -p0_n = {} N",
+                -z.p0_n
+            );
+        }
     }
     for &f in &freqs {
         anyhow::ensure!(

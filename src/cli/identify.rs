@@ -31,7 +31,7 @@ use crate::model::params::{ElementModel, Form, ZenerParams};
 
 #[derive(Args)]
 pub struct IdentifyArgs {
-    /// Campaign directory (SPEC 4).
+    /// Campaign directory: `campaign.toml` and one CSV per test (SPEC 4; see README).
     #[arg(long)]
     pub campaign: PathBuf,
     /// Time-domain form of the identified model: `consistent` or `paper`.
@@ -310,7 +310,13 @@ pub fn run(args: IdentifyArgs) -> anyhow::Result<ExitCode> {
         let se = e
             .standard_error
             .map_or("n/a".to_string(), |s| format!("{s:.4e}"));
-        eprintln!("identify: {name} = {:.6e} (standard error {se})", e.value);
+        let ci = e.ci95.map_or("n/a".to_string(), |(lo, hi)| {
+            format!("[{lo:.4e}, {hi:.4e}]")
+        });
+        eprintln!(
+            "identify: {name} = {:.6e} (standard error {se}, 95 % interval {ci})",
+            e.value
+        );
     }
     eprintln!("identify: in-sample relative RMS force residual {residual:.4e}");
 

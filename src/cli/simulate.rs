@@ -21,7 +21,7 @@ pub enum SimulateCommand {
 
 #[derive(Args)]
 pub struct ForceArgs {
-    /// Model file (SPEC 2.3).
+    /// Model file (TOML, e.g. `configs/paper-sample-750mm.toml`; keys in the README).
     #[arg(long)]
     pub model: PathBuf,
     /// Displacement CSV: `t_s,displacement_m`, uniform step.
@@ -34,7 +34,7 @@ pub struct ForceArgs {
 
 #[derive(Args)]
 pub struct RailArgs {
-    /// Model file (SPEC 2.3).
+    /// Model file (TOML, e.g. `configs/paper-sample-750mm.toml`; keys in the README).
     #[arg(long)]
     pub model: PathBuf,
     /// Mass on the element, kg (60.21 for one metre of UIC60 rail).
@@ -67,7 +67,12 @@ fn warn_flags(flags: StepFlags) {
 fn run_force(args: ForceArgs) -> anyhow::Result<ExitCode> {
     let spec = super::load_model(&args.model)?;
     let cols = read_columns(&args.input, &["t_s", "displacement_m"])?;
-    let dt = uniform_step(&cols.data[0], &args.input.display().to_string(), "t_s")?;
+    let dt = uniform_step(
+        &cols.data[0],
+        &cols.lines,
+        &args.input.display().to_string(),
+        "t_s",
+    )?;
     // A model file with [[effect]] tables runs through the effect library; the force is
     // what a rig would measure (channel-delay and moving-mass included).
     let (forces, flags) = if spec.effect_tables.is_empty() {
@@ -113,7 +118,12 @@ fn run_rail(args: RailArgs) -> anyhow::Result<ExitCode> {
         );
     }
     let cols = read_columns(&args.input, &["t_s", "force_n"])?;
-    let dt = uniform_step(&cols.data[0], &args.input.display().to_string(), "t_s")?;
+    let dt = uniform_step(
+        &cols.data[0],
+        &cols.lines,
+        &args.input.display().to_string(),
+        "t_s",
+    )?;
     let (samples, flags) = simulate_rail(spec.element, args.mass_kg, dt, &cols.data[1], start);
     warn_flags(flags);
     let x: Vec<f64> = samples.iter().map(|s| s.displacement_m).collect();

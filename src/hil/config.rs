@@ -547,8 +547,13 @@ pub fn parse_hil_config(
         let path = resolve(&s.load_csv);
         let cols = crate::csvio::read_columns(&path, &["t_s", "force_n"])
             .map_err(|e| err("scenario.load_csv", e.to_string()))?;
-        let step = crate::csvio::uniform_step(&cols.data[0], &path.display().to_string(), "t_s")
-            .map_err(|e| err("scenario.load_csv", e.to_string()))?;
+        let step = crate::csvio::uniform_step(
+            &cols.data[0],
+            &cols.lines,
+            &path.display().to_string(),
+            "t_s",
+        )
+        .map_err(|e| err("scenario.load_csv", e.to_string()))?;
         (Some(path), Some((step, cols.data[1].clone())))
     };
     let scenario = ScenarioConfig {

@@ -58,6 +58,10 @@ fn a_valid_campaign_loads_with_its_equivalents() {
     let dir = scratch("valid");
     write(&dir, TEST_ENTRY, &harmonic_csv(1000, 1e-3, 2.0));
     let campaign = load_campaign(&dir).unwrap();
+    // The path of the campaign file itself names the same campaign.
+    let via_file = load_campaign(&dir.join("campaign.toml")).unwrap();
+    assert_eq!(via_file.dir, dir);
+    assert_eq!(via_file.tests.len(), campaign.tests.len());
     let _ = std::fs::remove_dir_all(&dir);
     let test = &campaign.tests[0];
     assert_eq!(test.temperature_c, 23.0);

@@ -254,6 +254,30 @@ fn broken_csv_inputs_fail_naming_file_line_and_column() {
             displacement_csv(4).replacen("0.0002", "inf", 1),
             vec![":4:2:".into(), "finite".into()],
         ),
+        (
+            "semicolons",
+            displacement_csv(4).replace(',', ";"),
+            vec![":1:".into(), "separated by `;`".into(), "commas".into()],
+        ),
+        (
+            "tabs",
+            displacement_csv(4).replace(',', "\t"),
+            vec![":1:".into(), "separated by tab".into()],
+        ),
+        (
+            "short-row-names-the-column",
+            displacement_csv(5).replacen("0.002,0.0002", "0.002", 1),
+            vec![":4:".into(), "lacks column `displacement_m`".into()],
+        ),
+        (
+            // Blank lines do not shift the line named in the error (line 8 after two
+            // blank lines, not line 6).
+            "blank-lines-then-non-uniform",
+            displacement_csv(6)
+                .replacen("0.001,", "\n\n0.001,", 1)
+                .replacen("0.004,", "0.0041,", 1),
+            vec![":8".into(), "uniform".into()],
+        ),
     ];
     for (label, text, needles) in cases {
         let input = dir.write(&format!("{label}.csv"), &text);
@@ -459,4 +483,70 @@ fn equiv_json_has_the_documented_shape() {
     ]);
     let json: serde_json::Value = serde_json::from_slice(&result.stdout).unwrap();
     assert_eq!(json["rows"].as_array().unwrap().len(), 3);
+
+    // A preload at or below -P0 is outside g(P)'s domain: an error, not clamped numbers.
+    assert_fails(
+        &["equiv", "--model", path_str(&model), "--preload-n=-70000"],
+        &["--preload-n -70000", "domain", "-64000"],
+    );
+    // Tension above -P0 is inside the domain, and the linear model has no preload limit.
+    let result = fastemu(&["equiv", "--model", path_str(&model), "--preload-n=-6000"]);
+    assert!(result.status.success());
+    let kv = dir.write("kv.toml", KV_MODEL);
+    let result = fastemu(&["equiv", "--model", path_str(&kv), "--preload-n=-70000"]);
+    assert!(result.status.success());
+}
+
+/// What spreadsheets and other tools write: a UTF-8 byte-order mark, CRLF line endings,
+/// quoted fields, spaces and trailing blank lines. All read as the plain file does.
+#[test]
+fn csv_inputs_from_spreadsheets_read_like_plain_ones() {
+    let dir = TempDir::new("csv-dialects");
+    let model = dir.write("m.toml", CONSISTENT_MODEL);
+    let plain = displacement_csv(20);
+    let reference_in = dir.write("plain.csv", &plain);
+    let reference_out = dir.join("plain-out.csv");
+    let result = fastemu(&as_strs(&simulate_force(
+        &model,
+        &reference_in,
+        &reference_out,
+    )));
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let reference = std::fs::read_to_string(&reference_out).unwrap();
+    let quoted: String = plain
+        .lines()
+        .map(|l| {
+            let f: Vec<String> = l.split(',').map(|x| format!("\"{x}\"")).collect();
+            f.join(",") + "\n"
+        })
+        .collect();
+    let variants = [
+        ("bom", format!("\u{feff}{plain}")),
+        ("crlf", plain.replace('\n', "\r\n")),
+        (
+            "bom-crlf",
+            format!("\u{feff}{}", plain.replace('\n', "\r\n")),
+        ),
+        ("quoted", quoted),
+        ("spaces", plain.replace(',', " , ")),
+        (
+            "blank-lines",
+            format!("\n{}\n\n", plain.replacen("0.005,", "\n0.005,", 1)),
+        ),
+    ];
+    for (label, text) in variants {
+        let input = dir.write(&format!("{label}.csv"), &text);
+        let out = dir.join(&format!("{label}-out.csv"));
+        let result = fastemu(&as_strs(&simulate_force(&model, &input, &out)));
+        assert!(
+            result.status.success(),
+            "{label}: {}",
+            String::from_utf8_lossy(&result.stderr)
+        );
+        assert_eq!(std::fs::read_to_string(&out).unwrap(), reference, "{label}");
+    }
 }

@@ -197,3 +197,59 @@ fn diagnose_json_follows_spec_5_and_says_what_is_not_identifiable() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn diagnose_checks_folds_and_out_before_the_analysis_and_reports_the_folds_used() {
+    let dir = scratch("diag-args");
+    write_eq2_campaign(&dir);
+    let model = dir.join("base.toml");
+    std::fs::write(
+        &model,
+        "form = \"consistent\"\nlength_m = 0.75\nk1_0_n_per_m2 = 62e6\nk2_0_n_per_m2 = 9.6e6\n\
+         c2_0_ns_per_m2 = 0.7e6\nchi = 0.21\np0_n = 64e3\n",
+    )
+    .unwrap();
+    let run = |out: &Path, folds: &str| {
+        Command::new(env!("CARGO_BIN_EXE_fastemu"))
+            .args(["diagnose", "--campaign"])
+            .arg(&dir)
+            .arg("--model")
+            .arg(&model)
+            .arg("--out")
+            .arg(out)
+            .args(["--folds", folds, "--json"])
+            .output()
+            .unwrap()
+    };
+    // One fold holds nothing out: an error, not a silent two.
+    let out = run(&dir.join("d1"), "1");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("--folds 1"),
+        "{stderr}"
+    );
+    // An --out that cannot be a directory fails before the analysis runs.
+    let file = dir.join("taken");
+    std::fs::write(&file, "").unwrap();
+    let out = run(&file, "5");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("taken") && !stderr.contains("round"),
+        "{stderr}"
+    );
+    // The metric names the folds used.
+    let out = run(&dir.join("d3"), "3");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(
+        json["metric"].as_str().unwrap().contains("3-fold"),
+        "{}",
+        json["metric"]
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

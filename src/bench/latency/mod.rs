@@ -494,9 +494,13 @@ impl LatencyReport {
             out.push_str(&row(t.transport.key(), &t.summary));
         }
         if let Some(ratio) = self.ratio_udp_over_iceoryx2_p99() {
-            out.push_str(&format!(
-                "UDP p99 / iceoryx2 p99 = {ratio:.1} (target >= 3)\n"
-            ));
+            // Below 1 (a preempted spinner) one decimal would print 0.0.
+            let shown = if ratio >= 1.0 {
+                format!("{ratio:.1}")
+            } else {
+                format!("{ratio:.2e}")
+            };
+            out.push_str(&format!("UDP p99 / iceoryx2 p99 = {shown} (target >= 3)\n"));
         }
         out.push_str(&format!(
             "\nScheduler wake-up lateness (sleep_spin spins the last {} us; {}, timer slack {} us)\n",
