@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::{bail, Context};
+use anyhow::Context;
 use clap::{Args, Subcommand};
 
 use crate::bench::latency::transport::{serve_peer, PeerConfig};
@@ -11,7 +11,6 @@ use crate::bench::latency::{run_latency_bench, LatencyConfig};
 use crate::bench::model::time_all_forms;
 use crate::bench::rail::time_simulate_rail;
 use crate::csvio::{read_columns, uniform_step};
-use crate::model::oscillator::StartCondition;
 use crate::rt::setup::parse_cpu_list;
 use crate::rt::RtSetup;
 
@@ -214,15 +213,7 @@ fn run_latency(args: LatencyArgs) -> anyhow::Result<ExitCode> {
 }
 
 fn run_rail(args: RailBenchArgs) -> anyhow::Result<ExitCode> {
-    let Some(start) = StartCondition::from_name(&args.start) else {
-        bail!("--start {}: expected `rest` or `static`", args.start);
-    };
-    if !(args.mass_kg.is_finite() && args.mass_kg > 0.0) {
-        bail!(
-            "--mass-kg {}: must be a positive finite number",
-            args.mass_kg
-        );
-    }
+    let start = super::simulate::rail_start_and_mass(&args.start, args.mass_kg)?;
     anyhow::ensure!(args.runs > 0, "--runs must be positive");
     let spec = super::load_model(&args.model)?;
     let cols = read_columns(&args.input, &["t_s", "force_n"])?;

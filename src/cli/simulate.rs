@@ -100,16 +100,19 @@ fn run_force(args: ForceArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-fn run_rail(args: RailArgs) -> anyhow::Result<ExitCode> {
-    let Some(start) = StartCondition::from_name(&args.start) else {
-        bail!("--start {}: expected `rest` or `static`", args.start);
+/// Validates the `--start` and `--mass-kg` arguments of the rail commands.
+pub fn rail_start_and_mass(start: &str, mass_kg: f64) -> anyhow::Result<StartCondition> {
+    let Some(start) = StartCondition::from_name(start) else {
+        bail!("--start {start}: expected `rest` or `static`");
     };
-    if !(args.mass_kg.is_finite() && args.mass_kg > 0.0) {
-        bail!(
-            "--mass-kg {}: must be a positive finite number",
-            args.mass_kg
-        );
+    if !(mass_kg.is_finite() && mass_kg > 0.0) {
+        bail!("--mass-kg {mass_kg}: must be a positive finite number");
     }
+    Ok(start)
+}
+
+fn run_rail(args: RailArgs) -> anyhow::Result<ExitCode> {
+    let start = rail_start_and_mass(&args.start, args.mass_kg)?;
     let spec = super::load_model(&args.model)?;
     if !spec.effect_tables.is_empty() {
         eprintln!(
