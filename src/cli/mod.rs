@@ -4,9 +4,9 @@
 pub mod bench;
 pub mod diagnose;
 pub mod equiv;
-pub mod paper;
 pub mod fitplots;
 pub mod identify;
+pub mod paper;
 pub mod simulate;
 
 use anyhow::Context;
