@@ -290,6 +290,186 @@ fn data_driven_element(element: &ElementModel, data: &[CycleData]) -> ElementMod
     out
 }
 
+/// The model a candidate is compared with: its per-test held-out errors and gaps.
+struct Reference<'a> {
+    errors: &'a [f64],
+    gap: f64,
+    raw: f64,
+}
+
+/// What the naming rule needs besides the two sets of held-out errors.
+struct Scoring<'a> {
+    data: &'a [CycleData],
+    folds: &'a [usize],
+    n_folds: usize,
+    options: &'a DiagnoseOptions,
+    median_noise: f64,
+}
+
+/// Naming-rule numbers of a candidate against a reference model.
+struct Comparison {
+    gap_ratio: f64,
+    raw_ratio: f64,
+    score: f64,
+    z: f64,
+    folds_improved: usize,
+    qualifies: bool,
+}
+
+impl Scoring<'_> {
+    /// The naming rule (module docs) for held-out `errors` (raw RMS `raw`) of a candidate
+    /// with `n_extra` more parameters than `reference`.
+    fn compare(
+        &self,
+        errors: &[f64],
+        raw: f64,
+        n_extra: usize,
+        reference: &Reference<'_>,
+    ) -> Comparison {
+        let options = self.options;
+        let penalty = 1.0 + options.penalty_per_param * n_extra as f64;
+        let candidate_gap = excess_gap(errors, self.data);
+        let gap_ratio = candidate_gap / reference.gap.max(1e-300);
+        let raw_ratio = raw / reference.raw.max(1e-300);
+        let score = gap_ratio * penalty;
+        let differences: Vec<f64> = reference
+            .errors
+            .iter()
+            .zip(errors)
+            .zip(self.data)
+            .map(|((b, c), d)| (b - c) / (d.noise_relative + self.median_noise))
+            .collect();
+        let z = wilcoxon_z(&differences);
+        let folds_improved = (0..self.n_folds)
+            .filter(|&f| {
+                let sum = |e: &[f64]| -> f64 {
+                    e.iter()
+                        .zip(self.folds)
+                        .filter(|(_, &g)| g == f)
+                        .map(|(x, _)| x)
+                        .sum()
+                };
+                sum(errors) < sum(reference.errors)
+            })
+            .count();
+        let explained = (reference.gap * reference.gap - candidate_gap * candidate_gap)
+            .max(0.0)
+            .sqrt();
+        let qualifies = score < options.max_score
+            && explained > options.min_explained_gap
+            && raw_ratio * penalty < options.max_raw_ratio
+            && z > options.min_wilcoxon_z
+            && folds_improved + 1 >= self.n_folds;
+        Comparison {
+            gap_ratio,
+            raw_ratio,
+            score,
+            z,
+            folds_improved,
+            qualifies,
+        }
+    }
+}
+
+/// One-step lookahead when no single candidate qualifies: the best single candidate (if it
+/// improves on the current model with held-out evidence, Wilcoxon z above the naming
+/// threshold) paired with each other candidate. Returns the index of the first member in
+/// `results` and the second member's result (fitted with the first, compared with the
+/// first alone) of the best qualifying pair.
+fn lookahead_pair(
+    results: &[CandidateResult],
+    current_template: &Template,
+    prefix: &[f64],
+    reference: &Reference<'_>,
+    scoring: &Scoring<'_>,
+    progress: &mut dyn FnMut(&str),
+) -> Option<(usize, CandidateResult)> {
+    let options = scoring.options;
+    let (first_index, first) = results
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| r.score < 1.0 && r.wilcoxon_z > options.min_wilcoxon_z)
+        .min_by(|a, b| a.1.score.total_cmp(&b.1.score))?;
+    let others: Vec<&CandidateResult> = results.iter().filter(|r| r.kind != first.kind).collect();
+    if others.is_empty() {
+        return None;
+    }
+    let round = first.round + 1;
+    let first_template = current_template.with_effect(first.kind, Some(prefix));
+    let first_reference = Reference {
+        errors: &first.cv.held_out_error,
+        gap: excess_gap(&first.cv.held_out_error, scoring.data),
+        raw: first.cv.gap(),
+    };
+    let evaluated = run_parallel(&others, options.n_threads, |other| {
+        let pair_template = first_template.with_effect(other.kind, Some(&first.cv.full_fit.params));
+        let cv = cross_validate(
+            &pair_template,
+            scoring.data,
+            scoring.folds,
+            scoring.n_folds,
+            options.max_iterations,
+            options.n_threads,
+        );
+        let joint = scoring.compare(
+            &cv.held_out_error,
+            cv.gap(),
+            first.kind.n_params() + other.kind.n_params(),
+            reference,
+        );
+        let given_first = scoring.compare(
+            &cv.held_out_error,
+            cv.gap(),
+            other.kind.n_params(),
+            &first_reference,
+        );
+        let other_reference = Reference {
+            errors: &other.cv.held_out_error,
+            gap: excess_gap(&other.cv.held_out_error, scoring.data),
+            raw: other.cv.gap(),
+        };
+        let given_other = scoring.compare(
+            &cv.held_out_error,
+            cv.gap(),
+            first.kind.n_params(),
+            &other_reference,
+        );
+        let model = pair_template.model(&cv.full_fit.params);
+        let result = CandidateResult {
+            kind: other.kind,
+            round,
+            cv,
+            gap_ratio: given_first.gap_ratio,
+            raw_ratio: given_first.raw_ratio,
+            score: given_first.score,
+            wilcoxon_z: given_first.z,
+            folds_improved: given_first.folds_improved,
+            qualifies: joint.qualifies && given_first.qualifies && given_other.qualifies,
+            model,
+        };
+        (result, joint.score, given_other.score)
+    });
+    for (r, joint_score, other_score) in &evaluated {
+        progress(&format!(
+            "round {}: lookahead {} + {:<20} joint score {:.3}, score given {} {:.3}, given {} alone {:.3}{}",
+            first.round,
+            first.kind.name(),
+            r.kind.name(),
+            joint_score,
+            first.kind.name(),
+            r.score,
+            r.kind.name(),
+            other_score,
+            if r.qualifies { " qualifies" } else { "" }
+        ));
+    }
+    evaluated
+        .into_iter()
+        .filter(|(r, _, _)| r.qualifies)
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(r, _, _)| (first_index, r))
+}
+
 /// Runs the workflow. `progress` receives one-line messages.
 pub fn diagnose(
     baseline: &AugmentedModel,
@@ -395,7 +575,19 @@ pub fn diagnose(
         let mut noise_levels: Vec<f64> = data.iter().map(|d| d.noise_relative).collect();
         noise_levels.sort_by(f64::total_cmp);
         let median_noise = noise_levels[noise_levels.len() / 2].max(1e-300);
-        let results = run_parallel(&remaining, options.n_threads, |&kind| {
+        let reference = Reference {
+            errors: &current_errors,
+            gap: current_gap,
+            raw: current_raw,
+        };
+        let scoring = Scoring {
+            data,
+            folds: &folds,
+            n_folds,
+            options,
+            median_noise,
+        };
+        let mut results = run_parallel(&remaining, options.n_threads, |&kind| {
             let candidate = current_template.with_effect(kind, Some(&prefix));
             let cv = cross_validate(
                 &candidate,
@@ -405,49 +597,18 @@ pub fn diagnose(
                 options.max_iterations,
                 options.n_threads,
             );
-            let penalty = 1.0 + options.penalty_per_param * kind.n_params() as f64;
-            let gap_ratio = excess_gap(&cv.held_out_error, data) / current_gap.max(1e-300);
-            let raw_ratio = cv.gap() / current_raw.max(1e-300);
-            let score = gap_ratio * penalty;
-            let differences: Vec<f64> = current_errors
-                .iter()
-                .zip(&cv.held_out_error)
-                .zip(data)
-                .map(|((b, c), d)| (b - c) / (d.noise_relative + median_noise))
-                .collect();
-            let z = wilcoxon_z(&differences);
-            let folds_improved = (0..n_folds)
-                .filter(|&f| {
-                    let sum = |e: &[f64]| -> f64 {
-                        e.iter()
-                            .zip(&folds)
-                            .filter(|(_, &g)| g == f)
-                            .map(|(x, _)| x)
-                            .sum()
-                    };
-                    sum(&cv.held_out_error) < sum(&current_errors)
-                })
-                .count();
-            let candidate_gap = excess_gap(&cv.held_out_error, data);
-            let explained = (current_gap * current_gap - candidate_gap * candidate_gap)
-                .max(0.0)
-                .sqrt();
-            let qualifies = score < options.max_score
-                && explained > options.min_explained_gap
-                && raw_ratio * penalty < options.max_raw_ratio
-                && z > options.min_wilcoxon_z
-                && folds_improved + 1 >= n_folds;
+            let m = scoring.compare(&cv.held_out_error, cv.gap(), kind.n_params(), &reference);
             let model = candidate.model(&cv.full_fit.params);
             CandidateResult {
                 kind,
                 round,
                 cv,
-                gap_ratio,
-                raw_ratio,
-                score,
-                wilcoxon_z: z,
-                folds_improved,
-                qualifies,
+                gap_ratio: m.gap_ratio,
+                raw_ratio: m.raw_ratio,
+                score: m.score,
+                wilcoxon_z: m.z,
+                folds_improved: m.folds_improved,
+                qualifies: m.qualifies,
                 model,
             }
         });
@@ -471,15 +632,49 @@ pub fn diagnose(
             .filter(|r| r.qualifies)
             .min_by(|a, b| a.score.total_cmp(&b.score))
             .map(|r| (r.kind, r.cv.clone()));
-        rounds.push(results);
-        match winner {
-            Some((kind, cv)) => {
-                progress(&format!("round {round}: named {}", kind.name()));
-                current_template = current_template.with_effect(kind, Some(&prefix));
-                current_cv = cv;
-                named.push(kind);
+        if let Some((kind, cv)) = winner {
+            rounds.push(results);
+            progress(&format!("round {round}: named {}", kind.name()));
+            current_template = current_template.with_effect(kind, Some(&prefix));
+            current_cv = cv;
+            named.push(kind);
+            continue;
+        }
+        // No single effect qualifies. Two effects can mask each other (a force-channel
+        // delay cancels part of the loss a springpot adds, a moving mass part of the
+        // stiffening...), so greedy selection would stop with both hidden. Look one step
+        // ahead: the best single candidate, if it already shows held-out evidence, plus
+        // each other candidate. The pair is named only if it passes the naming rule
+        // against the current model (penalised for both effects) and each member passes
+        // it against the other member alone (neither is redundant).
+        let pair = lookahead_pair(
+            &results,
+            &current_template,
+            &prefix,
+            &reference,
+            &scoring,
+            progress,
+        );
+        match pair {
+            Some((first_index, second)) => {
+                let first = results[first_index].kind;
+                results[first_index].qualifies = true;
+                rounds.push(results);
+                progress(&format!(
+                    "round {round}: named {} and {} (jointly: neither qualifies alone)",
+                    first.name(),
+                    second.kind.name()
+                ));
+                current_template = current_template
+                    .with_effect(first, Some(&prefix))
+                    .with_effect(second.kind, None);
+                current_cv = second.cv.clone();
+                named.push(first);
+                named.push(second.kind);
+                rounds.push(vec![second]);
             }
             None => {
+                rounds.push(results);
                 progress(&format!(
                     "round {round}: nothing beats the current model beyond noise"
                 ));

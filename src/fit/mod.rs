@@ -355,8 +355,8 @@ impl Template {
         let mut freqs: Vec<f64> = data.iter().map(|d| d.frequency_hz).collect();
         freqs.sort_by(f64::total_cmp);
         let omega_mid = 2.0 * PI * freqs.get(freqs.len() / 2).copied().unwrap_or(5.0);
-        let mut starts = vec![base];
         let mut n_prefix_effects = 0;
+        let mut prefix_start = None;
         if let Some(prefix) = &self.start_prefix {
             let mut n = self.n_element_params();
             for kind in &self.added {
@@ -366,10 +366,10 @@ impl Template {
                 n += kind.n_params();
                 n_prefix_effects += 1;
             }
-            starts = vec![prefix[..n].to_vec()];
+            prefix_start = Some(prefix[..n].to_vec());
         }
-        for kind in &self.added[n_prefix_effects..] {
-            let options: Vec<Vec<f64>> = match kind {
+        let options_of = |kind: &EffectKind| -> Vec<Vec<f64>> {
+            match kind {
                 EffectKind::PreloadStiffening => vec![vec![logit(0.2 / CHI_MAX)]],
                 EffectKind::AmplitudeFriction => {
                     let stiffness = 0.3 * k_ref;
@@ -389,19 +389,39 @@ impl Template {
                 EffectKind::TemperatureShift => vec![vec![0.0, 0.0]],
                 EffectKind::ChannelDelay => vec![vec![0.0]],
                 EffectKind::MovingMass => vec![vec![0.0]],
-            };
-            starts = starts
-                .iter()
-                .flat_map(|s| {
-                    options.iter().map(move |o| {
-                        let mut v = s.clone();
-                        v.extend(o);
-                        v
+            }
+        };
+        let extend = |starts: Vec<Vec<f64>>, kinds: &[EffectKind]| -> Vec<Vec<f64>> {
+            let mut starts = starts;
+            for kind in kinds {
+                let options = options_of(kind);
+                starts = starts
+                    .iter()
+                    .flat_map(|s| {
+                        options.iter().map(move |o| {
+                            let mut v = s.clone();
+                            v.extend(o);
+                            v
+                        })
                     })
-                })
-                .collect();
+                    .collect();
+            }
+            starts
+        };
+        match prefix_start {
+            None => extend(vec![base], &self.added),
+            Some(prefix) => {
+                let mut starts = extend(vec![prefix], &self.added[n_prefix_effects..]);
+                if n_prefix_effects > 0 {
+                    // The previous fit can sit on a bound of an effect parameter (a
+                    // springpot exponent at 1 standing in for a force-channel lead that is
+                    // added now) where the transformed gradient vanishes; also start every
+                    // effect afresh so such a fit can be left.
+                    starts.extend(extend(vec![base], &self.added));
+                }
+                starts
+            }
         }
-        starts
     }
 
     /// The model for transformed parameters `theta`.
