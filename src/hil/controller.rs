@@ -17,7 +17,7 @@ use std::io::Write;
 
 use super::config::{ControllerConfig, LimitAction};
 use super::fault::Fault;
-use super::records::CsvRecord;
+use super::records::{sequence_column, CsvRecord};
 use crate::ipc::messages::{controller_state, emulator_state, ActuatorCommand, ForceSetpoint};
 
 /// Value at `t_eval` of the polynomial through the points `(t[i], y[i])` (Lagrange form;
@@ -57,11 +57,7 @@ pub struct ControllerRecord {
 impl CsvRecord for ControllerRecord {
     const HEADER: &'static str = "command_seq,setpoint_seq,sample_seq,setpoint_force_n,predicted_force_n,command_force_n,state,fault_code,limited,end_to_end_ns";
     fn write_csv(&self, out: &mut dyn Write) -> std::io::Result<()> {
-        let seq = if self.sample_seq == u64::MAX {
-            -1
-        } else {
-            self.sample_seq as i64
-        };
+        let seq = sequence_column(self.sample_seq);
         writeln!(
             out,
             "{},{},{},{},{},{},{},{},{},{}",

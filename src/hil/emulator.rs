@@ -10,7 +10,7 @@ use std::io::Write;
 
 use super::config::{EmulatorConfig, LoopConfig};
 use super::fault::Fault;
-use super::records::CsvRecord;
+use super::records::{sequence_column, CsvRecord};
 use crate::ipc::messages::{emulator_state, sample_status, DisplacementSample, ForceSetpoint};
 use crate::model::effects::{AugmentedModel, ModelStepper, StepperMode};
 use crate::rt::CycleStats;
@@ -47,11 +47,7 @@ impl CsvRecord for EmulatorRecord {
     const HEADER: &'static str = "step_idx,cycle_idx,sample_seq,stale,catch_up,state,fault_code,model_flags,wake_late_ns,z_used_m,force_n";
     fn write_csv(&self, out: &mut dyn Write) -> std::io::Result<()> {
         // `{}` on f64 prints the shortest text that parses back to the same bits.
-        let seq = if self.sample_seq == u64::MAX {
-            -1
-        } else {
-            self.sample_seq as i64
-        };
+        let seq = sequence_column(self.sample_seq);
         writeln!(
             out,
             "{},{},{},{},{},{},{},{},{},{},{}",

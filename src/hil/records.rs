@@ -13,6 +13,15 @@ use std::thread::JoinHandle;
 use crossbeam::queue::ArrayQueue;
 
 /// A record that can be written as one CSV line.
+/// A sample sequence as a CSV column: `u64::MAX` ("no sample yet") is written as -1.
+pub fn sequence_column(sequence: u64) -> i64 {
+    if sequence == u64::MAX {
+        -1
+    } else {
+        sequence as i64
+    }
+}
+
 pub trait CsvRecord: Copy + Send + 'static {
     const HEADER: &'static str;
     fn write_csv(&self, out: &mut dyn Write) -> std::io::Result<()>;
