@@ -246,8 +246,12 @@ impl IpcNode {
         // Loop streams keep the newest few samples (the reader wants the newest; older
         // ones are overwritten, never block the writer). Heartbeats and control messages
         // are rarer; control keeps its last message for late subscribers.
+        // The displacement stream holds 256 samples (62 ms at 4096 Hz): a reader stalled
+        // by the OS for milliseconds still drains and validates every sample it missed,
+        // so a single bad sample cannot be overwritten unseen.
         let (history, buffer, max_publishers, max_subscribers) = match stream {
-            Stream::Displacement | Stream::Setpoint | Stream::Command => (0, 8, 1, 4),
+            Stream::Displacement => (0, 256, 1, 4),
+            Stream::Setpoint | Stream::Command => (0, 8, 1, 4),
             Stream::Heartbeat => (0, 64, 4, 4),
             Stream::Control => (1, 8, 2, 4),
         };
