@@ -74,6 +74,8 @@ pub struct CandidateResult {
     pub kind: EffectKind,
     pub round: usize,
     pub cv: CrossValidation,
+    /// Raw held-out residual (noise included, precision-weighted).
+    pub raw_gap: f64,
     /// Candidate's held-out gap (noise excluded) over the current model's.
     pub gap_ratio: f64,
     /// Same for the raw held-out residual (noise included).
@@ -120,21 +122,33 @@ pub struct Diagnosis {
     pub noise_floor: f64,
 }
 
-/// Held-out gap in excess of noise: `sqrt(mean e_i - mean nu_i)`, floored at a tenth of the
-/// noise RMS.
+/// Precision-weighted mean `sum w_i x_i / sum w_i` (weights `CycleData::weight`).
+fn weighted_mean(values: impl Iterator<Item = f64>, data: &[CycleData]) -> f64 {
+    let (sum, weight) = values.zip(data).fold((0.0, 0.0), |(s, w), (x, d)| {
+        (s + d.weight * x, w + d.weight)
+    });
+    sum / weight.max(1e-300)
+}
+
+/// Held-out gap in excess of noise: `sqrt(mean_w e_i - mean_w nu_i)` (precision-weighted
+/// means), floored at a tenth of the noise RMS.
 pub fn excess_gap(errors: &[f64], data: &[CycleData]) -> f64 {
-    let n = errors.len().max(1) as f64;
-    let mean_error = errors.iter().sum::<f64>() / n;
-    let mean_noise = data.iter().map(|d| d.noise_relative).sum::<f64>() / n;
+    let mean_error = weighted_mean(errors.iter().copied(), data);
+    let mean_noise = weighted_mean(data.iter().map(|d| d.noise_relative), data);
     (mean_error - mean_noise)
         .max(0.01 * mean_noise)
         .max(1e-300)
         .sqrt()
 }
 
-/// RMS of the estimated noise floor `sqrt(mean nu_i)`.
+/// Raw held-out residual (noise included): `sqrt(mean_w e_i)`.
+pub fn raw_gap(errors: &[f64], data: &[CycleData]) -> f64 {
+    weighted_mean(errors.iter().copied(), data).sqrt()
+}
+
+/// RMS of the estimated noise floor `sqrt(mean_w nu_i)`.
 pub fn noise_floor(data: &[CycleData]) -> f64 {
-    (data.iter().map(|d| d.noise_relative).sum::<f64>() / data.len().max(1) as f64).sqrt()
+    weighted_mean(data.iter().map(|d| d.noise_relative), data).sqrt()
 }
 
 /// Distinct levels with a relative tolerance.
@@ -303,7 +317,6 @@ struct Scoring<'a> {
     folds: &'a [usize],
     n_folds: usize,
     options: &'a DiagnoseOptions,
-    median_noise: f64,
 }
 
 /// Naming-rule numbers of a candidate against a reference model.
@@ -337,7 +350,7 @@ impl Scoring<'_> {
             .iter()
             .zip(errors)
             .zip(self.data)
-            .map(|((b, c), d)| (b - c) / (d.noise_relative + self.median_noise))
+            .map(|((b, c), d)| (b - c) * d.weight)
             .collect();
         let z = wilcoxon_z(&differences);
         let folds_improved = (0..self.n_folds)
@@ -345,8 +358,9 @@ impl Scoring<'_> {
                 let sum = |e: &[f64]| -> f64 {
                     e.iter()
                         .zip(self.folds)
-                        .filter(|(_, &g)| g == f)
-                        .map(|(x, _)| x)
+                        .zip(self.data)
+                        .filter(|((_, &g), _)| g == f)
+                        .map(|((x, _), d)| x * d.weight)
                         .sum()
                 };
                 sum(errors) < sum(reference.errors)
@@ -399,7 +413,7 @@ fn lookahead_pair(
     let first_reference = Reference {
         errors: &first.cv.held_out_error,
         gap: excess_gap(&first.cv.held_out_error, scoring.data),
-        raw: first.cv.gap(),
+        raw: raw_gap(&first.cv.held_out_error, scoring.data),
     };
     let evaluated = run_parallel(&others, options.n_threads, |other| {
         let pair_template = first_template.with_effect(other.kind, Some(&first.cv.full_fit.params));
@@ -413,24 +427,24 @@ fn lookahead_pair(
         );
         let joint = scoring.compare(
             &cv.held_out_error,
-            cv.gap(),
+            raw_gap(&cv.held_out_error, scoring.data),
             first.kind.n_params() + other.kind.n_params(),
             reference,
         );
         let given_first = scoring.compare(
             &cv.held_out_error,
-            cv.gap(),
+            raw_gap(&cv.held_out_error, scoring.data),
             other.kind.n_params(),
             &first_reference,
         );
         let other_reference = Reference {
             errors: &other.cv.held_out_error,
             gap: excess_gap(&other.cv.held_out_error, scoring.data),
-            raw: other.cv.gap(),
+            raw: raw_gap(&other.cv.held_out_error, scoring.data),
         };
         let given_other = scoring.compare(
             &cv.held_out_error,
-            cv.gap(),
+            raw_gap(&cv.held_out_error, scoring.data),
             first.kind.n_params(),
             &other_reference,
         );
@@ -438,6 +452,7 @@ fn lookahead_pair(
         let result = CandidateResult {
             kind: other.kind,
             round,
+            raw_gap: raw_gap(&cv.held_out_error, scoring.data),
             cv,
             gap_ratio: given_first.gap_ratio,
             raw_ratio: given_first.raw_ratio,
@@ -550,7 +565,7 @@ pub fn diagnose(
         "baseline calibrated on {} tests: held-out gap {:.4e} (raw {:.4e}, noise floor {:.4e}; {n_folds}-fold)",
         data.len(),
         excess_gap(&baseline_cv.held_out_error, data),
-        baseline_cv.gap(),
+        raw_gap(&baseline_cv.held_out_error, data),
         noise_floor(data)
     ));
 
@@ -571,10 +586,7 @@ pub fn diagnose(
         let prefix = current_cv.full_fit.params.clone();
         let current_errors = current_cv.held_out_error.clone();
         let current_gap = excess_gap(&current_errors, data);
-        let current_raw = current_cv.gap();
-        let mut noise_levels: Vec<f64> = data.iter().map(|d| d.noise_relative).collect();
-        noise_levels.sort_by(f64::total_cmp);
-        let median_noise = noise_levels[noise_levels.len() / 2].max(1e-300);
+        let current_raw = raw_gap(&current_cv.held_out_error, data);
         let reference = Reference {
             errors: &current_errors,
             gap: current_gap,
@@ -585,7 +597,6 @@ pub fn diagnose(
             folds: &folds,
             n_folds,
             options,
-            median_noise,
         };
         let mut results = run_parallel(&remaining, options.n_threads, |&kind| {
             let candidate = current_template.with_effect(kind, Some(&prefix));
@@ -597,11 +608,17 @@ pub fn diagnose(
                 options.max_iterations,
                 options.n_threads,
             );
-            let m = scoring.compare(&cv.held_out_error, cv.gap(), kind.n_params(), &reference);
+            let m = scoring.compare(
+                &cv.held_out_error,
+                raw_gap(&cv.held_out_error, scoring.data),
+                kind.n_params(),
+                &reference,
+            );
             let model = candidate.model(&cv.full_fit.params);
             CandidateResult {
                 kind,
                 round,
+                raw_gap: raw_gap(&cv.held_out_error, scoring.data),
                 cv,
                 gap_ratio: m.gap_ratio,
                 raw_ratio: m.raw_ratio,
@@ -617,7 +634,7 @@ pub fn diagnose(
                 "round {round}: {:<20} held-out gap {:.4e} (raw {:.4e}) ratio {:.3} raw ratio {:.3} score {:.3} z {:.2} folds {}/{}{}",
                 r.kind.name(),
                 excess_gap(&r.cv.held_out_error, data),
-                r.cv.gap(),
+                raw_gap(&r.cv.held_out_error, data),
                 r.gap_ratio,
                 r.raw_ratio,
                 r.score,
@@ -686,8 +703,8 @@ pub fn diagnose(
     Diagnosis {
         gap_before: excess_gap(&baseline_cv.held_out_error, data),
         gap_after: excess_gap(&current_cv.held_out_error, data),
-        raw_gap_before: baseline_cv.gap(),
-        raw_gap_after: current_cv.gap(),
+        raw_gap_before: raw_gap(&baseline_cv.held_out_error, data),
+        raw_gap_after: raw_gap(&current_cv.held_out_error, data),
         noise_floor: noise_floor(data),
         reference_temperature_c,
         folds,

@@ -140,6 +140,8 @@ pub fn plot_equivalents(
                         force_harmonics_n: [(0.0, 0.0); N_HARMONICS],
                         scale_n: 1.0,
                         noise_relative: 0.0,
+                        duration_s: 1.0 / freq,
+                        weight: 1.0,
                     };
                     let p = predict_cycle(model, &probe);
                     equivalent_mn(p[0], (z_amp, 0.0), freq, length_m)

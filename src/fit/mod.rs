@@ -45,6 +45,12 @@ pub struct CycleData {
     pub scale_n: f64,
     /// Estimated noise variance of the fundamental residual relative to `|F_1|^2`.
     pub noise_relative: f64,
+    /// Duration of the analysed whole cycles, s.
+    pub duration_s: f64,
+    /// Precision weight of the test in held-out gaps, `1 / max(nu~_i, median nu~ / 2)`
+    /// scaled to mean 1, with `nu~_i` the campaign's smoothed noise level (`assign_noise_weights`);
+    /// 1 until assigned.
+    pub weight: f64,
 }
 
 impl CycleData {
@@ -55,7 +61,7 @@ impl CycleData {
 
 /// The harmonic tests of a campaign, reduced to their steady-state cycles.
 pub fn cycle_data(campaign: &Campaign) -> Vec<CycleData> {
-    campaign
+    let mut data: Vec<CycleData> = campaign
         .harmonic_tests()
         .filter_map(|test| {
             let cycle = test.cycle.as_ref()?;
@@ -71,9 +77,89 @@ pub fn cycle_data(campaign: &Campaign) -> Vec<CycleData> {
                 force_harmonics_n: cycle.force_harmonics_n,
                 scale_n,
                 noise_relative: cycle.fundamental_noise_variance_n2 / (scale_n * scale_n),
+                duration_s: cycle.n_cycles as f64 / cycle.frequency_hz,
+                weight: 1.0,
             })
         })
-        .collect()
+        .collect();
+    assign_noise_weights(&mut data);
+    data
+}
+
+/// Sets each test's precision weight from a smoothed noise level.
+///
+/// A single test's noise estimate rests on two DFT bins, so it scatters like an
+/// exponential variable; weighting by it would favour tests whose noise happens to be
+/// underestimated. The smoothed level instead regresses the log noise spectral density
+/// `ln(nu_i |F_1,i|^2 T_i)` on `ln f`, `(ln f)^2` and `ln |K_i|` (force noise is flat in
+/// `|K|`, displacement noise grows as `|K|^2`) over the whole campaign and converts back:
+/// `nu~_i = exp(fit_i) / (|F_1,i|^2 T_i)`. The weight is the inverse noise variance
+/// `1 / max(nu~_i, median nu~ / 2)`: every test adds about as much noise to a weighted
+/// mean, so a few tests with large noise (small amplitude, short records) no longer decide
+/// the gap; the floor keeps the quietest tests from counting more than twice the median
+/// test.
+pub fn assign_noise_weights(data: &mut [CycleData]) {
+    let rows: Vec<(f64, [f64; 4])> = data
+        .iter()
+        .filter(|d| d.noise_relative > 0.0 && d.duration_s > 0.0)
+        .map(|d| {
+            let x = d.frequency_hz.ln();
+            let k = cabs(crate::campaign::cdiv(
+                d.force_harmonics_n[0],
+                d.displacement_harmonics_m[0],
+            ))
+            .max(1e-300)
+            .ln();
+            let y = (d.noise_relative * d.scale_n * d.scale_n * d.duration_s).ln();
+            (y, [1.0, x, x * x, k])
+        })
+        .collect();
+    if rows.len() < 8 {
+        return;
+    }
+    // Least squares with a small ridge (the columns are collinear when the campaign has
+    // one preload or few frequencies); the intercept is not penalised.
+    let mut ata = nalgebra::Matrix4::<f64>::zeros();
+    let mut aty = nalgebra::Vector4::<f64>::zeros();
+    for (y, a) in &rows {
+        for i in 0..4 {
+            aty[i] += a[i] * y;
+            for j in 0..4 {
+                ata[(i, j)] += a[i] * a[j];
+            }
+        }
+    }
+    for i in 1..4 {
+        ata[(i, i)] += 1e-6 * ata[(i, i)].max(1.0);
+    }
+    let Some(coef) = ata.cholesky().map(|c| c.solve(&aty)) else {
+        return;
+    };
+    let smoothed: Vec<f64> = data
+        .iter()
+        .map(|d| {
+            let x = d.frequency_hz.ln();
+            let k = cabs(crate::campaign::cdiv(
+                d.force_harmonics_n[0],
+                d.displacement_harmonics_m[0],
+            ))
+            .max(1e-300)
+            .ln();
+            let density = (coef[0] + coef[1] * x + coef[2] * x * x + coef[3] * k).exp();
+            density / (d.scale_n * d.scale_n * d.duration_s.max(1e-300))
+        })
+        .collect();
+    let mut sorted = smoothed.clone();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    if !(median.is_finite() && median > 0.0) {
+        return;
+    }
+    let raw: Vec<f64> = smoothed.iter().map(|s| 1.0 / s.max(0.5 * median)).collect();
+    let mean = raw.iter().sum::<f64>() / raw.len() as f64;
+    for (d, w) in data.iter_mut().zip(raw) {
+        d.weight = w / mean;
+    }
 }
 
 /// Slowest relaxation time of the element, s (0 for Kelvin-Voigt).
