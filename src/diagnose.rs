@@ -6,10 +6,16 @@
 //! against the measured one, `e_i = |F_sim,1 - F_1|^2 / |F_1|^2` (single-bin DFT over
 //! whole cycles, SPEC 4), with every `e_i` held out: K-fold cross-validation over tests,
 //! folds dealt across the design. Each test also carries `nu_i`, the part of `e_i` that
-//! measurement noise alone produces (estimated from the neighbouring DFT bins, see
-//! `campaign::HarmonicCycle`). The gap is the held-out RMS residual in excess of noise,
-//! `sqrt(mean_i e_i - mean_i nu_i)`, floored at a tenth of the noise RMS (below that it is
-//! not measurable); the raw `sqrt(mean_i e_i)` and the noise RMS are reported next to it.
+//! measurement noise alone produces (estimated from the DFT bins next to the test
+//! frequency, see `campaign::analyse_cycle`), and a precision weight `w_i` (inverse of the
+//! campaign's smoothed noise level, `fit::assign_noise_weights`). The gap is the held-out
+//! RMS residual in excess of noise, `sqrt(mean_w e_i - mean_w nu_i)` with weighted means,
+//! floored at a tenth of the noise RMS (below that it is not measurable); the raw
+//! `sqrt(mean_w e_i)` and the noise RMS are reported next to it.
+//!
+//! The weights matter: a test's realised noise scatters like an exponential variable
+//! around `nu_i`, so in a plain mean the few noisiest tests (small amplitude, short
+//! records) would decide the gap of the whole campaign by chance.
 //!
 //! Naming rule, per round of greedy forward selection: a candidate (current model plus one
 //! effect, refitted on the training folds) is named only if
@@ -18,9 +24,9 @@
 //! 2. its raw held-out residual (noise included), penalised the same way, is below 0.95 x
 //!    the current model's,
 //! 3. the paired one-sided Wilcoxon signed-rank test of per-test held-out errors
-//!    (current minus candidate, each divided by that test's noise level plus the median
-//!    one) gives z > 2.3 (p < 0.01), and
-//! 4. it lowers the held-out error in at least K - 1 of the K folds, and
+//!    (current minus candidate, each times the test's precision weight) gives z > 2.3
+//!    (p < 0.01), and
+//! 4. it lowers the (weighted) held-out error in at least K - 1 of the K folds, and
 //! 5. what it explains is material: `sqrt(gap_current^2 - gap_candidate^2)` exceeds 1e-3
 //!    (0.1 % of the force at the test frequency). Below that, differences between
 //!    integration schemes or model forms can be "explained" by any flexible effect.
@@ -87,6 +93,8 @@ pub struct CandidateResult {
     pub qualifies: bool,
     /// The candidate fitted on all tests.
     pub model: AugmentedModel,
+    /// The template it was fitted with (the friction law chosen, for `amplitude-friction`).
+    pub template: Template,
 }
 
 /// Why an effect was not tried.
@@ -392,8 +400,6 @@ impl Scoring<'_> {
 /// first alone) of the best qualifying pair.
 fn lookahead_pair(
     results: &[CandidateResult],
-    current_template: &Template,
-    prefix: &[f64],
     reference: &Reference<'_>,
     scoring: &Scoring<'_>,
     progress: &mut dyn FnMut(&str),
@@ -409,14 +415,18 @@ fn lookahead_pair(
         return None;
     }
     let round = first.round + 1;
-    let first_template = current_template.with_effect(first.kind, Some(prefix));
+    let first_template = &first.template;
     let first_reference = Reference {
         errors: &first.cv.held_out_error,
         gap: excess_gap(&first.cv.held_out_error, scoring.data),
         raw: raw_gap(&first.cv.held_out_error, scoring.data),
     };
     let evaluated = run_parallel(&others, options.n_threads, |other| {
-        let pair_template = first_template.with_effect(other.kind, Some(&first.cv.full_fit.params));
+        let mut pair_template =
+            first_template.with_effect(other.kind, Some(&first.cv.full_fit.params));
+        if other.kind == EffectKind::AmplitudeFriction {
+            pair_template.friction_dahl = other.template.friction_dahl;
+        }
         let cv = cross_validate(
             &pair_template,
             scoring.data,
@@ -461,6 +471,7 @@ fn lookahead_pair(
             folds_improved: given_first.folds_improved,
             qualifies: joint.qualifies && given_first.qualifies && given_other.qualifies,
             model,
+            template: pair_template,
         };
         (result, joint.score, given_other.score)
     });
@@ -483,6 +494,23 @@ fn lookahead_pair(
         .filter(|(r, _, _)| r.qualifies)
         .min_by(|a, b| a.1.total_cmp(&b.1))
         .map(|(r, _, _)| (first_index, r))
+}
+
+/// Fits each variant (`cv` of a template) and keeps the one with the smallest in-sample
+/// residual on all tests: the choice between friction laws with equally many parameters
+/// is made on the fit, never on held-out errors.
+fn best_variant(
+    variants: Vec<Template>,
+    cv: impl Fn(&Template) -> CrossValidation,
+) -> (Template, CrossValidation) {
+    variants
+        .into_iter()
+        .map(|t| {
+            let result = cv(&t);
+            (t, result)
+        })
+        .min_by(|a, b| a.1.full_fit.sse.total_cmp(&b.1.full_fit.sse))
+        .expect("at least one variant")
 }
 
 /// Runs the workflow. `progress` receives one-line messages.
@@ -599,14 +627,18 @@ pub fn diagnose(
             options,
         };
         let mut results = run_parallel(&remaining, options.n_threads, |&kind| {
-            let candidate = current_template.with_effect(kind, Some(&prefix));
-            let cv = cross_validate(
-                &candidate,
-                data,
-                &folds,
-                n_folds,
-                options.max_iterations,
-                options.n_threads,
+            let (candidate, cv) = best_variant(
+                current_template.variants_with_effect(kind, Some(&prefix)),
+                |t| {
+                    cross_validate(
+                        t,
+                        data,
+                        &folds,
+                        n_folds,
+                        options.max_iterations,
+                        options.n_threads,
+                    )
+                },
             );
             let m = scoring.compare(
                 &cv.held_out_error,
@@ -627,6 +659,7 @@ pub fn diagnose(
                 folds_improved: m.folds_improved,
                 qualifies: m.qualifies,
                 model,
+                template: candidate,
             }
         });
         for r in &results {
@@ -648,11 +681,11 @@ pub fn diagnose(
             .iter()
             .filter(|r| r.qualifies)
             .min_by(|a, b| a.score.total_cmp(&b.score))
-            .map(|r| (r.kind, r.cv.clone()));
-        if let Some((kind, cv)) = winner {
+            .map(|r| (r.kind, r.cv.clone(), r.template.clone()));
+        if let Some((kind, cv, template)) = winner {
             rounds.push(results);
             progress(&format!("round {round}: named {}", kind.name()));
-            current_template = current_template.with_effect(kind, Some(&prefix));
+            current_template = template;
             current_cv = cv;
             named.push(kind);
             continue;
@@ -664,14 +697,7 @@ pub fn diagnose(
         // each other candidate. The pair is named only if it passes the naming rule
         // against the current model (penalised for both effects) and each member passes
         // it against the other member alone (neither is redundant).
-        let pair = lookahead_pair(
-            &results,
-            &current_template,
-            &prefix,
-            &reference,
-            &scoring,
-            progress,
-        );
+        let pair = lookahead_pair(&results, &reference, &scoring, progress);
         match pair {
             Some((first_index, second)) => {
                 let first = results[first_index].kind;
@@ -682,9 +708,7 @@ pub fn diagnose(
                     first.name(),
                     second.kind.name()
                 ));
-                current_template = current_template
-                    .with_effect(first, Some(&prefix))
-                    .with_effect(second.kind, None);
+                current_template = second.template.clone();
                 current_cv = second.cv.clone();
                 named.push(first);
                 named.push(second.kind);

@@ -41,11 +41,10 @@ pub struct DiagnoseArgs {
     pub threads: usize,
 }
 
-/// What the gap measures (the `metric` of the JSON object).
 /// What the gap measures, for `metric` in the JSON and the report.
 pub fn metric(n_folds: usize) -> String {
     format!(
-        "held-out relative RMS residual of the force at the test frequency in excess of measurement noise: sqrt(mean_i |F_sim,1 - F_meas,1|^2 / |F_meas,1|^2 - mean_i nu_i) over the harmonic tests, F_sim,1 from the steady-state force simulated from each test's measured displacement cycle by a model fitted without that test ({n_folds}-fold cross-validation), nu_i the noise share of that residual estimated from neighbouring DFT bins (floored at a tenth of the noise RMS; raw_gap_* include the noise)"
+        "held-out relative RMS residual of the force at the test frequency in excess of measurement noise: sqrt(mean_w |F_sim,1 - F_meas,1|^2 / |F_meas,1|^2 - mean_w nu_i) over the harmonic tests, mean_w a precision-weighted mean (weights 1 / max(nu~_i, median nu~ / 2), nu~_i the campaign's smoothed noise level), F_sim,1 from the steady-state force simulated from each test's measured displacement cycle by a model fitted without that test ({n_folds}-fold cross-validation), nu_i the noise share of that residual estimated from the DFT bins next to the test frequency (floored at a tenth of the noise RMS; raw_gap_* include the noise)"
     )
 }
 

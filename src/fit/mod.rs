@@ -15,7 +15,7 @@ pub mod lm;
 use std::f64::consts::PI;
 
 use crate::campaign::{cabs, cmul, Campaign, Complex, N_HARMONICS};
-use crate::model::effects::{AugmentedModel, Effect, ModelStepper, StepperMode};
+use crate::model::effects::{AugmentedModel, Effect, FrictionLaw, ModelStepper, StepperMode};
 use crate::model::params::ElementModel;
 
 pub use lm::{levenberg_marquardt, LmFit};
@@ -318,11 +318,23 @@ pub struct Template {
     pub reference_temperature_c: f64,
     /// Start values for the leading parameters (e.g. the fit this template extends).
     pub start_prefix: Option<Vec<f64>>,
+    /// Law of an added `amplitude-friction`: generalised Dahl (true) or Iwan (false).
+    pub friction_dahl: bool,
 }
 
 const CHI_MAX: f64 = 0.95;
 /// Largest log-normal spread of the friction sliders' slip forces.
 const SLIP_SPREAD_MAX: f64 = 3.0;
+/// Fitted generalised-Dahl exponent range (a logistic map onto it).
+const DAHL_EXPONENT_FIT: (f64, f64) = (0.05, 3.0);
+
+fn dahl_exponent(theta: f64) -> f64 {
+    DAHL_EXPONENT_FIT.0 + (DAHL_EXPONENT_FIT.1 - DAHL_EXPONENT_FIT.0) * logistic(theta)
+}
+
+fn dahl_theta(exponent: f64) -> f64 {
+    logit((exponent - DAHL_EXPONENT_FIT.0) / (DAHL_EXPONENT_FIT.1 - DAHL_EXPONENT_FIT.0))
+}
 
 fn logit(x: f64) -> f64 {
     (x / (1.0 - x)).ln()
@@ -342,7 +354,21 @@ impl Template {
             added: Vec::new(),
             reference_temperature_c,
             start_prefix: None,
+            friction_dahl: false,
         }
+    }
+
+    /// The law variants to try when adding `kind`: both friction laws for
+    /// `amplitude-friction` (an Iwan element obeys Masing's rule, a Dahl element does not;
+    /// neither imitates the other closely), else the one template.
+    pub fn variants_with_effect(&self, kind: EffectKind, fitted: Option<&[f64]>) -> Vec<Template> {
+        let plain = self.with_effect(kind, fitted);
+        if kind != EffectKind::AmplitudeFriction {
+            return vec![plain];
+        }
+        let mut dahl = plain.clone();
+        dahl.friction_dahl = true;
+        vec![plain, dahl]
     }
 
     /// This template plus one effect, starting from `fitted` (this template's fit).
@@ -393,7 +419,11 @@ impl Template {
                 EffectKind::AmplitudeFriction => names.extend([
                     "ln_friction_stiffness".into(),
                     "ln_slip_force".into(),
-                    "logit_slip_spread".into(),
+                    if self.friction_dahl {
+                        "logit_dahl_exponent".into()
+                    } else {
+                        "logit_slip_spread".into()
+                    },
                 ]),
                 EffectKind::FractionalDamping => {
                     names.extend(["ln_springpot_coefficient".into(), "logit_alpha".into()])
@@ -457,6 +487,26 @@ impl Template {
         let options_of = |kind: &EffectKind| -> Vec<Vec<f64>> {
             match kind {
                 EffectKind::PreloadStiffening => vec![vec![logit(0.2 / CHI_MAX)]],
+                EffectKind::AmplitudeFriction if self.friction_dahl => {
+                    let stiffness = 0.3 * k_ref;
+                    vec![
+                        vec![
+                            stiffness.ln(),
+                            (stiffness * 0.2 * z_amp).ln(),
+                            dahl_theta(1.0),
+                        ],
+                        vec![
+                            stiffness.ln(),
+                            (stiffness * 0.6 * z_amp).ln(),
+                            dahl_theta(0.3),
+                        ],
+                        vec![
+                            stiffness.ln(),
+                            (stiffness * 0.6 * z_amp).ln(),
+                            dahl_theta(2.0),
+                        ],
+                    ]
+                }
                 EffectKind::AmplitudeFriction => {
                     let stiffness = 0.3 * k_ref;
                     let spread = |sigma: f64| logit(sigma / SLIP_SPREAD_MAX);
@@ -542,7 +592,15 @@ impl Template {
                 EffectKind::AmplitudeFriction => Effect::AmplitudeFriction {
                     stiffness_n_per_m: theta[i].exp(),
                     slip_force_n: theta[i + 1].exp(),
-                    slip_spread: SLIP_SPREAD_MAX * logistic(theta[i + 2]),
+                    law: if self.friction_dahl {
+                        FrictionLaw::Dahl {
+                            exponent: dahl_exponent(theta[i + 2]),
+                        }
+                    } else {
+                        FrictionLaw::Iwan {
+                            slip_spread: SLIP_SPREAD_MAX * logistic(theta[i + 2]),
+                        }
+                    },
                 },
                 EffectKind::FractionalDamping => Effect::FractionalDamping {
                     coefficient_ns_alpha_per_m: theta[i].exp(),

@@ -9,7 +9,12 @@
 //!   elements (spring `k_f / N` in series with a Coulomb slider) whose slip forces follow
 //!   a log-normal spread `s` around `F_slip / N` (normalised so the full-slip force is
 //!   `F_slip`). `s = 0` is one Jenkins element (bilinear loop); `s ~ 1` is a smooth
-//!   Dahl/Berg-like transition. Rate-independent and exact for any step (a clamp each).
+//!   Berg-like transition. Rate-independent and exact for any step (a clamp each). Its
+//!   loops obey Masing's rule (a branch is the first-loading curve scaled by two).
+//!   Or, with `dahl_exponent` `n` instead of `slip_spread`, a generalised Dahl element
+//!   `dF/dz = k_f |1 - F sgn(z')/F_slip|^n` (n = 1 Dahl's model, n -> 0 a Jenkins element,
+//!   n = 2 hyperbolic): its branches restart the first-loading curve from the reversal
+//!   point (not Masing). Integrated in closed form over each step's monotone increment.
 //! - `fractional-damping`: a springpot `c_a s^alpha` in parallel, realised by a fixed bank
 //!   of Maxwell branches (log-spaced relaxation rates, stiffnesses from the springpot's
 //!   relaxation spectrum `c_a sin(pi alpha)/pi r^(alpha-1)`), plus a spring for the rates
@@ -43,6 +48,21 @@ pub const EFFECT_NAMES: [&str; 6] = [
     "moving-mass",
 ];
 
+/// The friction element's law and its shape parameter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FrictionLaw {
+    /// Iwan element; log-normal spread of the Jenkins elements' slip forces (0: one
+    /// slider), at most `SLIP_SPREAD_LIMIT`.
+    Iwan { slip_spread: f64 },
+    /// Generalised Dahl element; exponent in `DAHL_EXPONENT_RANGE`.
+    Dahl { exponent: f64 },
+}
+
+/// Largest `slip_spread` a model file may state.
+pub const SLIP_SPREAD_LIMIT: f64 = 5.0;
+/// Range of `dahl_exponent` a model file may state.
+pub const DAHL_EXPONENT_RANGE: (f64, f64) = (0.02, 4.0);
+
 /// Temperature assumed when a model or test does not state one, degC.
 pub const DEFAULT_TEMPERATURE_C: f64 = 23.0;
 
@@ -58,8 +78,7 @@ pub enum Effect {
         stiffness_n_per_m: f64,
         /// Force at full slip, N.
         slip_force_n: f64,
-        /// Log-normal spread of the slip forces of the Jenkins elements (0: one slider).
-        slip_spread: f64,
+        law: FrictionLaw,
     },
     FractionalDamping {
         /// Springpot coefficient `c_a` in `F = c_a d^alpha z / dt^alpha`, N s^alpha / m.
@@ -104,11 +123,14 @@ impl Effect {
             Effect::AmplitudeFriction {
                 stiffness_n_per_m,
                 slip_force_n,
-                slip_spread,
+                law,
             } => vec![
                 ("stiffness_n_per_m2", stiffness_n_per_m / length_m),
                 ("slip_force_n_per_m", slip_force_n / length_m),
-                ("slip_spread", slip_spread),
+                match law {
+                    FrictionLaw::Iwan { slip_spread } => ("slip_spread", slip_spread),
+                    FrictionLaw::Dahl { exponent } => ("dahl_exponent", exponent),
+                },
             ],
             Effect::FractionalDamping {
                 coefficient_ns_alpha_per_m,
@@ -182,7 +204,12 @@ fn parse_effect(
     };
     let keys: &[&str] = match name.as_str() {
         "preload-stiffening" => &["chi", "p0_n"],
-        "amplitude-friction" => &["stiffness_n_per_m2", "slip_force_n_per_m", "slip_spread"],
+        "amplitude-friction" => &[
+            "stiffness_n_per_m2",
+            "slip_force_n_per_m",
+            "slip_spread",
+            "dahl_exponent",
+        ],
         "fractional-damping" => &["coefficient_ns_alpha_per_m2", "alpha"],
         "temperature-shift" => &[
             "reference_temperature_c",
@@ -239,16 +266,36 @@ fn parse_effect(
             }
         }
         "amplitude-friction" => {
-            let slip_spread = number("slip_spread")?;
-            if !(0.0..=5.0).contains(&slip_spread) {
-                return Err(err(format!(
-                    "key `slip_spread` = {slip_spread}: must be in [0, 5]"
-                )));
-            }
+            let law = match (table.contains_key("slip_spread"), table.contains_key("dahl_exponent")) {
+                (true, true) | (false, false) => {
+                    return Err(err(
+                        "effect \"amplitude-friction\" needs exactly one of `slip_spread` (Iwan element) and `dahl_exponent` (generalised Dahl element)".into(),
+                    ))
+                }
+                (true, false) => {
+                    let slip_spread = number("slip_spread")?;
+                    if !(0.0..=SLIP_SPREAD_LIMIT).contains(&slip_spread) {
+                        return Err(err(format!(
+                            "key `slip_spread` = {slip_spread}: must be in [0, {SLIP_SPREAD_LIMIT}]"
+                        )));
+                    }
+                    FrictionLaw::Iwan { slip_spread }
+                }
+                (false, true) => {
+                    let exponent = number("dahl_exponent")?;
+                    let (lo, hi) = DAHL_EXPONENT_RANGE;
+                    if !(lo..=hi).contains(&exponent) {
+                        return Err(err(format!(
+                            "key `dahl_exponent` = {exponent}: must be in [{lo}, {hi}]"
+                        )));
+                    }
+                    FrictionLaw::Dahl { exponent }
+                }
+            };
             Effect::AmplitudeFriction {
                 stiffness_n_per_m: positive("stiffness_n_per_m2")? * length_m,
                 slip_force_n: positive("slip_force_n_per_m")? * length_m,
-                slip_spread,
+                law,
             }
         }
         "fractional-damping" => {
@@ -502,6 +549,91 @@ impl IwanElement {
     }
 }
 
+/// Generalised Dahl element: `dF/dz = k |1 - F sgn(dz) / F_s|^n`, integrated exactly over
+/// a monotone step: with `u = 1 - F sgn(dz) / F_s` and `x = k |dz| / F_s`,
+/// `u' = u e^-x` (n = 1), `u'^(1-n) = u^(1-n) + (n - 1) x` (n > 1), and
+/// `u'^(1-n) = max(u^(1-n) - (1 - n) x, 0)` (n < 1: full slip within a finite step).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DahlElement {
+    pub stiffness_n_per_m: f64,
+    pub slip_force_n: f64,
+    pub exponent: f64,
+    pub force_n: f64,
+}
+
+impl DahlElement {
+    #[inline]
+    pub fn step(&mut self, dz_m: f64) -> f64 {
+        if dz_m == 0.0 || self.slip_force_n <= 0.0 {
+            return self.force_n;
+        }
+        let sign = dz_m.signum();
+        let u0 = (1.0 - sign * self.force_n / self.slip_force_n).max(0.0);
+        let x = self.stiffness_n_per_m * dz_m.abs() / self.slip_force_n;
+        let n = self.exponent;
+        let u = if n == 1.0 {
+            u0 * (-x).exp()
+        } else if n > 1.0 {
+            // u0 = 0 stays 0: 0^(1-n) = inf, inf^(1/(1-n)) = 0.
+            (u0.powf(1.0 - n) + (n - 1.0) * x).powf(1.0 / (1.0 - n))
+        } else {
+            (u0.powf(1.0 - n) - (1.0 - n) * x)
+                .max(0.0)
+                .powf(1.0 / (1.0 - n))
+        };
+        self.force_n = sign * self.slip_force_n * (1.0 - u);
+        self.force_n
+    }
+}
+
+/// The friction element a `ModelStepper` runs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FrictionElement {
+    Iwan(IwanElement),
+    Dahl(DahlElement),
+}
+
+impl FrictionElement {
+    pub fn new(stiffness_n_per_m: f64, slip_force_n: f64, law: FrictionLaw) -> FrictionElement {
+        match law {
+            FrictionLaw::Iwan { slip_spread } => FrictionElement::Iwan(IwanElement::new(
+                stiffness_n_per_m,
+                slip_force_n,
+                slip_spread,
+            )),
+            FrictionLaw::Dahl { exponent } => FrictionElement::Dahl(DahlElement {
+                stiffness_n_per_m,
+                slip_force_n,
+                exponent,
+                force_n: 0.0,
+            }),
+        }
+    }
+
+    #[inline]
+    pub fn step(&mut self, dz_m: f64) -> f64 {
+        match self {
+            FrictionElement::Iwan(e) => e.step(dz_m),
+            FrictionElement::Dahl(e) => e.step(dz_m),
+        }
+    }
+
+    pub fn force_n(&self) -> f64 {
+        match self {
+            FrictionElement::Iwan(e) => e.force_n(),
+            FrictionElement::Dahl(e) => e.force_n,
+        }
+    }
+
+    /// Unloads the element (no allocation).
+    pub fn unload(&mut self) {
+        match self {
+            FrictionElement::Iwan(e) => e.forces_n = [0.0; IWAN_ELEMENTS],
+            FrictionElement::Dahl(e) => e.force_n = 0.0,
+        }
+    }
+}
+
 /// Standard normal quantile (Acklam's rational approximation, |error| < 1.2e-9).
 fn normal_quantile(p: f64) -> f64 {
     const A: [f64; 6] = [
@@ -553,7 +685,7 @@ fn normal_quantile(p: f64) -> f64 {
 pub struct ModelStepper {
     base: ForceStepper,
     dt_s: f64,
-    friction: Option<IwanElement>,
+    friction: Option<FrictionElement>,
     bank: Option<BankState>,
     /// Moving mass in the force (0 in emulation mode), kg.
     mass_kg: f64,
@@ -583,14 +715,8 @@ impl ModelStepper {
                 Effect::AmplitudeFriction {
                     stiffness_n_per_m,
                     slip_force_n,
-                    slip_spread,
-                } => {
-                    friction = Some(IwanElement::new(
-                        stiffness_n_per_m,
-                        slip_force_n,
-                        slip_spread,
-                    ))
-                }
+                    law,
+                } => friction = Some(FrictionElement::new(stiffness_n_per_m, slip_force_n, law)),
                 Effect::FractionalDamping {
                     coefficient_ns_alpha_per_m,
                     alpha,
@@ -656,8 +782,8 @@ impl ModelStepper {
     /// on its first sample, inside the loop.
     pub fn reset_static(&mut self, z_m: f64) {
         self.base.reset_static(z_m);
-        if let Some(iwan) = &mut self.friction {
-            iwan.forces_n = [0.0; IWAN_ELEMENTS];
+        if let Some(friction) = &mut self.friction {
+            friction.unload();
         }
         if let Some(bank) = &mut self.bank {
             bank.force_n = [0.0; SPRINGPOT_BRANCHES];
@@ -677,8 +803,8 @@ impl ModelStepper {
 
     fn undelayed_force_n(&self, z_m: f64) -> f64 {
         let mut force = self.base.force_n();
-        if let Some(iwan) = &self.friction {
-            force += iwan.force_n();
+        if let Some(friction) = &self.friction {
+            force += friction.force_n();
         }
         if let Some(bank) = &self.bank {
             force += bank.low_tail_stiffness_n_per_m * (z_m - self.z_start_m);
@@ -696,8 +822,8 @@ impl ModelStepper {
         let (mut force, flags) = self.base.step(z_m);
         let z_prev = self.z_history_m[0];
         let dz = z_m - z_prev;
-        if let Some(iwan) = &mut self.friction {
-            force += iwan.step(dz);
+        if let Some(friction) = &mut self.friction {
+            force += friction.step(dz);
         }
         if let Some(bank) = &mut self.bank {
             let mut branch_sum = 0.0;

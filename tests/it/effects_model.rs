@@ -4,7 +4,7 @@
 use std::f64::consts::PI;
 
 use fastemu::model::effects::{
-    parse_effects, AugmentedModel, Effect, ModelStepper, SpringpotBank, StepperMode,
+    parse_effects, AugmentedModel, Effect, FrictionLaw, ModelStepper, SpringpotBank, StepperMode,
 };
 use fastemu::model::file::parse_model_toml;
 use fastemu::model::params::{ElementModel, ZenerParams};
@@ -25,7 +25,7 @@ fn every_effect() -> Vec<Effect> {
         Effect::AmplitudeFriction {
             stiffness_n_per_m: 1.5e7,
             slip_force_n: 800.0,
-            slip_spread: 0.8,
+            law: FrictionLaw::Iwan { slip_spread: 0.8 },
         },
         Effect::FractionalDamping {
             coefficient_ns_alpha_per_m: 5e5,
@@ -42,6 +42,14 @@ fn every_effect() -> Vec<Effect> {
         },
         Effect::MovingMass { mass_kg: 40.0 },
     ]
+}
+
+fn dahl_friction(exponent: f64) -> Effect {
+    Effect::AmplitudeFriction {
+        stiffness_n_per_m: 1.5e7,
+        slip_force_n: 800.0,
+        law: FrictionLaw::Dahl { exponent },
+    }
 }
 
 fn model_with(effects: Vec<Effect>) -> AugmentedModel {
@@ -67,7 +75,8 @@ fn run(stepper: &mut ModelStepper, z: &[f64]) -> Vec<f64> {
 fn steps_allocate_nothing_and_are_deterministic_for_every_effect() {
     let dt = 1.0 / 4096.0;
     let z = harmonic_input(20_000, dt, 7.0, 1e-4);
-    for effect in every_effect() {
+    let dahl = [0.4, 1.0, 2.0].map(dahl_friction);
+    for effect in every_effect().into_iter().chain(dahl) {
         for mode in [StepperMode::Emulation, StepperMode::Measurement] {
             let model = model_with(vec![effect]);
             let mut a = ModelStepper::new(&model, mode, dt, z[0]);
@@ -284,7 +293,9 @@ fn the_friction_element_follows_the_masing_rules_and_is_rate_independent() {
     let model = model_with(vec![Effect::AmplitudeFriction {
         stiffness_n_per_m: k_f,
         slip_force_n: f_slip,
-        slip_spread: spread,
+        law: FrictionLaw::Iwan {
+            slip_spread: spread,
+        },
     }]);
     let iwan = fastemu::model::effects::IwanElement::new(k_f, f_slip, spread);
     let sliders: Vec<(f64, f64)> = iwan
@@ -386,4 +397,80 @@ fn bad_effect_tables_give_one_line_errors_naming_file_key_and_value() {
         "unknown key `mass_kgs`",
     );
     check("name = \"channel-delay\"", "missing key `force_lag_s`");
+}
+
+/// The generalised Dahl element against its closed-form first-loading and reversal
+/// curves, whatever the step: from rest `F = F_s (1 - e^{-k z / F_s})` for n = 1 and
+/// `F = F_s k z / (F_s + k z)` for n = 2; after a reversal at `F_0`, n = 1 restarts the
+/// exponential from `F_0` toward `-F_s` (no Masing doubling).
+#[test]
+fn the_dahl_element_follows_its_closed_form_for_any_step() {
+    use fastemu::model::effects::{DahlElement, FrictionElement};
+    let (k, fs) = (1.5e7, 800.0);
+    let curve_1 = |z: f64| fs * (1.0 - (-k * z / fs).exp());
+    let curve_2 = |z: f64| fs * k * z / (fs + k * z);
+    for (exponent, curve) in [(1.0, &curve_1 as &dyn Fn(f64) -> f64), (2.0, &curve_2)] {
+        for steps in [1usize, 7, 1000] {
+            let mut e = FrictionElement::new(k, fs, FrictionLaw::Dahl { exponent });
+            let z_end = 2e-4;
+            for _ in 0..steps {
+                e.step(z_end / steps as f64);
+            }
+            let expected = curve(z_end);
+            assert!(
+                (e.force_n() - expected).abs() < 1e-9 * fs,
+                "n = {exponent}, {steps} steps: {} vs {expected}",
+                e.force_n()
+            );
+        }
+    }
+    let mut e = DahlElement {
+        stiffness_n_per_m: k,
+        slip_force_n: fs,
+        exponent: 1.0,
+        force_n: 0.0,
+    };
+    e.step(2e-4);
+    let f0 = e.force_n;
+    for _ in 0..50 {
+        e.step(-1e-6);
+    }
+    let expected = -fs + (f0 + fs) * (-k * 50e-6 / fs).exp();
+    assert!(
+        (e.force_n - expected).abs() < 1e-9 * fs,
+        "{} vs {expected}",
+        e.force_n
+    );
+    // n < 1 reaches full slip in a finite displacement and stays there.
+    let mut e = FrictionElement::new(k, fs, FrictionLaw::Dahl { exponent: 0.3 });
+    e.step(1e-3);
+    assert_eq!(e.force_n(), fs);
+    // A model file states the law by its shape key; both keys at once are an error.
+    let table = |extra: &str| -> toml::Table {
+        format!(
+            "name = \"amplitude-friction\"\nstiffness_n_per_m2 = 2e7\nslip_force_n_per_m = 1000.0\n{extra}"
+        )
+        .parse()
+        .unwrap()
+    };
+    let parsed = parse_effects(&[table("dahl_exponent = 1.5")], 0.75, "m.toml").unwrap();
+    assert_eq!(
+        parsed[0],
+        Effect::AmplitudeFriction {
+            stiffness_n_per_m: 1.5e7,
+            slip_force_n: 750.0,
+            law: FrictionLaw::Dahl { exponent: 1.5 },
+        }
+    );
+    let both = parse_effects(
+        &[table("dahl_exponent = 1.5\nslip_spread = 0.5")],
+        0.75,
+        "m.toml",
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        both.contains("m.toml") && both.contains("exactly one of"),
+        "{both}"
+    );
 }

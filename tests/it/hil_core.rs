@@ -309,7 +309,7 @@ fn watchdog_latches_stale_setpoints_and_ramps_to_the_safe_force() {
 /// spring, so the force is the base element's force plus `k_f (z - z_first)` exactly.
 #[test]
 fn emulator_runs_model_effects_without_allocating() {
-    use fastemu::model::effects::{AugmentedModel, Effect};
+    use fastemu::model::effects::{AugmentedModel, Effect, FrictionLaw};
     use fastemu::model::ForceStepper;
     let mut cfg = config();
     let friction_stiffness_n_per_m = 3e6;
@@ -317,7 +317,7 @@ fn emulator_runs_model_effects_without_allocating() {
         effects: vec![Effect::AmplitudeFriction {
             stiffness_n_per_m: friction_stiffness_n_per_m,
             slip_force_n: 1e9,
-            slip_spread: 0.3,
+            law: FrictionLaw::Iwan { slip_spread: 0.3 },
         }],
         ..cfg.augmented.clone()
     };
