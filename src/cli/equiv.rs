@@ -64,6 +64,25 @@ pub fn run(args: EquivArgs) -> anyhow::Result<ExitCode> {
             "--frequency-hz {f}: must be a finite number >= 0"
         );
     }
+    // k_eq/c_eq are the element's (paper Eq. 2 / small-signal); [[effect]] tables are not
+    // in them: say so rather than print numbers that look like the augmented model's.
+    let effect_names: Vec<String> = spec
+        .effect_tables
+        .iter()
+        .map(|t| {
+            t.get("name")
+                .and_then(|v| v.as_str())
+                .unwrap_or("?")
+                .to_string()
+        })
+        .collect();
+    if !effect_names.is_empty() {
+        eprintln!(
+            "equiv: {}: the values are the base element's; its [[effect]] tables ({}) are not included (`fastemu diagnose` plots k_eq/c_eq with them)",
+            args.model.display(),
+            effect_names.join(", ")
+        );
+    }
     let per_metre = 1.0 / spec.length_m;
     let mut rows = Vec::new();
     for &p in &preloads {
@@ -99,6 +118,7 @@ pub fn run(args: EquivArgs) -> anyhow::Result<ExitCode> {
             "form": spec.element.form().name(),
             "length_m": spec.length_m,
             "per_metre": true,
+            "effects_not_included": effect_names,
             "rows": rows_json,
         });
         println!("{}", serde_json::to_string_pretty(&obj)?);

@@ -497,6 +497,27 @@ fn equiv_json_has_the_documented_shape() {
     assert!(result.status.success());
 }
 
+/// `equiv` shows the base element's values; a model with `[[effect]]` tables says that the
+/// effects are not in them (stderr and JSON) instead of passing silently.
+#[test]
+fn equiv_names_the_effects_it_leaves_out() {
+    let dir = TempDir::new("equiv-effects");
+    let text = format!("{CONSISTENT_MODEL}\n[[effect]]\nname = \"moving-mass\"\nmass_kg = 40.0\n");
+    let model = dir.write("m.toml", &text);
+    let result = fastemu(&["equiv", "--model", path_str(&model), "--json"]);
+    assert!(result.status.success());
+    let json: serde_json::Value = serde_json::from_slice(&result.stdout).expect("one JSON object");
+    assert_eq!(
+        json["effects_not_included"],
+        serde_json::json!(["moving-mass"])
+    );
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert!(
+        stderr.contains("moving-mass") && stderr.contains("not included"),
+        "{stderr}"
+    );
+}
+
 /// What spreadsheets and other tools write: a UTF-8 byte-order mark, CRLF line endings,
 /// quoted fields, spaces and trailing blank lines. All read as the plain file does.
 #[test]
