@@ -99,19 +99,19 @@ pub fn cycle_data(campaign: &Campaign) -> Vec<CycleData> {
 /// the gap; the floor keeps the quietest tests from counting more than twice the median
 /// test.
 pub fn assign_noise_weights(data: &mut [CycleData]) {
+    // Regressors: 1, ln f, (ln f)^2, ln |K|.
+    let features = |d: &CycleData| -> [f64; 4] {
+        let x = d.frequency_hz.ln();
+        let stiffness =
+            crate::campaign::cdiv(d.force_harmonics_n[0], d.displacement_harmonics_m[0]);
+        [1.0, x, x * x, cabs(stiffness).max(1e-300).ln()]
+    };
     let rows: Vec<(f64, [f64; 4])> = data
         .iter()
         .filter(|d| d.noise_relative > 0.0 && d.duration_s > 0.0)
         .map(|d| {
-            let x = d.frequency_hz.ln();
-            let k = cabs(crate::campaign::cdiv(
-                d.force_harmonics_n[0],
-                d.displacement_harmonics_m[0],
-            ))
-            .max(1e-300)
-            .ln();
             let y = (d.noise_relative * d.scale_n * d.scale_n * d.duration_s).ln();
-            (y, [1.0, x, x * x, k])
+            (y, features(d))
         })
         .collect();
     if rows.len() < 8 {
@@ -138,14 +138,8 @@ pub fn assign_noise_weights(data: &mut [CycleData]) {
     let smoothed: Vec<f64> = data
         .iter()
         .map(|d| {
-            let x = d.frequency_hz.ln();
-            let k = cabs(crate::campaign::cdiv(
-                d.force_harmonics_n[0],
-                d.displacement_harmonics_m[0],
-            ))
-            .max(1e-300)
-            .ln();
-            let density = (coef[0] + coef[1] * x + coef[2] * x * x + coef[3] * k).exp();
+            let a = features(d);
+            let density = (0..4).map(|i| coef[i] * a[i]).sum::<f64>().exp();
             density / (d.scale_n * d.scale_n * d.duration_s.max(1e-300))
         })
         .collect();
