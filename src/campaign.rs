@@ -16,7 +16,8 @@ use std::path::{Path, PathBuf};
 
 use crate::csvio::{read_columns, uniform_step};
 
-/// Duration treated as start-up transient at the beginning of a harmonic test, s.
+/// Duration dropped as start-up when a harmonic record's first cycle shows a transient
+/// (see `analyse_cycle`), s.
 pub const START_UP_S: f64 = 0.1;
 
 /// Number of harmonics kept per test (1 = fundamental only).
@@ -67,10 +68,10 @@ pub struct HarmonicCycle {
     pub n_cycles: usize,
     /// RMS of what the harmonic fit leaves in the force (noise and higher harmonics), N.
     pub force_residual_rms_n: f64,
-    /// Estimated variance of the noise in `F_1 - K Z_1` (`K = F_1/Z_1`), N^2: the mean
-    /// `|X_F - K X_Z|^2` of the regression residuals' DFT at the neighbouring bins
-    /// `f (1 + j / n_cycles)`, `j = +-1, +-2, +-3` (bins on harmonics excluded). This is
-    /// the part of any model's fundamental-force residual that no model can remove.
+    /// Estimated variance of the noise in `F_1 - K Z_1` (`K = F_1/Z_1`), N^2, from
+    /// `|X_F - K X_Z|^2` of the regression residuals' DFT at the two bins
+    /// `f (1 -+ 1 / n_cycles)` (see `analyse_last_cycles`). This is the part of any
+    /// model's fundamental-force residual that no model can remove.
     pub fundamental_noise_variance_n2: f64,
 }
 
