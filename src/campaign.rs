@@ -430,7 +430,7 @@ pub fn analyse_cycle(
 ) -> HarmonicCycle {
     let samples_per_cycle = 1.0 / (frequency_hz * dt_s);
     let n = displacement_m.len();
-    let n_whole = (n as f64 / samples_per_cycle + 1e-6).floor() as usize;
+    let n_whole = ((n as f64 / samples_per_cycle + 1e-6).floor() as usize).max(1);
     let all = analyse_last_cycles(dt_s, frequency_hz, displacement_m, force_n, n_whole);
     if n_whole < 3 || !all.first_cycle_is_start_up() {
         return all.cycle;
@@ -503,14 +503,19 @@ fn analyse_last_cycles(
         let power = (x_f.0 - combined.0).powi(2) + (x_f.1 - combined.1).powi(2);
         power / basis.retention(bin_hz).max(1e-3)
     };
-    let (below, above) = (n_cycles - 1, n_cycles + 1);
-    let (p_below, p_above) = (bin_power(below), bin_power(above));
-    let w = (n_cycles as f64 / below as f64).ln() / (above as f64 / below as f64).ln();
-    let bias = gamma_near_one(2.0 - w) * gamma_near_one(1.0 + w);
-    let spectrum = if p_below > 0.0 && p_above > 0.0 {
-        p_below.powf(1.0 - w) * p_above.powf(w) / bias
+    // Fewer than two whole cycles (the loader rejects them) leave no bin below f.
+    let spectrum = if n_cycles < 2 {
+        0.0
     } else {
-        0.5 * (p_below + p_above)
+        let (below, above) = (n_cycles - 1, n_cycles + 1);
+        let (p_below, p_above) = (bin_power(below), bin_power(above));
+        let w = (n_cycles as f64 / below as f64).ln() / (above as f64 / below as f64).ln();
+        let bias = gamma_near_one(2.0 - w) * gamma_near_one(1.0 + w);
+        if p_below > 0.0 && p_above > 0.0 {
+            p_below.powf(1.0 - w) * p_above.powf(w) / bias
+        } else {
+            0.5 * (p_below + p_above)
+        }
     };
     let fundamental_noise_variance_n2 = spectrum * basis.fundamental_inflation();
     let cycle_energy = (0..n_cycles)
