@@ -3,6 +3,7 @@
 
 pub mod bench;
 pub mod campaign;
+pub mod child;
 pub mod cli;
 pub mod csvio;
 pub mod diagnose;
@@ -12,6 +13,7 @@ pub mod ipc;
 pub mod model;
 pub mod paper;
 pub mod plot;
+pub mod records;
 pub mod rig;
 pub mod rt;
 pub mod track;

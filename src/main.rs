@@ -43,6 +43,8 @@ enum Command {
     Rig(cli::loopproc::LoopProcessArgs),
     /// Re-run the emulator's model on a recorded input stream; verify bit-identical forces.
     Replay(cli::replay::ReplayArgs),
+    /// Export a run's records (records.mcap) as CSV files.
+    Export(cli::export::ExportArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -58,6 +60,7 @@ fn main() -> std::process::ExitCode {
         Command::Emulator(args) => cli::loopproc::run_emulator_command(args),
         Command::Controller(args) => cli::loopproc::run_controller_command(args),
         Command::Replay(args) => cli::replay::run(args),
+        Command::Export(args) => cli::export::run(args),
         Command::Rig(args) => cli::loopproc::run_rig_command(args),
     };
     match result {

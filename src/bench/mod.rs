@@ -2,7 +2,6 @@
 //! loop's latency and jitter (`latency`, with its child-process guard in `child`).
 //! Timing lives here and in reports, never in pass/fail tests.
 
-pub mod child;
 pub mod latency;
 pub mod model;
 pub mod rail;

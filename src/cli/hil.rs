@@ -9,12 +9,14 @@ use anyhow::Context;
 use clap::Args;
 use serde_json::json;
 
-use crate::hil::config::{load_or_default, DEFAULT_CONFIG_TOML};
+use crate::hil::config::{load_or_default, HilConfig, DEFAULT_CONFIG_TOML};
 use crate::hil::orchestrator::{
-    clear_stale_runs, install_signal_handlers, lock_machine, new_run_id, run_processes, RunPlan,
+    install_signal_handlers, lock_machine, new_run_id, run_processes, RunOutcome, RunPlan,
 };
 use crate::hil::report::{analyse_run, Analysis};
+use crate::ipc::cleanup::clear_stale_runs;
 use crate::ipc::quiet_iceoryx2_logs;
+use crate::records::merge::merge_parts;
 
 #[derive(Debug, Clone, Args)]
 pub struct HilArgs {
@@ -30,6 +32,10 @@ pub struct HilArgs {
     /// Overrides `[scenario] duration_s`.
     #[arg(long)]
     pub duration_s: Option<f64>,
+    /// Also export the records as CSV (`rig.csv`, `emulator.csv`, `controller.csv`,
+    /// `events.csv`) into the report directory (handy for short runs).
+    #[arg(long)]
+    pub csv: bool,
 }
 
 /// `yyyymmddThhmmssZ` for a Unix time (UTC), without a date crate.
@@ -61,17 +67,8 @@ fn read_json(path: &std::path::Path) -> serde_json::Value {
         .unwrap_or(serde_json::Value::Null)
 }
 
-pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
-    install_signal_handlers();
-    quiet_iceoryx2_logs();
-    let mut cfg = load_or_default(args.config.as_deref())?;
-    if let Some(d) = args.duration_s {
-        anyhow::ensure!(
-            d > 0.0 && d.is_finite(),
-            "--duration-s {d}: expected a number > 0"
-        );
-        cfg.scenario.duration_s = d;
-    }
+/// The report directory: `--out`, or `out/hil-<UTC timestamp>`.
+fn report_dir(args: &HilArgs) -> anyhow::Result<PathBuf> {
     let out_dir = match &args.out {
         Some(d) => d.clone(),
         None => {
@@ -91,7 +88,85 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
     };
     std::fs::create_dir_all(&out_dir)
         .with_context(|| format!("cannot create report directory {}", out_dir.display()))?;
-    let out_dir = out_dir.canonicalize().unwrap_or(out_dir);
+    Ok(out_dir.canonicalize().unwrap_or(out_dir))
+}
+
+/// Loads the configuration with the command line's overrides.
+fn load_config(args: &HilArgs) -> anyhow::Result<HilConfig> {
+    let mut cfg = load_or_default(args.config.as_deref())?;
+    if let Some(d) = args.duration_s {
+        anyhow::ensure!(
+            d > 0.0 && d.is_finite(),
+            "--duration-s {d}: expected a number > 0"
+        );
+        cfg.scenario.duration_s = d;
+    }
+    Ok(cfg)
+}
+
+/// Merges the processes' parts into `records.mcap` (after a run; a crashed `hil` leaves
+/// the parts, which every reader accepts).
+fn merge_records(out_dir: &std::path::Path) -> serde_json::Value {
+    match merge_parts(out_dir) {
+        Ok(m) => {
+            for (p, e) in &m.truncated {
+                eprintln!("hil: warning: record part {} ends early ({e}); merged up to its last closed chunk, part kept", p.display());
+            }
+            json!({"file": m.output.display().to_string(), "messages": m.messages, "parts": m.parts,
+                   "truncated_parts": m.truncated.iter().map(|(p, e)| format!("{}: {e}", p.display())).collect::<Vec<_>>()})
+        }
+        Err(e) => {
+            eprintln!("hil: warning: records not merged: {e}");
+            json!({"error": e.to_string()})
+        }
+    }
+}
+
+/// Why a run is not clean (empty: clean).
+fn not_clean_because(
+    cfg: &HilConfig,
+    outcome: &RunOutcome,
+    analysis: Option<&Analysis>,
+    records_dropped: u64,
+) -> Vec<String> {
+    let mut why = Vec::new();
+    if !outcome.faults.is_empty() {
+        why.push(format!("faults: {}", outcome.faults.join("; ")));
+    }
+    match analysis {
+        None => why.push("no analysis of the records".into()),
+        Some(a) => {
+            if !a.stability.stable {
+                why.push("the loop was not stable (see stability)".into());
+            }
+            if a.largest_transient_m > cfg.safety.max_transient_m {
+                why.push(format!(
+                    "largest resonant transient {:.1} um > [safety] max_transient_m = {:.1} um",
+                    a.largest_transient_m * 1e6,
+                    cfg.safety.max_transient_m * 1e6
+                ));
+            }
+            if !a.records.truncated.is_empty() {
+                why.push(format!(
+                    "record files cut short: {}",
+                    a.records.truncated.join("; ")
+                ));
+            }
+        }
+    }
+    if records_dropped > 0 {
+        why.push(format!(
+            "{records_dropped} records dropped (record queue full)"
+        ));
+    }
+    why
+}
+
+pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
+    install_signal_handlers();
+    quiet_iceoryx2_logs();
+    let cfg = load_config(&args)?;
+    let out_dir = report_dir(&args)?;
     let config_path = match &args.config {
         Some(p) => p
             .canonicalize()
@@ -125,13 +200,21 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         duration_s: cfg.scenario.duration_s,
         duration_override_s: args.duration_s,
         bin_dir,
+        hold_max_s: cfg.safety.hold_max_s,
     };
     eprintln!(
-        "hil: run {run_id}: {} s at {} Hz, report in {}",
+        "hil: run {run_id}: {} s at {} Hz, {} commands, report in {}",
         cfg.scenario.duration_s,
         cfg.loop_.rate_hz,
+        match cfg.controller.command_mode {
+            crate::hil::config::CommandMode::Law => "local-law",
+            crate::hil::config::CommandMode::Force => "plain force",
+        },
         out_dir.display()
     );
+    for inj in &cfg.injections {
+        eprintln!("hil: injected fault configured: {}", inj.describe());
+    }
     let effect_names: Vec<&str> = cfg.augmented.effects.iter().map(|e| e.name()).collect();
     if !effect_names.is_empty() {
         eprintln!(
@@ -140,12 +223,14 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         );
     }
     let mut outcome = run_processes(&plan, true)?;
-    // Process deaths first: they are the cause; the others' safe states follow from them.
+    // Process deaths first: they are the cause; the others' reactions follow from them.
     outcome.faults.sort_by_key(|f| !f.contains("process (pid"));
-
-    let emu = read_json(&out_dir.join("emulator-summary.json"));
-    let rig = read_json(&out_dir.join("rig-summary.json"));
-    let ctl = read_json(&out_dir.join("controller-summary.json"));
+    let records = merge_records(&out_dir);
+    if args.csv {
+        if let Err(e) = crate::cli::export::export_dir(&out_dir, &out_dir) {
+            eprintln!("hil: warning: CSV export failed: {e:#}");
+        }
+    }
     let analysis: Option<Analysis> = match analyse_run(&cfg, &out_dir) {
         Ok(a) => Some(a),
         Err(e) => {
@@ -153,37 +238,95 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
             None
         }
     };
+    summarise(
+        &cfg,
+        &args,
+        &out_dir,
+        &run_id,
+        &outcome,
+        analysis.as_ref(),
+        records,
+        &effect_names,
+    )
+}
+
+/// Writes `summary.json`, prints the one-line result (and `--json`), returns the exit code.
+#[allow(clippy::too_many_arguments)]
+fn summarise(
+    cfg: &HilConfig,
+    args: &HilArgs,
+    out_dir: &std::path::Path,
+    run_id: &str,
+    outcome: &RunOutcome,
+    analysis: Option<&Analysis>,
+    records: serde_json::Value,
+    effect_names: &[&str],
+) -> anyhow::Result<ExitCode> {
+    let emu = read_json(&out_dir.join("emulator-summary.json"));
+    let rig = read_json(&out_dir.join("rig-summary.json"));
+    let ctl = read_json(&out_dir.join("controller-summary.json"));
     let u =
         |v: &serde_json::Value, k: &str| v.get(k).and_then(serde_json::Value::as_u64).unwrap_or(0);
+    let dropped = |v: &serde_json::Value| {
+        v["records"]["dropped"].as_u64().unwrap_or(0) + v["events"]["dropped"].as_u64().unwrap_or(0)
+    };
+    let records_dropped = dropped(&emu) + dropped(&ctl) + dropped(&rig);
     // The product's fixed-step loop is the emulator's; the rig's misses (the simulated
     // hardware's own timing) are reported separately.
     let deadline_misses = u(&emu, "missed_deadlines");
-    let steps = u(&emu, "model_steps");
-    let stable = outcome.faults.is_empty() && analysis.as_ref().is_some_and(|a| a.stability.stable);
+    let stable = outcome.faults.is_empty() && analysis.is_some_and(|a| a.stability.stable);
+    let why = not_clean_because(cfg, outcome, analysis, records_dropped);
+    let clean = why.is_empty();
+    let value = |v: Option<serde_json::Value>| v.unwrap_or(serde_json::Value::Null);
     let summary = json!({
         "rate_hz": cfg.loop_.rate_hz,
         "duration_s": cfg.scenario.duration_s,
-        "steps": steps,
+        "steps": analysis.map_or(u(&emu, "model_steps"), |a| a.steps),
         "deadline_misses": deadline_misses,
-        "deadline_misses_emulator": u(&emu, "missed_deadlines"),
+        "deadline_misses_emulator": deadline_misses,
         "deadline_misses_rig": u(&rig, "missed_deadlines"),
-        "stale_samples": u(&emu, "stale_samples"),
-        "records_dropped": u(&emu, "records_dropped") + u(&ctl, "records_dropped"),
+        "stale_samples": u(&emu, "stale_cycles"),
+        "missing_samples": u(&emu, "missing_samples"),
+        "records_dropped": records_dropped,
         "stable": stable,
+        "clean": clean,
+        "not_clean_because": why,
         "faults": outcome.faults,
-        "fidelity": analysis.as_ref().map(|a| serde_json::to_value(&a.fidelity).unwrap_or_default()),
-        "stability": analysis.as_ref().map(|a| serde_json::to_value(&a.stability).unwrap_or_default()),
-        "latency_ns": analysis.as_ref().map(|a| serde_json::to_value(&a.latency_ns).unwrap_or_default()),
+        "operator_stop": outcome.operator_stop,
+        "safety": value(analysis.map(|a| serde_json::to_value(&a.safety).unwrap_or_default())),
+        "stalls": value(analysis.map(|a| json!({
+            "count": a.stalls.count,
+            "longest_ms": a.stalls.longest_ms,
+            "largest_transient_um": a.stalls.largest_transient_m * 1e6,
+            "episodes": a.stalls.episodes.iter().map(|e| json!({
+                "at_s": e.at_s, "length_ms": e.length_ms, "transient_um": e.transient_m * 1e6, "source": e.source,
+            })).collect::<Vec<_>>(),
+        }))),
+        "largest_transient_um": value(analysis.map(|a| json!(a.largest_transient_m * 1e6))),
+        "max_transient_um": cfg.safety.max_transient_m * 1e6,
+        "fidelity": value(analysis.map(|a| serde_json::to_value(&a.fidelity).unwrap_or_default())),
+        "stability": value(analysis.map(|a| serde_json::to_value(&a.stability).unwrap_or_default())),
+        "latency_ns": value(analysis.map(|a| serde_json::to_value(&a.latency_ns).unwrap_or_default())),
+        "events": value(analysis.map(|a| json!(a.events))),
         "model": {
             "form": cfg.model.element.form().name(),
             "length_m": cfg.model.length_m,
             "effects": effect_names,
+        },
+        "commands": {
+            "mode": match cfg.controller.command_mode {
+                crate::hil::config::CommandMode::Law => "law",
+                crate::hil::config::CommandMode::Force => "force",
+            },
+            "law_lead_us": cfg.rig.law_lead_s * 1e6,
+            "law_lead_order": cfg.rig.law_lead_order,
         },
         "compensation": {
             "enabled": cfg.controller.compensation_enabled,
             "order": cfg.controller.compensation_order,
             "delay_us": cfg.controller.compensation_delay_s * 1e6,
         },
+        "records": records,
         "processes": {"bench_rig": rig, "emulator": emu, "controller": ctl, "exit": outcome.exit_statuses},
         "leftover_files_removed": outcome.leftover_files.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
         "run_id": run_id,
@@ -194,25 +337,44 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
     if args.json {
         println!("{}", serde_json::to_string(&summary)?);
     }
-    if let Some(a) = &analysis {
+    if let Some(a) = analysis {
         eprintln!(
-            "hil: {steps} steps, {deadline_misses} deadline misses, {} stale samples, displacement rel. RMS error {:.3} %, stable {}, end-to-end p50 {} us p99 {} us",
-            u(&emu, "stale_samples"),
+            "hil: {} steps, {deadline_misses} deadline misses, {} stalls (longest {:.1} ms, largest transient {:.1} um), displacement rel. RMS error {:.3} %, stable {}, end-to-end p50 {} us p99 {} us",
+            a.steps,
+            a.stalls.count,
+            a.stalls.longest_ms,
+            a.stalls.largest_transient_m * 1e6,
             a.fidelity.displacement_rel_rms * 100.0,
             a.stability.stable,
             a.latency_ns.end_to_end.p50 / 1000,
             a.latency_ns.end_to_end.p99 / 1000
         );
+        for f in &a.safety.faults {
+            eprintln!(
+                "hil: fault {}: {}{} at {:.3} s (after {} periods) -> {}; largest excursion {:.1} um ({:.1} um beyond the pre-fault range), {}",
+                f.process,
+                f.fault,
+                f.cause.as_ref().map_or(String::new(), |c| format!(" ({c})")),
+                f.detected_at_s,
+                f.detection_latency_periods,
+                f.action.as_deref().unwrap_or("the controller acts"),
+                f.largest_excursion_m * 1e6,
+                f.beyond_prefault_range_m * 1e6,
+                f.time_to_rest_s.map_or("never at rest".to_string(), |t| format!("at rest after {t:.3} s"))
+            );
+        }
     }
     if !outcome.faults.is_empty() {
-        eprintln!("hil: FAILED: {}", outcome.faults.join("; "));
+        eprintln!("hil: FAULT: {}", outcome.faults.join("; "));
+        eprintln!("hil: report in {}", out_dir.display());
         return Ok(ExitCode::from(2));
     }
-    if !stable {
-        eprintln!("hil: FAILED: the loop was not stable (see stability in summary.json)");
+    if !clean {
+        eprintln!("hil: NOT CLEAN: {}", summary["not_clean_because"]);
+        eprintln!("hil: report in {}", out_dir.display());
         return Ok(ExitCode::from(1));
     }
-    eprintln!("hil: report in {}", out_dir.display());
+    eprintln!("hil: clean run; report in {}", out_dir.display());
     Ok(ExitCode::SUCCESS)
 }
 

@@ -4,6 +4,7 @@
 pub mod bench;
 pub mod diagnose;
 pub mod equiv;
+pub mod export;
 pub mod fitplots;
 pub mod hil;
 pub mod identify;

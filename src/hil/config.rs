@@ -1,5 +1,6 @@
 //! The HIL run configuration (one TOML file: loop, model, emulator, controller, rig,
-//! scenario): parsed raw with `deny_unknown_fields`, then validated into typed structs.
+//! safety, scenario, fault injections): parsed raw with `deny_unknown_fields`, then
+//! validated section by section into typed structs.
 //!
 //! Every error is one line naming the file, the key, the value and what would be valid.
 //! Must not: fill in physical constants silently (every physical key is required).
@@ -9,8 +10,10 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use super::fault::{FaultAction, FaultActions, FaultClass};
 use crate::model::effects::AugmentedModel;
 use crate::model::file::{load_model_file, parse_model_toml, ModelSpec};
+use crate::rig::servo::ServoConfig;
 
 /// The default configuration, embedded so `fastemu hil` runs from any directory.
 pub const DEFAULT_CONFIG_TOML: &str = include_str!("../../configs/hil-default.toml");
@@ -46,7 +49,10 @@ struct RawConfig {
     emulator: RawEmulator,
     controller: RawController,
     rig: RawRig,
+    safety: RawSafety,
     scenario: RawScenario,
+    #[serde(default)]
+    inject: Vec<RawInjection>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -73,11 +79,13 @@ struct RawLoop {
 struct RawEmulator {
     displacement_min_m: f64,
     displacement_max_m: f64,
+    law_frequency_hz: f64,
 }
 
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawController {
+    command_mode: String,
     compensation_order: u32,
     compensation_enabled: bool,
     compensation_delay_us: f64,
@@ -85,10 +93,8 @@ struct RawController {
     force_max_n: f64,
     force_rate_max_n_per_s: f64,
     limit_action: String,
-    stale_setpoint_periods: u32,
     emulator_heartbeat_timeout_ms: f64,
-    safe_force_n: f64,
-    safe_ramp_n_per_s: f64,
+    keepalive_periods: u32,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -104,16 +110,27 @@ struct RawRig {
     seed: u64,
     internal_substeps: u32,
     command_stale_periods: u32,
-    safe_force_n: f64,
-    safe_ramp_n_per_s: f64,
-    #[serde(default = "default_fault")]
-    fault: String,
-    #[serde(default)]
-    fault_at_s: f64,
+    law_lead_us: f64,
+    law_lead_order: u32,
+    hold_bandwidth_hz: f64,
+    hold_damping_ratio: f64,
 }
 
-fn default_fault() -> String {
-    "none".into()
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSafety {
+    stall_limit_ms: f64,
+    emulator_fault_action: String,
+    controller_fault_action: String,
+    limit_fault_action: String,
+    orchestrator_lost_action: String,
+    hold_min_s: f64,
+    hold_max_s: f64,
+    rest_band_m: f64,
+    rest_window_ms: f64,
+    unload_rate_n_per_s: f64,
+    resume_blend_ms: f64,
+    max_transient_m: f64,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -133,6 +150,18 @@ struct RawScenario {
     step_at_s: f64,
     #[serde(default)]
     load_csv: String,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawInjection {
+    process: String,
+    kind: String,
+    at_s: f64,
+    #[serde(default)]
+    duration_ms: Option<f64>,
+    #[serde(default)]
+    count: Option<u64>,
 }
 
 /// Fixed-step loop settings shared by the rig and the emulator.
@@ -163,6 +192,18 @@ impl LoopConfig {
 pub struct EmulatorConfig {
     pub displacement_min_m: f64,
     pub displacement_max_m: f64,
+    /// Frequency at which the local law's stiffness and damping equal the element's
+    /// small-signal modulus (the specimen's resonance on the element), Hz.
+    pub law_frequency_hz: f64,
+}
+
+/// What the controller sends the actuator side.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CommandMode {
+    /// The element's local linear law (evaluated by the actuator side every period).
+    Law,
+    /// Plain force commands, extrapolated over the loop delay.
+    Force,
 }
 
 /// What the controller does when a setpoint exceeds the force or rate limits.
@@ -172,12 +213,13 @@ pub enum LimitAction {
     Saturate,
     /// Keep the last in-limit command while the setpoint is out of limits.
     Hold,
-    /// Latch a fault and ramp the command to zero.
-    RampToZero,
+    /// Latch `force-limit-exceeded`; `[safety] limit_fault_action` applies.
+    Fault,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ControllerConfig {
+    pub command_mode: CommandMode,
     pub compensation_order: u32,
     pub compensation_enabled: bool,
     pub compensation_delay_s: f64,
@@ -185,20 +227,9 @@ pub struct ControllerConfig {
     pub force_max_n: f64,
     pub force_rate_max_n_per_s: f64,
     pub limit_action: LimitAction,
-    pub stale_setpoint_periods: u32,
     pub emulator_heartbeat_timeout_ns: u64,
-    pub safe_force_n: f64,
-    pub safe_ramp_n_per_s: f64,
-}
-
-/// Fault injected by the rig into its displacement samples (tests).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum RigFault {
-    None,
-    /// A NaN sample.
-    Nan,
-    /// A sample far outside the emulator's displacement range.
-    OutOfRange,
+    /// A command is repeated when none was sent for this long, ns.
+    pub keepalive_ns: u64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -213,10 +244,28 @@ pub struct RigConfig {
     pub seed: u64,
     pub internal_substeps: u32,
     pub command_stale_periods: u32,
-    pub safe_force_n: f64,
-    pub safe_ramp_n_per_s: f64,
-    pub fault: RigFault,
-    pub fault_at_s: f64,
+    pub law_lead_s: f64,
+    pub law_lead_order: u32,
+    pub hold_bandwidth_hz: f64,
+    pub hold_damping_ratio: f64,
+}
+
+/// Fault actions, the hold and its end, and the report's transient bound.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SafetyConfig {
+    /// Ride-through limit: a stall of the emulator or controller shorter than this is
+    /// ridden through on the last local law; a longer one is a fault, s.
+    pub stall_limit_s: f64,
+    pub actions: FaultActions,
+    pub hold_min_s: f64,
+    pub hold_max_s: f64,
+    pub rest_band_m: f64,
+    pub rest_window_s: f64,
+    pub unload_rate_n_per_s: f64,
+    pub resume_blend_s: f64,
+    /// A run whose largest resonant transient (HIL minus reference) exceeds this is not
+    /// reported as clean, m.
+    pub max_transient_m: f64,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -236,6 +285,71 @@ pub struct ScenarioConfig {
     pub load_csv_samples: Option<(f64, Vec<f64>)>,
 }
 
+/// A loop process, as named in `[[inject]] process`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LoopProcess {
+    Rig,
+    Emulator,
+    Controller,
+}
+
+impl LoopProcess {
+    pub fn name(self) -> &'static str {
+        match self {
+            LoopProcess::Rig => "rig",
+            LoopProcess::Emulator => "emulator",
+            LoopProcess::Controller => "controller",
+        }
+    }
+}
+
+/// An injected fault (`[[inject]]`): deterministic, on the loop's own time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum InjectKind {
+    /// The process's loop thread stops for this long, s.
+    Stall { duration_s: f64 },
+    /// The process kills itself with SIGKILL.
+    Kill,
+    /// The rig publishes no sample for this many periods.
+    DropSamples { count: u64 },
+    /// The rig publishes one NaN sample.
+    Nan,
+    /// The rig publishes one sample far outside the emulator's range.
+    OutOfRange,
+}
+
+impl InjectKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            InjectKind::Stall { .. } => "stall",
+            InjectKind::Kill => "kill",
+            InjectKind::DropSamples { .. } => "drop-samples",
+            InjectKind::Nan => "nan",
+            InjectKind::OutOfRange => "out-of-range",
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Injection {
+    pub process: LoopProcess,
+    pub kind: InjectKind,
+    /// Loop time of the injection, s.
+    pub at_s: f64,
+}
+
+impl Injection {
+    /// "emulator stall 5 ms at 2.000 s" and the like.
+    pub fn describe(&self) -> String {
+        let what = match self.kind {
+            InjectKind::Stall { duration_s } => format!("stall {} ms", duration_s * 1e3),
+            InjectKind::DropSamples { count } => format!("drop-samples {count}"),
+            k => k.name().to_string(),
+        };
+        format!("{} {what} at {:.3} s", self.process.name(), self.at_s)
+    }
+}
+
 /// A validated HIL configuration.
 #[derive(Debug, Clone, PartialEq)]
 pub struct HilConfig {
@@ -247,8 +361,83 @@ pub struct HilConfig {
     pub emulator: EmulatorConfig,
     pub controller: ControllerConfig,
     pub rig: RigConfig,
+    pub safety: SafetyConfig,
     pub scenario: ScenarioConfig,
+    pub injections: Vec<Injection>,
 }
+
+impl HilConfig {
+    /// The rig servo's settings.
+    pub fn servo_config(&self) -> ServoConfig {
+        let (hold_kp, hold_ki, hold_kd) = ServoConfig::hold_gains(
+            self.rig.specimen_mass_kg,
+            self.rig.hold_bandwidth_hz,
+            self.rig.hold_damping_ratio,
+        );
+        ServoConfig {
+            period_s: self.loop_.dt_s(),
+            law_lead_s: self.rig.law_lead_s,
+            law_lead_order: self.rig.law_lead_order as usize,
+            command_stale_periods: u64::from(self.rig.command_stale_periods),
+            hold_kp,
+            hold_ki,
+            hold_kd,
+            commands_stale_action: self.safety.actions.controller,
+            orchestrator_lost_action: self.safety.actions.orchestrator,
+            rest_band_m: self.safety.rest_band_m,
+            rest_window_s: self.safety.rest_window_s,
+            hold_min_s: self.safety.hold_min_s,
+            hold_max_s: self.safety.hold_max_s,
+            unload_rate_n_per_s: self.safety.unload_rate_n_per_s,
+            resume_blend_s: self.safety.resume_blend_s,
+        }
+    }
+
+    /// The ride-through limit in loop periods.
+    pub fn stall_limit_periods(&self) -> u64 {
+        (self.safety.stall_limit_s * self.loop_.rate_hz).round() as u64
+    }
+
+    /// Injections for one process, in time order.
+    pub fn injections_for(&self, process: LoopProcess) -> Vec<Injection> {
+        let mut v: Vec<Injection> = self
+            .injections
+            .iter()
+            .filter(|i| i.process == process)
+            .copied()
+            .collect();
+        v.sort_by(|a, b| a.at_s.total_cmp(&b.at_s));
+        v
+    }
+}
+
+/// Keys of earlier versions and what replaced them (a clearer error than "unknown key").
+const REMOVED_KEYS: [(&str, &str); 6] = [
+    (
+        "safe_force_n",
+        "removed: a constant force on a free mass is not a safe state; faults now hold the specimen's position (see [safety])",
+    ),
+    (
+        "safe_ramp_n_per_s",
+        "removed: faults now hold the specimen's position (see [safety])",
+    ),
+    (
+        "stale_setpoint_periods",
+        "removed: the ride-through limit is [safety] stall_limit_ms",
+    ),
+    (
+        "fault",
+        "removed from [rig]: inject faults with [[inject]] tables (process, kind, at_s)",
+    ),
+    (
+        "fault_at_s",
+        "removed from [rig]: inject faults with [[inject]] tables (process, kind, at_s)",
+    ),
+    (
+        "ramp-to-zero",
+        "removed as a limit_action: use \"fault\" (the [safety] limit_fault_action applies)",
+    ),
+];
 
 /// Reads and validates a configuration file.
 pub fn load_hil_config(path: &Path) -> Result<HilConfig, ConfigError> {
@@ -266,26 +455,98 @@ pub fn default_hil_config() -> Result<HilConfig, ConfigError> {
     parse_hil_config(DEFAULT_CONFIG_TOML, DEFAULT_CONFIG_ORIGIN, None)
 }
 
+/// Validation helpers bound to one file.
+struct Check<'a> {
+    origin: &'a str,
+}
+
+impl Check<'_> {
+    fn err(&self, key: &str, message: String) -> ConfigError {
+        ConfigError {
+            origin: self.origin.to_string(),
+            key: key.to_string(),
+            message,
+        }
+    }
+    fn positive(&self, key: &str, v: f64) -> Result<f64, ConfigError> {
+        if v.is_finite() && v > 0.0 {
+            Ok(v)
+        } else {
+            Err(self.err(
+                key,
+                format!("{v} is not valid: expected a finite number > 0"),
+            ))
+        }
+    }
+    fn non_negative(&self, key: &str, v: f64) -> Result<f64, ConfigError> {
+        if v.is_finite() && v >= 0.0 {
+            Ok(v)
+        } else {
+            Err(self.err(
+                key,
+                format!("{v} is not valid: expected a finite number >= 0"),
+            ))
+        }
+    }
+    fn finite(&self, key: &str, v: f64) -> Result<f64, ConfigError> {
+        if v.is_finite() {
+            Ok(v)
+        } else {
+            Err(self.err(key, format!("{v} is not valid: expected a finite number")))
+        }
+    }
+    fn at_least(&self, key: &str, v: u64, min: u64) -> Result<u64, ConfigError> {
+        if v >= min {
+            Ok(v)
+        } else {
+            Err(self.err(key, format!("{v} is not valid: expected >= {min}")))
+        }
+    }
+    fn choice<T: Copy>(
+        &self,
+        key: &str,
+        value: &str,
+        options: &[(&str, T)],
+    ) -> Result<T, ConfigError> {
+        options
+            .iter()
+            .find(|(name, _)| *name == value)
+            .map(|(_, v)| *v)
+            .ok_or_else(|| {
+                let names: Vec<String> = options.iter().map(|(n, _)| format!("\"{n}\"")).collect();
+                let hint = REMOVED_KEYS
+                    .iter()
+                    .find(|(k, _)| *k == value)
+                    .map_or(String::new(), |(_, h)| format!(" ({h})"));
+                self.err(
+                    key,
+                    format!(
+                        "\"{value}\" is not valid: expected {}{hint}",
+                        names.join(", ")
+                    ),
+                )
+            })
+    }
+}
+
 /// Validates configuration text; relative paths resolve against `base_dir`.
 pub fn parse_hil_config(
     text: &str,
     origin: &str,
     base_dir: Option<&Path>,
 ) -> Result<HilConfig, ConfigError> {
-    let err = |key: &str, message: String| ConfigError {
-        origin: origin.to_string(),
-        key: key.to_string(),
-        message,
-    };
+    let check = Check { origin };
     let raw: RawConfig = toml::from_str(text).map_err(|e| {
         let line = e
             .span()
             .map(|span| text[..span.start].matches('\n').count() + 1)
             .map_or(String::new(), |l| format!(" at line {l}"));
-        err(
-            "",
-            format!("invalid config{line}: {}", e.message().replace('\n', " ")),
-        )
+        let message = e.message().replace('\n', " ");
+        let hint = REMOVED_KEYS
+            .iter()
+            .find(|(k, _)| message.contains(&format!("unknown field `{k}`")))
+            .map_or(String::new(), |(k, h)| format!(" (`{k}` was {h})"));
+        check.err("", format!("invalid config{line}: {message}{hint}"))
     })?;
     let resolve = |p: &str| -> PathBuf {
         let p = PathBuf::from(p);
@@ -294,287 +555,32 @@ pub fn parse_hil_config(
             _ => p,
         }
     };
-
-    let positive = |key: &str, v: f64| -> Result<f64, ConfigError> {
-        if v.is_finite() && v > 0.0 {
-            Ok(v)
-        } else {
-            Err(err(
-                key,
-                format!("{v} is not valid: expected a finite number > 0"),
-            ))
-        }
-    };
-    let non_negative = |key: &str, v: f64| -> Result<f64, ConfigError> {
-        if v.is_finite() && v >= 0.0 {
-            Ok(v)
-        } else {
-            Err(err(
-                key,
-                format!("{v} is not valid: expected a finite number >= 0"),
-            ))
-        }
-    };
-    let finite = |key: &str, v: f64| -> Result<f64, ConfigError> {
-        if v.is_finite() {
-            Ok(v)
-        } else {
-            Err(err(
-                key,
-                format!("{v} is not valid: expected a finite number"),
-            ))
-        }
-    };
-
-    // [loop]
-    let l = &raw.loop_;
-    let rate_hz = positive("loop.rate_hz", l.rate_hz)?;
-    if !(100.0..=50_000.0).contains(&rate_hz) {
-        return Err(err(
-            "loop.rate_hz",
-            format!("{rate_hz} is not valid: expected 100 to 50000 Hz"),
-        ));
-    }
-    let period_ns = (1e9 / rate_hz).round() as u64;
-    let spin_ns = (non_negative("loop.spin_us", l.spin_us)? * 1e3) as u64;
-    let emulator_phase_ns =
-        (non_negative("loop.emulator_phase_us", l.emulator_phase_us)? * 1e3) as u64;
-    if emulator_phase_ns >= period_ns {
-        return Err(err(
-            "loop.emulator_phase_us",
-            format!(
-                "{} is not valid: expected less than one period ({} us)",
-                l.emulator_phase_us,
-                period_ns as f64 / 1e3
-            ),
-        ));
-    }
-    if l.trip_after_stale_samples == 0 {
-        return Err(err(
-            "loop.trip_after_stale_samples",
-            "0 is not valid: expected >= 1".into(),
-        ));
-    }
-    if l.record_queue_capacity < 16 {
-        return Err(err(
-            "loop.record_queue_capacity",
-            format!("{} is not valid: expected >= 16", l.record_queue_capacity),
-        ));
-    }
-    if !(0..=99).contains(&l.fifo_priority) {
-        return Err(err(
-            "loop.fifo_priority",
-            format!("{} is not valid: expected 0 (off) or 1-99", l.fifo_priority),
-        ));
-    }
-    let loop_ = LoopConfig {
-        rate_hz,
-        period_ns,
-        spin_ns,
-        emulator_phase_ns,
-        sample_wait_ns: (non_negative("loop.sample_wait_us", l.sample_wait_us)? * 1e3) as u64,
-        trip_after_stale_samples: l.trip_after_stale_samples,
-        record_queue_capacity: l.record_queue_capacity,
-        lock_memory: l.lock_memory,
-        fifo_priority: (l.fifo_priority > 0).then_some(l.fifo_priority),
-        emulator_cpus: l.emulator_cpus.clone(),
-        rig_cpus: l.rig_cpus.clone(),
-    };
-
-    // [model]
-    let model = match raw.model.get("path") {
-        Some(toml::Value::String(p)) => {
-            if raw.model.len() > 1 {
-                return Err(err(
-                    "model.path",
-                    "expected either `path` alone or the model-file keys inline, not both".into(),
-                ));
-            }
-            load_model_file(&resolve(p)).map_err(|e| err("model.path", e.to_string()))?
-        }
-        Some(other) => {
-            return Err(err(
-                "model.path",
-                format!("{other} is not valid: expected a file path string"),
-            ))
-        }
-        None => {
-            let inline = toml::to_string(&raw.model).map_err(|e| err("model", e.to_string()))?;
-            parse_model_toml(&inline, &format!("{origin} [model]"))
-                .map_err(|e| err("model", e.to_string()))?
-        }
-    };
-
+    let loop_ = parse_loop(&check, &raw.loop_)?;
+    let model = parse_model(&check, &raw.model, &resolve)?;
     let augmented = AugmentedModel::from_spec(&model, &format!("{origin} [model]"))
-        .map_err(|e| err("model.effect", e.to_string()))?;
-
-    // [emulator]
-    let e = &raw.emulator;
-    let displacement_min_m = finite("emulator.displacement_min_m", e.displacement_min_m)?;
-    let displacement_max_m = finite("emulator.displacement_max_m", e.displacement_max_m)?;
-    if displacement_min_m >= displacement_max_m {
-        return Err(err("emulator.displacement_max_m", format!("{displacement_max_m} is not valid: expected > displacement_min_m ({displacement_min_m})")));
-    }
-    let emulator = EmulatorConfig {
-        displacement_min_m,
-        displacement_max_m,
-    };
-
-    // [controller]
-    let c = &raw.controller;
-    if c.compensation_order > 3 {
-        return Err(err(
-            "controller.compensation_order",
+        .map_err(|e| check.err("model.effect", e.to_string()))?;
+    let emulator = parse_emulator(&check, &raw.emulator)?;
+    let controller = parse_controller(&check, &raw.controller, loop_.period_ns)?;
+    let rig = parse_rig(&check, &raw.rig)?;
+    let safety = parse_safety(&check, &raw.safety)?;
+    let scenario = parse_scenario(&check, &raw.scenario, &resolve)?;
+    let injections = raw
+        .inject
+        .iter()
+        .enumerate()
+        .map(|(i, r)| parse_injection(&check, i, r))
+        .collect::<Result<Vec<_>, _>>()?;
+    let stall_periods = (safety.stall_limit_s * loop_.rate_hz).round() as u64;
+    if u64::from(loop_.trip_after_stale_samples) < stall_periods {
+        return Err(check.err(
+            "loop.trip_after_stale_samples",
             format!(
-                "{} is not valid: expected 0, 1, 2 or 3",
-                c.compensation_order
+                "{} is not valid: expected at least the ride-through limit ([safety] stall_limit_ms = {} ms = {stall_periods} periods), or a short stall of the rig would trip the emulator",
+                loop_.trip_after_stale_samples,
+                safety.stall_limit_s * 1e3
             ),
         ));
     }
-    let limit_action = match c.limit_action.as_str() {
-        "saturate" => LimitAction::Saturate,
-        "hold" => LimitAction::Hold,
-        "ramp-to-zero" => LimitAction::RampToZero,
-        other => {
-            return Err(err(
-                "controller.limit_action",
-                format!(
-                    "\"{other}\" is not valid: expected \"saturate\", \"hold\" or \"ramp-to-zero\""
-                ),
-            ))
-        }
-    };
-    let force_min_n = finite("controller.force_min_n", c.force_min_n)?;
-    let force_max_n = finite("controller.force_max_n", c.force_max_n)?;
-    if force_min_n >= force_max_n {
-        return Err(err(
-            "controller.force_max_n",
-            format!("{force_max_n} is not valid: expected > force_min_n ({force_min_n})"),
-        ));
-    }
-    if c.stale_setpoint_periods == 0 {
-        return Err(err(
-            "controller.stale_setpoint_periods",
-            "0 is not valid: expected >= 1".into(),
-        ));
-    }
-    let controller = ControllerConfig {
-        compensation_order: c.compensation_order,
-        compensation_enabled: c.compensation_enabled,
-        compensation_delay_s: non_negative(
-            "controller.compensation_delay_us",
-            c.compensation_delay_us,
-        )? * 1e-6,
-        force_min_n,
-        force_max_n,
-        force_rate_max_n_per_s: positive(
-            "controller.force_rate_max_n_per_s",
-            c.force_rate_max_n_per_s,
-        )?,
-        limit_action,
-        stale_setpoint_periods: c.stale_setpoint_periods,
-        emulator_heartbeat_timeout_ns: (positive(
-            "controller.emulator_heartbeat_timeout_ms",
-            c.emulator_heartbeat_timeout_ms,
-        )? * 1e6) as u64,
-        safe_force_n: finite("controller.safe_force_n", c.safe_force_n)?,
-        safe_ramp_n_per_s: positive("controller.safe_ramp_n_per_s", c.safe_ramp_n_per_s)?,
-    };
-
-    // [rig]
-    let r = &raw.rig;
-    let fault = match r.fault.as_str() {
-        "none" => RigFault::None,
-        "nan" => RigFault::Nan,
-        "out-of-range" => RigFault::OutOfRange,
-        other => {
-            return Err(err(
-                "rig.fault",
-                format!("\"{other}\" is not valid: expected \"none\", \"nan\" or \"out-of-range\""),
-            ))
-        }
-    };
-    if r.internal_substeps == 0 || r.internal_substeps > 1000 {
-        return Err(err(
-            "rig.internal_substeps",
-            format!("{} is not valid: expected 1 to 1000", r.internal_substeps),
-        ));
-    }
-    if r.command_stale_periods == 0 {
-        return Err(err(
-            "rig.command_stale_periods",
-            "0 is not valid: expected >= 1".into(),
-        ));
-    }
-    let rig = RigConfig {
-        specimen_mass_kg: positive("rig.specimen_mass_kg", r.specimen_mass_kg)?,
-        damping_ns_per_m: non_negative("rig.damping_ns_per_m", r.damping_ns_per_m)?,
-        actuator_lag_s: non_negative("rig.actuator_lag_us", r.actuator_lag_us)? * 1e-6,
-        actuator_delay_s: non_negative("rig.actuator_delay_us", r.actuator_delay_us)? * 1e-6,
-        actuator_force_max_n: positive("rig.actuator_force_max_n", r.actuator_force_max_n)?,
-        sensor_noise_m: non_negative("rig.sensor_noise_m", r.sensor_noise_m)?,
-        sensor_resolution_m: non_negative("rig.sensor_resolution_m", r.sensor_resolution_m)?,
-        seed: r.seed,
-        internal_substeps: r.internal_substeps,
-        command_stale_periods: r.command_stale_periods,
-        safe_force_n: finite("rig.safe_force_n", r.safe_force_n)?,
-        safe_ramp_n_per_s: positive("rig.safe_ramp_n_per_s", r.safe_ramp_n_per_s)?,
-        fault,
-        fault_at_s: non_negative("rig.fault_at_s", r.fault_at_s)?,
-    };
-    if rig.actuator_delay_s > 0.1 {
-        return Err(err(
-            "rig.actuator_delay_us",
-            format!(
-                "{} is not valid: expected <= 100000 us",
-                r.actuator_delay_us
-            ),
-        ));
-    }
-
-    // [scenario]
-    let s = &raw.scenario;
-    let duration_s = positive("scenario.duration_s", s.duration_s)?;
-    if duration_s > 3600.0 {
-        return Err(err(
-            "scenario.duration_s",
-            format!("{duration_s} is not valid: expected <= 3600 s"),
-        ));
-    }
-    let (load_csv, load_csv_samples) = if s.load_csv.is_empty() {
-        (None, None)
-    } else {
-        let path = resolve(&s.load_csv);
-        let cols = crate::csvio::read_columns(&path, &["t_s", "force_n"])
-            .map_err(|e| err("scenario.load_csv", e.to_string()))?;
-        let step = crate::csvio::uniform_step(
-            &cols.data[0],
-            &cols.lines,
-            &path.display().to_string(),
-            "t_s",
-        )
-        .map_err(|e| err("scenario.load_csv", e.to_string()))?;
-        (Some(path), Some((step, cols.data[1].clone())))
-    };
-    let scenario = ScenarioConfig {
-        duration_s,
-        preload_n: finite("scenario.preload_n", s.preload_n)?,
-        harmonic_amplitude_n: non_negative(
-            "scenario.harmonic_amplitude_n",
-            s.harmonic_amplitude_n,
-        )?,
-        harmonic_frequency_hz: non_negative(
-            "scenario.harmonic_frequency_hz",
-            s.harmonic_frequency_hz,
-        )?,
-        train_speed_kmh: non_negative("scenario.train_speed_kmh", s.train_speed_kmh)?,
-        train_first_axle_s: finite("scenario.train_first_axle_s", s.train_first_axle_s)?,
-        step_n: finite("scenario.step_n", s.step_n)?,
-        step_at_s: non_negative("scenario.step_at_s", s.step_at_s)?,
-        load_csv,
-        load_csv_samples,
-    };
-
     Ok(HilConfig {
         origin: origin.to_string(),
         loop_,
@@ -583,7 +589,364 @@ pub fn parse_hil_config(
         emulator,
         controller,
         rig,
+        safety,
         scenario,
+        injections,
+    })
+}
+
+fn parse_loop(check: &Check, l: &RawLoop) -> Result<LoopConfig, ConfigError> {
+    let rate_hz = check.positive("loop.rate_hz", l.rate_hz)?;
+    if !(100.0..=50_000.0).contains(&rate_hz) {
+        return Err(check.err(
+            "loop.rate_hz",
+            format!("{rate_hz} is not valid: expected 100 to 50000 Hz"),
+        ));
+    }
+    let period_ns = (1e9 / rate_hz).round() as u64;
+    let spin_ns = (check.non_negative("loop.spin_us", l.spin_us)? * 1e3) as u64;
+    let emulator_phase_ns =
+        (check.non_negative("loop.emulator_phase_us", l.emulator_phase_us)? * 1e3) as u64;
+    if emulator_phase_ns >= period_ns {
+        return Err(check.err(
+            "loop.emulator_phase_us",
+            format!(
+                "{} is not valid: expected less than one period ({} us)",
+                l.emulator_phase_us,
+                period_ns as f64 / 1e3
+            ),
+        ));
+    }
+    check.at_least(
+        "loop.trip_after_stale_samples",
+        u64::from(l.trip_after_stale_samples),
+        1,
+    )?;
+    check.at_least(
+        "loop.record_queue_capacity",
+        l.record_queue_capacity as u64,
+        16,
+    )?;
+    if !(0..=99).contains(&l.fifo_priority) {
+        return Err(check.err(
+            "loop.fifo_priority",
+            format!("{} is not valid: expected 0 (off) or 1-99", l.fifo_priority),
+        ));
+    }
+    Ok(LoopConfig {
+        rate_hz,
+        period_ns,
+        spin_ns,
+        emulator_phase_ns,
+        sample_wait_ns: (check.non_negative("loop.sample_wait_us", l.sample_wait_us)? * 1e3) as u64,
+        trip_after_stale_samples: l.trip_after_stale_samples,
+        record_queue_capacity: l.record_queue_capacity,
+        lock_memory: l.lock_memory,
+        fifo_priority: (l.fifo_priority > 0).then_some(l.fifo_priority),
+        emulator_cpus: l.emulator_cpus.clone(),
+        rig_cpus: l.rig_cpus.clone(),
+    })
+}
+
+fn parse_model(
+    check: &Check,
+    model: &toml::Table,
+    resolve: &dyn Fn(&str) -> PathBuf,
+) -> Result<ModelSpec, ConfigError> {
+    match model.get("path") {
+        Some(toml::Value::String(p)) => {
+            if model.len() > 1 {
+                return Err(check.err(
+                    "model.path",
+                    "expected either `path` alone or the model-file keys inline, not both".into(),
+                ));
+            }
+            load_model_file(&resolve(p)).map_err(|e| check.err("model.path", e.to_string()))
+        }
+        Some(other) => Err(check.err(
+            "model.path",
+            format!("{other} is not valid: expected a file path string"),
+        )),
+        None => {
+            let inline = toml::to_string(model).map_err(|e| check.err("model", e.to_string()))?;
+            parse_model_toml(&inline, &format!("{} [model]", check.origin))
+                .map_err(|e| check.err("model", e.to_string()))
+        }
+    }
+}
+
+fn parse_emulator(check: &Check, e: &RawEmulator) -> Result<EmulatorConfig, ConfigError> {
+    let displacement_min_m = check.finite("emulator.displacement_min_m", e.displacement_min_m)?;
+    let displacement_max_m = check.finite("emulator.displacement_max_m", e.displacement_max_m)?;
+    if displacement_min_m >= displacement_max_m {
+        return Err(check.err(
+            "emulator.displacement_max_m",
+            format!("{displacement_max_m} is not valid: expected > displacement_min_m ({displacement_min_m})"),
+        ));
+    }
+    Ok(EmulatorConfig {
+        displacement_min_m,
+        displacement_max_m,
+        law_frequency_hz: check.positive("emulator.law_frequency_hz", e.law_frequency_hz)?,
+    })
+}
+
+fn parse_controller(
+    check: &Check,
+    c: &RawController,
+    period_ns: u64,
+) -> Result<ControllerConfig, ConfigError> {
+    if c.compensation_order > 3 {
+        return Err(check.err(
+            "controller.compensation_order",
+            format!(
+                "{} is not valid: expected 0, 1, 2 or 3",
+                c.compensation_order
+            ),
+        ));
+    }
+    let command_mode = check.choice(
+        "controller.command_mode",
+        &c.command_mode,
+        &[("law", CommandMode::Law), ("force", CommandMode::Force)],
+    )?;
+    let limit_action = check.choice(
+        "controller.limit_action",
+        &c.limit_action,
+        &[
+            ("saturate", LimitAction::Saturate),
+            ("hold", LimitAction::Hold),
+            ("fault", LimitAction::Fault),
+        ],
+    )?;
+    let force_min_n = check.finite("controller.force_min_n", c.force_min_n)?;
+    let force_max_n = check.finite("controller.force_max_n", c.force_max_n)?;
+    if force_min_n >= force_max_n {
+        return Err(check.err(
+            "controller.force_max_n",
+            format!("{force_max_n} is not valid: expected > force_min_n ({force_min_n})"),
+        ));
+    }
+    let keepalive = check.at_least(
+        "controller.keepalive_periods",
+        u64::from(c.keepalive_periods),
+        1,
+    )?;
+    Ok(ControllerConfig {
+        command_mode,
+        compensation_order: c.compensation_order,
+        compensation_enabled: c.compensation_enabled,
+        compensation_delay_s: check
+            .non_negative("controller.compensation_delay_us", c.compensation_delay_us)?
+            * 1e-6,
+        force_min_n,
+        force_max_n,
+        force_rate_max_n_per_s: check.positive(
+            "controller.force_rate_max_n_per_s",
+            c.force_rate_max_n_per_s,
+        )?,
+        limit_action,
+        emulator_heartbeat_timeout_ns: (check.positive(
+            "controller.emulator_heartbeat_timeout_ms",
+            c.emulator_heartbeat_timeout_ms,
+        )? * 1e6) as u64,
+        keepalive_ns: keepalive * period_ns,
+    })
+}
+
+fn parse_rig(check: &Check, r: &RawRig) -> Result<RigConfig, ConfigError> {
+    if r.internal_substeps == 0 || r.internal_substeps > 1000 {
+        return Err(check.err(
+            "rig.internal_substeps",
+            format!("{} is not valid: expected 1 to 1000", r.internal_substeps),
+        ));
+    }
+    check.at_least(
+        "rig.command_stale_periods",
+        u64::from(r.command_stale_periods),
+        1,
+    )?;
+    if r.law_lead_order > 3 {
+        return Err(check.err(
+            "rig.law_lead_order",
+            format!("{} is not valid: expected 0, 1, 2 or 3", r.law_lead_order),
+        ));
+    }
+    let actuator_delay_s = check.non_negative("rig.actuator_delay_us", r.actuator_delay_us)? * 1e-6;
+    if actuator_delay_s > 0.1 {
+        return Err(check.err(
+            "rig.actuator_delay_us",
+            format!(
+                "{} is not valid: expected <= 100000 us",
+                r.actuator_delay_us
+            ),
+        ));
+    }
+    let hold_damping_ratio = check.positive("rig.hold_damping_ratio", r.hold_damping_ratio)?;
+    Ok(RigConfig {
+        specimen_mass_kg: check.positive("rig.specimen_mass_kg", r.specimen_mass_kg)?,
+        damping_ns_per_m: check.non_negative("rig.damping_ns_per_m", r.damping_ns_per_m)?,
+        actuator_lag_s: check.non_negative("rig.actuator_lag_us", r.actuator_lag_us)? * 1e-6,
+        actuator_delay_s,
+        actuator_force_max_n: check.positive("rig.actuator_force_max_n", r.actuator_force_max_n)?,
+        sensor_noise_m: check.non_negative("rig.sensor_noise_m", r.sensor_noise_m)?,
+        sensor_resolution_m: check
+            .non_negative("rig.sensor_resolution_m", r.sensor_resolution_m)?,
+        seed: r.seed,
+        internal_substeps: r.internal_substeps,
+        command_stale_periods: r.command_stale_periods,
+        law_lead_s: check.non_negative("rig.law_lead_us", r.law_lead_us)? * 1e-6,
+        law_lead_order: r.law_lead_order,
+        hold_bandwidth_hz: check.positive("rig.hold_bandwidth_hz", r.hold_bandwidth_hz)?,
+        hold_damping_ratio,
+    })
+}
+
+fn parse_action(check: &Check, class: FaultClass, value: &str) -> Result<FaultAction, ConfigError> {
+    check.choice(
+        &format!("safety.{}", class.config_key()),
+        value,
+        &[
+            ("indicate", FaultAction::Indicate),
+            ("hold", FaultAction::Hold),
+            ("hold-unload", FaultAction::HoldUnload),
+        ],
+    )
+}
+
+fn parse_safety(check: &Check, s: &RawSafety) -> Result<SafetyConfig, ConfigError> {
+    let actions = FaultActions {
+        emulator: parse_action(check, FaultClass::Emulator, &s.emulator_fault_action)?,
+        controller: parse_action(check, FaultClass::Controller, &s.controller_fault_action)?,
+        limits: parse_action(check, FaultClass::Limits, &s.limit_fault_action)?,
+        orchestrator: parse_action(check, FaultClass::Orchestrator, &s.orchestrator_lost_action)?,
+    };
+    let hold_min_s = check.non_negative("safety.hold_min_s", s.hold_min_s)?;
+    let hold_max_s = check.positive("safety.hold_max_s", s.hold_max_s)?;
+    if hold_max_s < hold_min_s {
+        return Err(check.err(
+            "safety.hold_max_s",
+            format!("{hold_max_s} is not valid: expected >= hold_min_s ({hold_min_s})"),
+        ));
+    }
+    let rest_window_ms = check.positive("safety.rest_window_ms", s.rest_window_ms)?;
+    if rest_window_ms > 50.0 {
+        return Err(check.err(
+            "safety.rest_window_ms",
+            format!("{rest_window_ms} is not valid: expected <= 50 ms"),
+        ));
+    }
+    Ok(SafetyConfig {
+        stall_limit_s: check.positive("safety.stall_limit_ms", s.stall_limit_ms)? * 1e-3,
+        actions,
+        hold_min_s,
+        hold_max_s,
+        rest_band_m: check.positive("safety.rest_band_m", s.rest_band_m)?,
+        rest_window_s: rest_window_ms * 1e-3,
+        unload_rate_n_per_s: check.positive("safety.unload_rate_n_per_s", s.unload_rate_n_per_s)?,
+        resume_blend_s: check.non_negative("safety.resume_blend_ms", s.resume_blend_ms)? * 1e-3,
+        max_transient_m: check.positive("safety.max_transient_m", s.max_transient_m)?,
+    })
+}
+
+fn parse_scenario(
+    check: &Check,
+    s: &RawScenario,
+    resolve: &dyn Fn(&str) -> PathBuf,
+) -> Result<ScenarioConfig, ConfigError> {
+    let duration_s = check.positive("scenario.duration_s", s.duration_s)?;
+    let (load_csv, load_csv_samples) = if s.load_csv.is_empty() {
+        (None, None)
+    } else {
+        let path = resolve(&s.load_csv);
+        let cols = crate::csvio::read_columns(&path, &["t_s", "force_n"])
+            .map_err(|e| check.err("scenario.load_csv", e.to_string()))?;
+        let step = crate::csvio::uniform_step(
+            &cols.data[0],
+            &cols.lines,
+            &path.display().to_string(),
+            "t_s",
+        )
+        .map_err(|e| check.err("scenario.load_csv", e.to_string()))?;
+        (Some(path), Some((step, cols.data[1].clone())))
+    };
+    Ok(ScenarioConfig {
+        duration_s,
+        preload_n: check.finite("scenario.preload_n", s.preload_n)?,
+        harmonic_amplitude_n: check
+            .non_negative("scenario.harmonic_amplitude_n", s.harmonic_amplitude_n)?,
+        harmonic_frequency_hz: check
+            .non_negative("scenario.harmonic_frequency_hz", s.harmonic_frequency_hz)?,
+        train_speed_kmh: check.non_negative("scenario.train_speed_kmh", s.train_speed_kmh)?,
+        train_first_axle_s: check.finite("scenario.train_first_axle_s", s.train_first_axle_s)?,
+        step_n: check.finite("scenario.step_n", s.step_n)?,
+        step_at_s: check.non_negative("scenario.step_at_s", s.step_at_s)?,
+        load_csv,
+        load_csv_samples,
+    })
+}
+
+fn parse_injection(
+    check: &Check,
+    index: usize,
+    r: &RawInjection,
+) -> Result<Injection, ConfigError> {
+    let key = |k: &str| format!("inject[{index}].{k}");
+    let process = check.choice(
+        &key("process"),
+        &r.process,
+        &[
+            ("rig", LoopProcess::Rig),
+            ("emulator", LoopProcess::Emulator),
+            ("controller", LoopProcess::Controller),
+        ],
+    )?;
+    let at_s = check.non_negative(&key("at_s"), r.at_s)?;
+    let kind = match r.kind.as_str() {
+        "stall" => {
+            let ms = r.duration_ms.ok_or_else(|| {
+                check.err(&key("duration_ms"), "missing: a stall needs its duration in ms".into())
+            })?;
+            InjectKind::Stall {
+                duration_s: check.positive(&key("duration_ms"), ms)? * 1e-3,
+            }
+        }
+        "kill" => InjectKind::Kill,
+        "drop-samples" => {
+            let count = r.count.ok_or_else(|| {
+                check.err(&key("count"), "missing: drop-samples needs a count of samples".into())
+            })?;
+            InjectKind::DropSamples {
+                count: check.at_least(&key("count"), count, 1)?,
+            }
+        }
+        "nan" => InjectKind::Nan,
+        "out-of-range" => InjectKind::OutOfRange,
+        other => {
+            return Err(check.err(
+                &key("kind"),
+                format!("\"{other}\" is not valid: expected \"stall\", \"kill\", \"drop-samples\", \"nan\" or \"out-of-range\""),
+            ))
+        }
+    };
+    let sample_fault = matches!(
+        kind,
+        InjectKind::DropSamples { .. } | InjectKind::Nan | InjectKind::OutOfRange
+    );
+    if sample_fault && process != LoopProcess::Rig {
+        return Err(check.err(
+            &key("process"),
+            format!(
+                "\"{}\" is not valid for kind \"{}\": only the rig produces samples (process = \"rig\")",
+                r.process,
+                kind.name()
+            ),
+        ));
+    }
+    Ok(Injection {
+        process,
+        kind,
+        at_s,
     })
 }
 
@@ -603,6 +966,7 @@ mod tests {
     fn embedded_default_validates() {
         let c = default_hil_config().unwrap();
         assert_eq!(c.loop_.rate_hz, 4096.0);
+        assert_eq!(c.safety.actions, FaultActions::HOLD_ALL);
     }
 
     #[test]
@@ -624,6 +988,32 @@ mod tests {
             e.contains("controller.compensation_order")
                 && e.contains('7')
                 && e.contains("0, 1, 2 or 3"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn removed_key_says_what_replaced_it() {
+        let text = DEFAULT_CONFIG_TOML.replace(
+            "keepalive_periods = 8",
+            "keepalive_periods = 8\nsafe_force_n = 20000.0",
+        );
+        let e = parse_hil_config(&text, "x.toml", None)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("safe_force_n") && e.contains("[safety]"), "{e}");
+    }
+
+    #[test]
+    fn injection_of_samples_must_target_the_rig() {
+        let text = format!(
+            "{DEFAULT_CONFIG_TOML}\n[[inject]]\nprocess = \"emulator\"\nkind = \"nan\"\nat_s = 1.0\n"
+        );
+        let e = parse_hil_config(&text, "x.toml", None)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("inject[0].process") && e.contains("only the rig"),
             "{e}"
         );
     }

@@ -1,24 +1,33 @@
-//! The actuator-controller's logic: delay compensation by polynomial extrapolation of the
-//! force setpoints (orders 0-3, OpenFresco style) over the loop delay, force
-//! and force-rate limits with the configured action, and the watchdog (stale setpoints,
-//! lost emulator heartbeat, tripped emulator) that latches a named fault and ramps the
-//! actuator to its safe force.
+//! The actuator-controller's logic between the emulator and the actuator side.
 //!
-//! Delay estimate (adaptive per command): the force history is kept on the rig's sample
-//! grid (`sample_sequence * period`). A command sent at `now` reaches the rig at its
-//! next sample instant `t_next` (the grid is known from the common start time), and acts
-//! from there through the zero-order hold, the actuator's transport delay and lag: the
-//! controller predicts the force at `t_next + compensation_delay`. So late wake-ups or a
-//! held sample lengthen the extrapolation by exactly what they cost.
+//! - `law` mode (default): forwards the element's local linear law with the force limits
+//!   the actuator side must respect; the actuator side evaluates it with its own
+//!   displacement, so the loop's delay needs no extrapolation here.
+//! - `force` mode (plain force commands): delay compensation by polynomial extrapolation
+//!   of the force setpoints (orders 0-3, OpenFresco style) over the loop delay.
+//! - Force limits with the configured action; keep-alive repeats of the last command so
+//!   the actuator side can tell a dead controller from a stalled emulator.
+//! - The watchdog: setpoints stale beyond the stall limit, a lost emulator heartbeat, a
+//!   tripped emulator or an invalid law latch a named fault, and the commands then ask
+//!   the actuator side to hold the specimen (or only indicate, as configured).
+//!
+//! Delay estimate in force mode (adaptive per command): the force history is kept on the
+//! rig's sample grid (`sample_sequence * period`). A command sent at `now` reaches the rig
+//! at its next sample instant `t_next` (the grid is known from the common start time), and
+//! acts from there through the zero-order hold, the actuator's transport delay and lag:
+//! the controller predicts the force at `t_next + compensation_delay`.
 //!
 //! Must not: allocate, log, read a clock or do I/O (times come in as arguments).
 
-use std::io::Write;
-
-use super::config::{ControllerConfig, LimitAction};
-use super::fault::Fault;
-use super::records::{sequence_column, CsvRecord};
-use crate::ipc::messages::{controller_state, emulator_state, ActuatorCommand, ForceSetpoint};
+use super::config::{CommandMode, ControllerConfig, LimitAction};
+use super::fault::{Fault, FaultAction, FaultActions};
+use crate::ipc::messages::process_id;
+use crate::ipc::messages::{
+    command_mode, controller_state, emulator_state, ActuatorCommand, ForceSetpoint, LocalLaw,
+};
+use crate::record_type;
+use crate::records::event::{action_code, event_kind};
+use crate::records::EventRecord;
 
 /// Value at `t_eval` of the polynomial through the points `(t[i], y[i])` (Lagrange form;
 /// works for uneven spacing, e.g. after a skipped sample).
@@ -38,40 +47,77 @@ pub fn lagrange_extrapolate(t: &[f64], y: &[f64], t_eval: f64) -> f64 {
     sum
 }
 
-/// One command, as recorded (CSV `controller.csv`).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ControllerRecord {
-    pub command_seq: u64,
-    pub setpoint_seq: u64,
-    pub sample_seq: u64,
-    pub setpoint_force_n: f64,
-    pub predicted_force_n: f64,
-    pub command_force_n: f64,
-    pub state: u32,
-    pub fault_code: u32,
-    pub limited: u8,
-    /// Sample publish -> command publish, ns (0 for watchdog ramp commands).
-    pub end_to_end_ns: u64,
+record_type! {
+    /// One command (`/controller`).
+    pub struct ControllerRecord {
+        topic: "/controller",
+        schema: "fastemu/ControllerRecord",
+        log_time: |r| (r.t_s.max(0.0) * 1e9).round() as u64,
+        fields: {
+            /// time the command was sent, since the run's start, s
+            t_s: f64,
+            command_seq: u64,
+            /// setpoint behind the command (-1 none)
+            setpoint_seq: u64,
+            /// sample at the origin of the chain (-1 none)
+            sample_seq: u64,
+            /// command mode: 0 force, 1 law, 2 hold, 3 hold-unload
+            mode: u32,
+            /// the emulator's element force, N (NaN for repeats and holds)
+            setpoint_force_n: f64,
+            /// force mode: the extrapolated force; law mode: the law's force after limits, N
+            predicted_force_n: f64,
+            /// the command's force (law.force_n), N
+            command_force_n: f64,
+            /// local law: the displacement the force belongs to, m
+            law_displacement_m: f64,
+            /// local law: stiffness, N/m
+            law_stiffness_n_per_m: f64,
+            /// local law: damping, N s/m
+            law_damping_ns_per_m: f64,
+            /// local law: force drift at fixed displacement, N/s
+            law_force_rate_n_per_s: f64,
+            /// controller state: 1 running, 2 fault indicated, 3 holding
+            state: u32,
+            /// latched fault code, 0 none
+            fault_code: u32,
+            /// 1 if the force or rate limit acted
+            limited: u8,
+            /// 1 for a keep-alive repeat of the previous command
+            repeat: u8,
+            /// sample publish -> command publish, ns (0 for repeats and holds)
+            end_to_end_ns: u64,
+        }
+    }
 }
 
-impl CsvRecord for ControllerRecord {
-    const HEADER: &'static str = "command_seq,setpoint_seq,sample_seq,setpoint_force_n,predicted_force_n,command_force_n,state,fault_code,limited,end_to_end_ns";
-    fn write_csv(&self, out: &mut dyn Write) -> std::io::Result<()> {
-        let seq = sequence_column(self.sample_seq);
-        writeln!(
-            out,
-            "{},{},{},{},{},{},{},{},{},{}",
-            self.command_seq,
-            self.setpoint_seq,
-            seq,
-            self.setpoint_force_n,
-            self.predicted_force_n,
-            self.command_force_n,
-            self.state,
-            self.fault_code,
-            self.limited,
-            self.end_to_end_ns
-        )
+/// A fault the controller latched, for its event record.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ControllerTrip {
+    pub fault: Fault,
+    /// The emulator's own fault code (`emulator-tripped`), else 0.
+    pub emulator_fault_code: u32,
+    /// Periods between the last good input and the detection.
+    pub detection_latency_periods: u64,
+    pub action: FaultAction,
+    pub detected_ns: u64,
+}
+
+impl ControllerTrip {
+    /// The trip as an event record (`t0_ns`: the loop's time origin).
+    pub fn event(&self, t0_ns: u64, period_ns: u64) -> EventRecord {
+        let since = self.detected_ns.saturating_sub(t0_ns);
+        EventRecord {
+            t_s: since as f64 * 1e-9,
+            process: process_id::CONTROLLER,
+            kind: event_kind::FAULT,
+            fault_code: self.fault.code(),
+            remote_fault_code: self.emulator_fault_code,
+            action: action_code::of(self.action),
+            detection_latency_periods: self.detection_latency_periods,
+            step_idx: since / period_ns,
+            value: 0.0,
+        }
     }
 }
 
@@ -81,47 +127,60 @@ const MAX_POINTS: usize = 4;
 #[derive(Debug, Clone)]
 pub struct ControllerCore {
     cfg: ControllerConfig,
+    actions: FaultActions,
     period_s: f64,
     period_ns: u64,
+    /// Setpoints older than this are a fault (the ride-through limit), ns.
+    stall_limit_ns: u64,
     t_hist_s: [f64; MAX_POINTS],
     f_hist_n: [f64; MAX_POINTS],
     n_hist: usize,
-    last_command_n: Option<f64>,
+    last_command: Option<ActuatorCommand>,
+    last_sent_ns: Option<u64>,
+    last_force_n: Option<f64>,
     last_setpoint_rx_ns: Option<u64>,
     last_emulator_heartbeat_ns: Option<u64>,
     last_setpoint_seq: Option<u64>,
     last_node_sample_seq: Option<u64>,
     start_time_ns: u64,
-    fault: Option<Fault>,
-    /// Fault code the emulator reported, when `fault == EmulatorTripped`.
-    pub emulator_fault_code: u32,
-    ramp_target_n: f64,
-    reached_safe: bool,
+    trip: Option<ControllerTrip>,
+    new_trip: bool,
+    hold_sent: bool,
     command_seq: u64,
     pub limited_commands: u64,
+    pub repeated_commands: u64,
 }
 
 impl ControllerCore {
-    pub fn new(cfg: ControllerConfig, period_ns: u64) -> ControllerCore {
+    pub fn new(
+        cfg: ControllerConfig,
+        actions: FaultActions,
+        period_ns: u64,
+        stall_limit_ns: u64,
+    ) -> ControllerCore {
         ControllerCore {
             cfg,
+            actions,
             period_s: period_ns as f64 * 1e-9,
             period_ns,
+            stall_limit_ns,
             t_hist_s: [0.0; MAX_POINTS],
             f_hist_n: [0.0; MAX_POINTS],
             n_hist: 0,
-            last_command_n: None,
+            last_command: None,
+            last_sent_ns: None,
+            last_force_n: None,
             last_setpoint_rx_ns: None,
             last_emulator_heartbeat_ns: None,
             last_setpoint_seq: None,
             last_node_sample_seq: None,
             start_time_ns: 0,
-            fault: None,
-            emulator_fault_code: 0,
-            ramp_target_n: cfg.safe_force_n,
-            reached_safe: false,
+            trip: None,
+            new_trip: false,
+            hold_sent: false,
             command_seq: 0,
             limited_commands: 0,
+            repeated_commands: 0,
         }
     }
 
@@ -131,26 +190,51 @@ impl ControllerCore {
     }
 
     pub fn fault(&self) -> Option<Fault> {
-        self.fault
+        self.trip.map(|t| t.fault)
     }
 
-    pub fn state(&self) -> u32 {
-        match (self.fault, self.reached_safe) {
-            (None, _) if self.last_command_n.is_some() => controller_state::RUNNING,
-            (None, _) => controller_state::STARTING,
-            (Some(_), false) => controller_state::RAMPING_TO_SAFE,
-            (Some(_), true) => controller_state::SAFE,
+    pub fn trip(&self) -> Option<ControllerTrip> {
+        self.trip
+    }
+
+    /// Returns a trip once, when it was latched (for the event record).
+    pub fn take_new_trip(&mut self) -> Option<ControllerTrip> {
+        if self.new_trip {
+            self.new_trip = false;
+            self.trip
+        } else {
+            None
         }
     }
 
-    fn latch(&mut self, fault: Fault) {
-        if self.fault.is_none() {
-            self.fault = Some(fault);
-            self.ramp_target_n = if fault == Fault::ForceLimitExceeded {
-                0.0
-            } else {
-                self.cfg.safe_force_n
-            };
+    /// The emulator's fault code when it reported itself tripped, else 0.
+    pub fn emulator_fault_code(&self) -> u32 {
+        self.trip.map_or(0, |t| t.emulator_fault_code)
+    }
+
+    fn holding(&self) -> bool {
+        self.trip.is_some_and(|t| t.action != FaultAction::Indicate)
+    }
+
+    pub fn state(&self) -> u32 {
+        match self.trip {
+            Some(t) if t.action != FaultAction::Indicate => controller_state::HOLDING,
+            Some(_) => controller_state::FAULT_INDICATED,
+            None if self.last_command.is_some() => controller_state::RUNNING,
+            None => controller_state::STARTING,
+        }
+    }
+
+    fn latch(&mut self, fault: Fault, emulator_fault_code: u32, latency_periods: u64, now_ns: u64) {
+        if self.trip.is_none() {
+            self.trip = Some(ControllerTrip {
+                fault,
+                emulator_fault_code,
+                detection_latency_periods: latency_periods,
+                action: self.actions.for_fault(fault),
+                detected_ns: now_ns,
+            });
+            self.new_trip = true;
         }
     }
 
@@ -166,7 +250,7 @@ impl ControllerCore {
         next_tick as f64 * self.period_s + self.cfg.compensation_delay_s
     }
 
-    /// Predicted force at `t_eval_s` from the newest setpoints.
+    /// Force mode: predicted force at `t_eval_s` from the newest setpoints.
     fn predict(&self, t_eval_s: f64) -> f64 {
         let newest = self.n_hist - 1;
         let order = if self.cfg.compensation_enabled {
@@ -190,81 +274,111 @@ impl ControllerCore {
         )
     }
 
-    fn limit(&mut self, wanted_n: f64) -> (f64, bool) {
-        let last = self.last_command_n.unwrap_or(wanted_n);
+    /// Applies the force and rate limits to `wanted_n`; returns the force, whether it was
+    /// limited, and `None` when the limit action asks to keep the previous command.
+    fn limit(&mut self, wanted_n: f64, now_ns: u64) -> (Option<f64>, bool) {
+        let last = self.last_force_n.unwrap_or(wanted_n);
         let max_step = self.cfg.force_rate_max_n_per_s * self.period_s;
         let out_of_force = !(self.cfg.force_min_n..=self.cfg.force_max_n).contains(&wanted_n);
         let out_of_rate = (wanted_n - last).abs() > max_step;
         if !(out_of_force || out_of_rate) {
-            return (wanted_n, false);
+            return (Some(wanted_n), false);
         }
         self.limited_commands += 1;
         let saturated = wanted_n
             .clamp(self.cfg.force_min_n, self.cfg.force_max_n)
             .clamp(last - max_step, last + max_step);
         match self.cfg.limit_action {
-            LimitAction::Saturate => (saturated, true),
-            LimitAction::Hold => (last, true),
-            LimitAction::RampToZero => {
-                self.latch(Fault::ForceLimitExceeded);
-                (self.ramp_step(), true)
+            LimitAction::Saturate => (Some(saturated), true),
+            LimitAction::Hold => (None, true),
+            LimitAction::Fault => {
+                self.latch(Fault::ForceLimitExceeded, 0, 0, now_ns);
+                (Some(saturated), true)
             }
         }
     }
 
-    fn ramp_step(&mut self) -> f64 {
-        let last = self.last_command_n.unwrap_or(self.ramp_target_n);
-        let step = self.cfg.safe_ramp_n_per_s * self.period_s;
-        let next = if (self.ramp_target_n - last).abs() <= step {
-            self.reached_safe = true;
-            self.ramp_target_n
-        } else {
-            last + step * (self.ramp_target_n - last).signum()
-        };
-        self.last_command_n = Some(next);
-        next
-    }
-
-    fn command(
+    #[allow(clippy::too_many_arguments)]
+    fn emit(
         &mut self,
         sp: Option<&ForceSetpoint>,
-        force_n: f64,
+        mode: u32,
+        law: LocalLaw,
         predicted_n: f64,
         limited: bool,
+        repeat: bool,
         e2e_ns: u64,
+        now_ns: u64,
     ) -> (ActuatorCommand, ControllerRecord) {
-        let (setpoint_seq, sample_seq, sample_time, setpoint_force) =
-            sp.map_or((u64::MAX, u64::MAX, 0, f64::NAN), |s| {
-                (
-                    s.sequence,
-                    s.sample_sequence,
-                    s.sample_publish_time_ns,
-                    s.force_n,
-                )
-            });
+        let (setpoint_seq, sample_seq, sample_time, setpoint_force) = match (sp, &self.last_command)
+        {
+            (Some(s), _) => (
+                s.sequence,
+                s.sample_sequence,
+                s.sample_publish_time_ns,
+                s.law.force_n,
+            ),
+            (None, Some(c)) => (
+                c.setpoint_sequence,
+                c.sample_sequence,
+                c.sample_publish_time_ns,
+                f64::NAN,
+            ),
+            (None, None) => (u64::MAX, u64::MAX, 0, f64::NAN),
+        };
+        let fault_code = self.trip.map_or(0, |t| t.fault.code());
         let cmd = ActuatorCommand {
             sequence: self.command_seq,
             setpoint_sequence: setpoint_seq,
             sample_sequence: sample_seq,
             sample_publish_time_ns: sample_time,
-            force_n,
+            law,
+            force_min_n: self.cfg.force_min_n,
+            force_max_n: self.cfg.force_max_n,
+            mode,
             controller_state: self.state(),
-            fault_code: self.fault.map_or(0, Fault::code),
+            fault_code,
+            reserved: 0,
         };
         let rec = ControllerRecord {
+            t_s: now_ns.saturating_sub(self.start_time_ns) as f64 * 1e-9,
             command_seq: self.command_seq,
             setpoint_seq,
             sample_seq,
+            mode,
             setpoint_force_n: setpoint_force,
             predicted_force_n: predicted_n,
-            command_force_n: force_n,
+            command_force_n: law.force_n,
+            law_displacement_m: law.displacement_m,
+            law_stiffness_n_per_m: law.stiffness_n_per_m,
+            law_damping_ns_per_m: law.damping_ns_per_m,
+            law_force_rate_n_per_s: law.force_rate_n_per_s,
             state: self.state(),
-            fault_code: self.fault.map_or(0, Fault::code),
+            fault_code,
             limited: u8::from(limited),
+            repeat: u8::from(repeat),
             end_to_end_ns: e2e_ns,
         };
         self.command_seq += 1;
+        self.last_sent_ns = Some(now_ns);
+        if mode == command_mode::LAW || mode == command_mode::FORCE {
+            self.last_command = Some(cmd);
+        }
+        if repeat {
+            self.repeated_commands += 1;
+        }
         (cmd, rec)
+    }
+
+    /// The hold command the configured action asks for.
+    fn hold_command(&mut self, now_ns: u64) -> (ActuatorCommand, ControllerRecord) {
+        let mode = match self.trip.map(|t| t.action) {
+            Some(FaultAction::HoldUnload) => command_mode::HOLD_UNLOAD,
+            _ => command_mode::HOLD,
+        };
+        let law = self.last_command.map_or_else(LocalLaw::default, |c| c.law);
+        self.hold_sent = true;
+        self.emit(None, mode, law, f64::NAN, false, false, 0, now_ns)
     }
 
     /// Handles a new setpoint received at `now_ns`; returns the command to publish.
@@ -281,64 +395,125 @@ impl ControllerCore {
         // The emulator's setpoints are its heartbeat too.
         self.last_emulator_heartbeat_ns = Some(now_ns);
         if sp.emulator_state == emulator_state::TRIPPED {
-            if self.fault.is_none() {
-                self.emulator_fault_code = sp.fault_code;
-            }
-            self.latch(Fault::EmulatorTripped);
+            self.latch(Fault::EmulatorTripped, sp.fault_code, 0, now_ns);
+        } else if sp.emulator_state == emulator_state::RUNNING && !sp.law.is_valid() {
+            self.latch(Fault::InvalidLaw, 0, 0, now_ns);
         }
-        if sp.emulator_state == emulator_state::STARTING {
-            return None;
+        if sp.emulator_state != emulator_state::RUNNING {
+            return self.holding().then(|| self.hold_command(now_ns));
         }
-        if self.fault.is_some() {
-            let f = self.ramp_step();
-            return Some(self.command(Some(sp), f, f, false, 0));
+        if self.holding() {
+            return Some(self.hold_command(now_ns));
         }
-        // A setpoint computed on a held sample adds no new point to the history.
+        // A setpoint on the same sample as the last one carries nothing new (the emulator
+        // is alive, the rig's sample did not come): liveness only.
         if self.last_node_sample_seq == Some(sp.sample_sequence) {
             return None;
         }
         self.last_node_sample_seq = Some(sp.sample_sequence);
-        // Shift the history and append (t, F) on the rig's sample grid.
-        let t_s = sp.sample_sequence as f64 * self.period_s;
-        if self.n_hist == MAX_POINTS {
-            self.t_hist_s.copy_within(1.., 0);
-            self.f_hist_n.copy_within(1.., 0);
-            self.n_hist -= 1;
-        }
-        self.t_hist_s[self.n_hist] = t_s;
-        self.f_hist_n[self.n_hist] = sp.force_n;
-        self.n_hist += 1;
-        let predicted = self.predict(self.target_time_s(now_ns));
-        let (force, limited) = self.limit(predicted);
-        if self.fault.is_none() {
-            self.last_command_n = Some(force);
-        }
         let e2e = now_ns.saturating_sub(sp.sample_publish_time_ns);
-        Some(self.command(Some(sp), force, predicted, limited, e2e))
+        match self.cfg.command_mode {
+            CommandMode::Law => {
+                let (force, limited) = self.limit(sp.law.force_n, now_ns);
+                if self.holding() {
+                    return Some(self.hold_command(now_ns));
+                }
+                let force = force?;
+                self.last_force_n = Some(force);
+                // Saturation shifts the law's force but keeps its stiffness: the actuator
+                // side clamps the evaluated force to the same limits anyway.
+                let law = LocalLaw {
+                    force_n: force,
+                    ..sp.law
+                };
+                Some(self.emit(
+                    Some(sp),
+                    command_mode::LAW,
+                    law,
+                    force,
+                    limited,
+                    false,
+                    e2e,
+                    now_ns,
+                ))
+            }
+            CommandMode::Force => {
+                let t_s = sp.sample_sequence as f64 * self.period_s;
+                if self.n_hist == MAX_POINTS {
+                    self.t_hist_s.copy_within(1.., 0);
+                    self.f_hist_n.copy_within(1.., 0);
+                    self.n_hist -= 1;
+                }
+                self.t_hist_s[self.n_hist] = t_s;
+                self.f_hist_n[self.n_hist] = sp.law.force_n;
+                self.n_hist += 1;
+                let predicted = self.predict(self.target_time_s(now_ns));
+                let (force, limited) = self.limit(predicted, now_ns);
+                if self.holding() {
+                    return Some(self.hold_command(now_ns));
+                }
+                let force = force?;
+                self.last_force_n = Some(force);
+                let law = LocalLaw::constant(force);
+                Some(self.emit(
+                    Some(sp),
+                    command_mode::FORCE,
+                    law,
+                    predicted,
+                    limited,
+                    false,
+                    e2e,
+                    now_ns,
+                ))
+            }
+        }
     }
 
-    /// Watchdog check at `now_ns` (called when a wait times out or between events);
-    /// while a fault is latched, returns the next ramp command (one per period).
+    /// Watchdog and keep-alive at `now_ns` (called on every wake-up and wait time-out):
+    /// latches a fault when the emulator went silent beyond the stall limit; returns a hold
+    /// command while holding, or a repeat of the last command when none was sent for a
+    /// keep-alive period.
     pub fn on_tick(&mut self, now_ns: u64) -> Option<(ActuatorCommand, ControllerRecord)> {
-        if self.fault.is_none() {
+        if self.trip.is_none() {
             if let Some(rx) = self.last_setpoint_rx_ns {
-                if now_ns.saturating_sub(rx)
-                    > self.cfg.stale_setpoint_periods as u64 * self.period_ns
-                {
-                    self.latch(Fault::SetpointsStale);
+                let silent = now_ns.saturating_sub(rx);
+                if silent > self.stall_limit_ns {
+                    self.latch(Fault::SetpointsStale, 0, silent / self.period_ns, now_ns);
                 }
             }
             if let Some(hb) = self.last_emulator_heartbeat_ns {
-                if now_ns.saturating_sub(hb) > self.cfg.emulator_heartbeat_timeout_ns {
-                    self.latch(Fault::EmulatorHeartbeatLost);
+                let silent = now_ns.saturating_sub(hb);
+                if silent > self.cfg.emulator_heartbeat_timeout_ns {
+                    self.latch(
+                        Fault::EmulatorHeartbeatLost,
+                        0,
+                        silent / self.period_ns,
+                        now_ns,
+                    );
                 }
             }
         }
-        if self.fault.is_some() && self.last_command_n.is_some() {
-            let f = self.ramp_step();
-            return Some(self.command(None, f, f, false, 0));
+        let due = self
+            .last_sent_ns
+            .is_some_and(|t| now_ns.saturating_sub(t) >= self.cfg.keepalive_ns);
+        // The first hold command goes out at once; then one per keep-alive period.
+        if self.holding() && (due || !self.hold_sent) {
+            return Some(self.hold_command(now_ns));
         }
-        None
+        if !due || self.holding() {
+            return None;
+        }
+        let last = self.last_command?;
+        Some(self.emit(
+            None,
+            last.mode,
+            last.law,
+            last.law.force_n,
+            false,
+            true,
+            0,
+            now_ns,
+        ))
     }
 }
 

@@ -1,68 +1,64 @@
-//! The emulator's loop iteration: newest displacement sample in, validated, one model
-//! step per loop period (plus one per skipped deadline), force setpoint out, one record
-//! per model step. Transport, clock and record sink are injected, so tests drive it with
-//! mocks.
+//! The emulator's loop iteration: every displacement sample received since the last cycle,
+//! oldest first, is validated and stepped through the model (one model step per rig
+//! sample, so model time is the rig's sample time; a missing sample is interpolated), and
+//! one setpoint per cycle carries the element's force and local linear law (unchanged,
+//! with the same sample sequence, when no sample came). Transport,
+//! clock and record sink are injected, so tests drive it with mocks.
 //!
 //! Must not (in `EmulatorCore::cycle`): allocate, lock, log, read a clock or do I/O.
-//! Same inputs give bit-identical records (replay contract).
-
-use std::io::Write;
+//! Same sample stream gives bit-identical records (replay contract).
 
 use super::config::{EmulatorConfig, LoopConfig};
 use super::fault::Fault;
-use super::records::{sequence_column, CsvRecord};
-use crate::ipc::messages::{emulator_state, sample_status, DisplacementSample, ForceSetpoint};
+use crate::ipc::messages::{
+    emulator_state, process_id, sample_status, DisplacementSample, ForceSetpoint, LocalLaw,
+};
 use crate::model::effects::{AugmentedModel, ModelStepper, StepperMode};
+use crate::record_type;
+use crate::records::event::{action_code, event_kind};
+use crate::records::EventRecord;
 use crate::rt::CycleStats;
 
 /// The emulator's view of its transport.
 pub trait EmulatorIo {
-    /// Newest displacement sample received since the last call, if any. The transport
-    /// may wait (bounded) for the sample with sequence `expected_seq` to arrive.
-    fn receive_newest_sample(&mut self, expected_seq: u64) -> Option<DisplacementSample>;
+    /// Calls `on_sample` for every sample received since the last call, oldest first.
+    /// The transport may wait (bounded) for the sample with sequence `expected_seq`.
+    fn receive_samples(&mut self, expected_seq: u64, on_sample: &mut dyn FnMut(DisplacementSample));
     fn publish_setpoint(&mut self, setpoint: ForceSetpoint);
 }
 
-/// One model step, as recorded (CSV `emulator.csv`; `replay` re-runs `z_used_m`).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct EmulatorRecord {
-    pub step_idx: u64,
-    pub cycle_idx: u64,
-    /// Sequence of the sample the step used (`u64::MAX` before the first sample).
-    pub sample_seq: u64,
-    /// 1 if no new sample arrived for this step (value held), else 0.
-    pub stale: u8,
-    /// 1 for a catch-up step of a skipped deadline.
-    pub catch_up: u8,
-    /// One of `emulator_state`.
-    pub state: u32,
-    pub fault_code: u32,
-    pub model_flags: u32,
-    pub wake_late_ns: u64,
-    pub z_used_m: f64,
-    pub force_n: f64,
-}
-
-impl CsvRecord for EmulatorRecord {
-    const HEADER: &'static str = "step_idx,cycle_idx,sample_seq,stale,catch_up,state,fault_code,model_flags,wake_late_ns,z_used_m,force_n";
-    fn write_csv(&self, out: &mut dyn Write) -> std::io::Result<()> {
-        // `{}` on f64 prints the shortest text that parses back to the same bits.
-        let seq = sequence_column(self.sample_seq);
-        writeln!(
-            out,
-            "{},{},{},{},{},{},{},{},{},{},{}",
-            self.step_idx,
-            self.cycle_idx,
-            seq,
-            self.stale,
-            self.catch_up,
-            self.state,
-            self.fault_code,
-            self.model_flags,
-            self.wake_late_ns,
-            self.z_used_m,
-            self.force_n
-        )
+record_type! {
+    /// One model step (`/emulator`; `replay` re-runs `z_used_m`).
+    pub struct EmulatorRecord {
+        topic: "/emulator",
+        schema: "fastemu/EmulatorRecord",
+        log_time: |r| (r.t_s * 1e9).round() as u64,
+        fields: {
+            /// rig time of the sample the step used, s
+            t_s: f64,
+            /// model step counter
+            step_idx: u64,
+            /// emulator cycle (deadline grid index of its wake-up) in which the step was taken
+            cycle_idx: u64,
+            /// sequence of the sample the step used (interpolated step: the missing one)
+            sample_seq: u64,
+            /// 1 if the sample was missing and its displacement interpolated
+            interpolated: u8,
+            /// model step flags (1 tension clamped, 2 non-finite input)
+            model_flags: u32,
+            /// how late the emulator's loop woke for the cycle, ns
+            wake_late_ns: u64,
+            /// displacement the model stepped to, m
+            z_used_m: f64,
+            /// element force after the step, N
+            force_n: f64,
+            /// local law: tangent stiffness, N/m
+            law_stiffness_n_per_m: f64,
+            /// local law: tangent damping, N s/m
+            law_damping_ns_per_m: f64,
+            /// local law: force drift at fixed displacement, N/s
+            law_force_rate_n_per_s: f64,
+        }
     }
 }
 
@@ -79,10 +75,18 @@ pub enum CycleOutcome {
 pub struct EmulatorCounts {
     pub cycles: u64,
     pub model_steps: u64,
-    pub stale_samples: u64,
-    pub skipped_samples: u64,
+    /// Cycles in which no new sample arrived.
+    pub stale_cycles: u64,
+    /// Samples that never arrived (stepped by interpolation).
+    pub missing_samples: u64,
     pub missed_deadlines: u64,
+    /// Longest wake-up delay, ns (a stall of this process).
+    pub longest_stall_ns: u64,
 }
+
+/// Largest gap of missing samples bridged by interpolation; a longer gap is stepped on
+/// the new sample directly (the model cannot have missed more than the transport holds).
+const MAX_INTERPOLATED_GAP: u64 = 1024;
 
 /// The emulator's state between cycles.
 #[derive(Debug, Clone)]
@@ -92,35 +96,81 @@ pub struct EmulatorCore {
     stepper: ModelStepper,
     limits: EmulatorConfig,
     trip_after_stale: u32,
+    stall_trip_deadlines: u64,
     period_ns: u64,
+    dt_s: f64,
     started: bool,
     last_sample: Option<DisplacementSample>,
     stale_run: u32,
     fault: Option<Fault>,
+    fault_reported: bool,
+    end_of_run: bool,
     setpoint_seq: u64,
     step_idx: u64,
+    flags: u32,
     pub counts: EmulatorCounts,
 }
 
 impl EmulatorCore {
-    pub fn new(model: &AugmentedModel, loop_: &LoopConfig, limits: EmulatorConfig) -> EmulatorCore {
+    /// `stall_trip_deadlines`: a wake-up that skipped more deadlines than this trips the
+    /// emulator (`emulator-stalled`): it was out of the loop for longer than the
+    /// ride-through limit.
+    pub fn new(
+        model: &AugmentedModel,
+        loop_: &LoopConfig,
+        limits: EmulatorConfig,
+        stall_trip_deadlines: u64,
+    ) -> EmulatorCore {
         EmulatorCore {
-            stepper: ModelStepper::new(model, StepperMode::Emulation, loop_.dt_s(), 0.0),
+            stepper: ModelStepper::new(model, StepperMode::Emulation, loop_.dt_s(), 0.0)
+                .with_law_frequency(model, limits.law_frequency_hz),
             limits,
             trip_after_stale: loop_.trip_after_stale_samples,
+            stall_trip_deadlines,
             period_ns: loop_.period_ns,
+            dt_s: loop_.dt_s(),
             started: false,
             last_sample: None,
             stale_run: 0,
             fault: None,
+            fault_reported: false,
+            end_of_run: false,
             setpoint_seq: 0,
             step_idx: 0,
+            flags: 0,
             counts: EmulatorCounts::default(),
         }
     }
 
     pub fn fault(&self) -> Option<Fault> {
         self.fault
+    }
+
+    /// The latched fault as an event record, once (call after each cycle); `now_idx` is
+    /// the loop's period index now.
+    pub fn take_fault_event(&mut self, now_idx: u64) -> Option<EventRecord> {
+        let fault = self.fault?;
+        if self.fault_reported {
+            return None;
+        }
+        self.fault_reported = true;
+        let latency = match fault {
+            Fault::TooManyStaleSamples => u64::from(self.trip_after_stale) + 1,
+            Fault::EmulatorStalled => self.counts.longest_stall_ns / self.period_ns,
+            // The others are seen in the first sample that shows them.
+            _ => 0,
+        };
+        Some(EventRecord {
+            t_s: now_idx as f64 * self.dt_s,
+            process: process_id::EMULATOR,
+            kind: event_kind::FAULT,
+            fault_code: fault.code(),
+            remote_fault_code: 0,
+            action: action_code::NONE,
+            detection_latency_periods: latency,
+            step_idx: now_idx,
+            value: 0.0,
+        })
     }
 
     pub fn state(&self) -> u32 {
@@ -145,12 +195,90 @@ impl EmulatorCore {
         {
             return Err(Fault::DisplacementOutOfRange);
         }
-        if let Some(last) = &self.last_sample {
+        Ok(())
+    }
+
+    #[inline]
+    fn step_and_record(
+        &mut self,
+        z_m: f64,
+        sample_seq: u64,
+        interpolated: bool,
+        stats: &CycleStats,
+        record: &mut impl FnMut(EmulatorRecord),
+    ) {
+        let (force, flags) = self.stepper.step(z_m);
+        self.flags = flags.0 as u32;
+        let law = self.stepper.local_law();
+        self.counts.model_steps += 1;
+        record(EmulatorRecord {
+            t_s: sample_seq as f64 * self.dt_s,
+            step_idx: self.step_idx,
+            cycle_idx: stats.cycle_idx + stats.missed_deadlines,
+            sample_seq,
+            interpolated: u8::from(interpolated),
+            model_flags: self.flags,
+            wake_late_ns: stats.wake_late_ns,
+            z_used_m: z_m,
+            force_n: force,
+            law_stiffness_n_per_m: law.stiffness_n_per_m,
+            law_damping_ns_per_m: law.damping_ns_per_m,
+            law_force_rate_n_per_s: law.force_rate_n_per_s,
+        });
+        self.step_idx += 1;
+    }
+
+    /// One received sample: validate, then step the model through it (and through any
+    /// missing samples before it, interpolated).
+    #[inline]
+    fn on_sample(
+        &mut self,
+        sample: DisplacementSample,
+        stats: &CycleStats,
+        record: &mut impl FnMut(EmulatorRecord),
+    ) {
+        if sample.status == sample_status::END_OF_RUN {
+            self.end_of_run = true;
+            return;
+        }
+        if self.fault.is_some() || self.end_of_run {
+            return;
+        }
+        if let Some(last) = self.last_sample {
             if sample.sequence < last.sequence {
-                return Err(Fault::SequenceBackwards);
+                self.fault = Some(Fault::SequenceBackwards);
+                return;
+            }
+            if sample.sequence == last.sequence {
+                return; // a duplicate carries nothing new
             }
         }
-        Ok(())
+        if let Err(fault) = self.validate(&sample) {
+            self.fault = Some(fault);
+            return;
+        }
+        match self.last_sample {
+            None => {
+                // Start in static equilibrium at the first sample.
+                self.stepper.reset_static(sample.displacement_m);
+                self.started = true;
+            }
+            Some(last) => {
+                let gap = sample.sequence - last.sequence - 1;
+                self.counts.missing_samples += gap;
+                if gap <= MAX_INTERPOLATED_GAP {
+                    let span = (gap + 1) as f64;
+                    for j in 1..=gap {
+                        let w = j as f64 / span;
+                        let z =
+                            last.displacement_m + w * (sample.displacement_m - last.displacement_m);
+                        self.step_and_record(z, last.sequence + j, true, stats, record);
+                    }
+                }
+            }
+        }
+        self.step_and_record(sample.displacement_m, sample.sequence, false, stats, record);
+        self.last_sample = Some(sample);
     }
 
     /// One loop iteration after the scheduler woke with `stats`.
@@ -163,89 +291,59 @@ impl EmulatorCore {
     ) -> CycleOutcome {
         self.counts.cycles += 1;
         self.counts.missed_deadlines += stats.missed_deadlines;
-        let received = io.receive_newest_sample(stats.cycle_idx + stats.missed_deadlines);
-        let mut fresh = false;
-        if let Some(sample) = received {
-            if sample.status == sample_status::END_OF_RUN {
-                return CycleOutcome::EndOfRun;
-            }
-            let is_new = self
-                .last_sample
-                .is_none_or(|l| sample.sequence != l.sequence);
-            if self.fault.is_none() && is_new {
-                match self.validate(&sample) {
-                    Ok(()) => {
-                        if let Some(last) = &self.last_sample {
-                            self.counts.skipped_samples +=
-                                sample.sequence.saturating_sub(last.sequence + 1);
-                        }
-                        if !self.started {
-                            // Start in static equilibrium at the first sample.
-                            self.stepper.reset_static(sample.displacement_m);
-                            self.started = true;
-                        }
-                        self.last_sample = Some(sample);
-                        fresh = true;
-                    }
-                    Err(fault) => self.fault = Some(fault),
-                }
-            }
+        // `wake_late_ns` already spans the skipped deadlines.
+        self.counts.longest_stall_ns = self.counts.longest_stall_ns.max(stats.wake_late_ns);
+        if self.fault.is_none()
+            && self.started
+            && stats.missed_deadlines > self.stall_trip_deadlines
+        {
+            self.fault = Some(Fault::EmulatorStalled);
         }
-        if self.fault.is_none() && self.started && !fresh {
-            self.counts.stale_samples += 1;
+        let steps_before = self.counts.model_steps;
+        let expected = self.last_sample.map_or(0, |s| s.sequence + 1);
+        io.receive_samples(expected, &mut |s| self.on_sample(s, stats, record));
+        if self.end_of_run {
+            return CycleOutcome::EndOfRun;
+        }
+        let stepped = self.counts.model_steps > steps_before;
+        if self.fault.is_none() && self.started && !stepped {
+            self.counts.stale_cycles += 1;
             self.stale_run += 1;
             if self.stale_run > self.trip_after_stale {
                 self.fault = Some(Fault::TooManyStaleSamples);
             }
-        } else if fresh {
+        } else if stepped {
             self.stale_run = 0;
         }
-
-        let (sample_seq, sample_time, z) = match &self.last_sample {
-            Some(s) => (s.sequence, s.publish_time_ns, s.displacement_m),
-            None => (u64::MAX, 0, 0.0),
-        };
-        let mut force = self.stepper.force_n();
-        let mut flags = 0u32;
-        // Skipped deadlines are caught up with steps on the held value, so model time
-        // stays on the loop grid; each is recorded.
-        let n_steps = 1 + stats.missed_deadlines;
-        for i in 0..n_steps {
-            let running = self.fault.is_none() && self.started;
-            if running {
-                let (f, step_flags) = self.stepper.step(z);
-                force = f;
-                flags = step_flags.0 as u32;
-                self.counts.model_steps += 1;
-            }
-            record(EmulatorRecord {
-                step_idx: self.step_idx,
-                cycle_idx: stats.cycle_idx + i,
-                sample_seq,
-                stale: u8::from(!fresh || i > 0),
-                catch_up: u8::from(i < n_steps - 1),
-                state: self.state(),
+        // A setpoint every cycle once started: a new law when the model moved, the same
+        // one otherwise (the controller's proof that the emulator is alive, so a silent
+        // rig is told apart from a silent emulator), the trip as soon as it happens.
+        if self.started {
+            let law = self.stepper.local_law();
+            let (sample_seq, sample_time) = self
+                .last_sample
+                .map_or((u64::MAX, 0), |s| (s.sequence, s.publish_time_ns));
+            io.publish_setpoint(ForceSetpoint {
+                sequence: self.setpoint_seq,
+                sample_sequence: sample_seq,
+                sample_publish_time_ns: sample_time,
+                loop_time_ns: (stats.cycle_idx + stats.missed_deadlines) * self.period_ns,
+                law: LocalLaw {
+                    force_n: law.force_n,
+                    displacement_m: law.displacement_m,
+                    velocity_m_per_s: law.velocity_m_per_s,
+                    stiffness_n_per_m: law.stiffness_n_per_m,
+                    damping_ns_per_m: law.damping_ns_per_m,
+                    force_rate_n_per_s: law.force_rate_n_per_s,
+                    stiffness_slope_n_per_m2: law.stiffness_slope_n_per_m2,
+                },
+                emulator_state: self.state(),
                 fault_code: self.fault.map_or(0, Fault::code),
-                model_flags: flags,
-                wake_late_ns: stats.wake_late_ns,
-                z_used_m: z,
-                force_n: force,
+                model_flags: self.flags,
+                reserved: 0,
             });
-            self.step_idx += 1;
+            self.setpoint_seq += 1;
         }
-        let cycle_idx = stats.cycle_idx + stats.missed_deadlines;
-        io.publish_setpoint(ForceSetpoint {
-            sequence: self.setpoint_seq,
-            sample_sequence: sample_seq,
-            sample_publish_time_ns: sample_time,
-            loop_time_ns: cycle_idx * self.period_ns,
-            force_n: force,
-            emulator_state: self.state(),
-            fault_code: self.fault.map_or(0, Fault::code),
-            model_flags: flags,
-            reserved: 0,
-        });
-        self.setpoint_seq += 1;
         CycleOutcome::Continue
     }
 }

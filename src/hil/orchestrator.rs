@@ -1,64 +1,50 @@
-//! The `hil` orchestrator: clears stale state of crashed runs, starts the three loop
-//! processes under a unique run id, waits until they are ready, starts them on a common
-//! clock, watches heartbeats and exits, stops and reaps them on every exit path
-//! (`ChildGuard`), and removes the run's shared memory.
+//! The `hil` orchestrator: starts the three loop processes under a unique run id, waits
+//! until they are ready, starts them on a common clock, supervises them (exits,
+//! heartbeats, faults), lets the rig end the run (after a fault: once its hold is over),
+//! stops and reaps the others on every exit path (`ChildGuard`), removes the run's shared
+//! memory and merges the records. SIGINT/SIGTERM to `hil` are an operator stop: the rig
+//! holds, unloads and finishes; a second one stops at once.
 //!
-//! Must not: leave a child process or a file of its run behind, on any path.
+//! Must not: leave a child process or a file of its run behind, on any path; stop the rig
+//! before its hold is over (unless the operator insists).
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
-use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
+use std::path::PathBuf;
+use std::process::{Command, ExitStatus, Stdio};
+use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
 use super::fault::fault_code_name;
 use super::process::ProcessError;
-use crate::ipc::messages::{process_id, run_command, Heartbeat, RunControl, HEARTBEAT_READY};
-use crate::ipc::{cleanup_dead_nodes, file_prefix, IpcNode};
+use crate::child::ChildGuard;
+use crate::ipc::cleanup::clear_run;
+use crate::ipc::messages::{
+    process_id, rig_state, run_command, Heartbeat, RunControl, HEARTBEAT_READY,
+};
+use crate::ipc::{In, IpcNode, Out};
 use crate::rt::clock::monotonic_now_ns;
 
 /// Names of the three processes, indexed by `process_id`.
 pub const PROCESS_NAMES: [&str; 3] = ["bench_rig", "emulator", "controller"];
 
-static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+static INTERRUPTS: AtomicU32 = AtomicU32::new(0);
 static INTERRUPT_SIGNAL: AtomicI32 = AtomicI32::new(0);
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
 
 extern "C" fn on_terminate_signal(signal: libc::c_int) {
+    INTERRUPTS.fetch_add(1, Ordering::SeqCst);
     INTERRUPTED.store(true, Ordering::SeqCst);
     INTERRUPT_SIGNAL.store(signal, Ordering::SeqCst);
 }
 
-/// Routes SIGINT and SIGTERM of the orchestrator into a flag its loops check, so the
-/// children are stopped and reaped instead of orphaned.
+/// Routes SIGINT and SIGTERM of the orchestrator into a counter its loops check: the
+/// first is an orderly stop, a second stops at once; the children are always reaped.
 pub fn install_signal_handlers() {
     let handler = on_terminate_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
-    // SAFETY: the handler only stores into atomics (async-signal-safe).
+    // SAFETY: the handler only touches atomics (async-signal-safe).
     unsafe {
         libc::signal(libc::SIGINT, handler);
         libc::signal(libc::SIGTERM, handler);
-    }
-}
-
-/// Kills (SIGKILL) and reaps every child still running when dropped.
-#[derive(Default)]
-pub struct ChildGuard {
-    pub children: Vec<(String, Child)>,
-}
-
-impl ChildGuard {
-    pub fn kill_all(&mut self) {
-        for (_, child) in &mut self.children {
-            if let Ok(None) = child.try_wait() {
-                let _ = child.kill();
-            }
-            let _ = child.wait();
-        }
-    }
-}
-
-impl Drop for ChildGuard {
-    fn drop(&mut self) {
-        self.kill_all();
     }
 }
 
@@ -71,101 +57,6 @@ pub fn new_run_id() -> String {
     )
 }
 
-fn run_id_pid(name: &str) -> Option<(String, u32)> {
-    let rest = name.strip_prefix("fe")?;
-    let (pid, tail) = rest.split_once('x')?;
-    let (counter, _) = tail.split_once('_')?;
-    if pid.is_empty()
-        || counter.is_empty()
-        || !pid.bytes().all(|b| b.is_ascii_digit())
-        || !counter.bytes().all(|b| b.is_ascii_digit())
-    {
-        return None;
-    }
-    Some((format!("fe{pid}x{counter}"), pid.parse().ok()?))
-}
-
-fn process_alive(pid: u32) -> bool {
-    // SAFETY: signal 0 only checks for existence/permission.
-    let rc = unsafe { libc::kill(pid as libc::pid_t, 0) };
-    rc == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM)
-}
-
-/// Where iceoryx2 keeps files: shared memory and its root directory.
-pub fn iceoryx2_dirs() -> [PathBuf; 2] {
-    [PathBuf::from("/dev/shm"), PathBuf::from("/tmp/iceoryx2")]
-}
-
-fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
-    if let Ok(entries) = std::fs::read_dir(dir) {
-        for e in entries.flatten() {
-            let p = e.path();
-            if e.file_type().is_ok_and(|t| t.is_dir()) {
-                walk(&p, out);
-            }
-            out.push(p);
-        }
-    }
-}
-
-/// Files and directories (under the iceoryx2 dirs) whose name starts with `prefix`.
-pub fn files_with_prefix(prefix: &str) -> Vec<PathBuf> {
-    let mut all = Vec::new();
-    for d in iceoryx2_dirs() {
-        walk(&d, &mut all);
-    }
-    all.into_iter()
-        .filter(|p| {
-            p.file_name()
-                .and_then(|n| n.to_str())
-                .is_some_and(|n| n.starts_with(prefix))
-        })
-        .collect()
-}
-
-fn remove_paths(paths: &[PathBuf]) {
-    // Deepest first, so directories are empty when removed.
-    let mut sorted = paths.to_vec();
-    sorted.sort_by_key(|p| std::cmp::Reverse(p.components().count()));
-    for p in sorted {
-        if p.is_dir() {
-            let _ = std::fs::remove_dir_all(&p);
-        } else {
-            let _ = std::fs::remove_file(&p);
-        }
-    }
-}
-
-/// Removes the iceoryx2 state of runs whose orchestrator is dead; returns their ids.
-pub fn clear_stale_runs() -> Vec<String> {
-    let mut all = Vec::new();
-    for d in iceoryx2_dirs() {
-        walk(&d, &mut all);
-    }
-    let mut stale: BTreeMap<String, u32> = BTreeMap::new();
-    for p in &all {
-        if let Some((id, pid)) = p.file_name().and_then(|n| n.to_str()).and_then(run_id_pid) {
-            if !process_alive(pid) {
-                stale.insert(id, pid);
-            }
-        }
-    }
-    for id in stale.keys() {
-        let _ = cleanup_dead_nodes(id);
-        remove_paths(&files_with_prefix(&file_prefix(id)));
-    }
-    stale.into_keys().collect()
-}
-
-/// Clears the run's own state after all its processes were reaped; returns what was
-/// still left after iceoryx2's dead-node cleanup (removed as well).
-pub fn clear_run(run_id: &str) -> Vec<PathBuf> {
-    let _ = cleanup_dead_nodes(run_id);
-    let left = files_with_prefix(&file_prefix(run_id));
-    remove_paths(&left);
-    left
-}
-
 /// What the orchestrator needs to run.
 #[derive(Debug, Clone)]
 pub struct RunPlan {
@@ -175,6 +66,8 @@ pub struct RunPlan {
     pub duration_s: f64,
     pub duration_override_s: Option<f64>,
     pub bin_dir: PathBuf,
+    /// The longest hold the rig may take before it ends the run, s.
+    pub hold_max_s: f64,
 }
 
 /// How the run ended.
@@ -185,6 +78,10 @@ pub struct RunOutcome {
     pub exit_statuses: BTreeMap<String, String>,
     /// Files of the run still present after the children were reaped (then removed).
     pub leftover_files: Vec<PathBuf>,
+    /// Whether the rig ended the run itself (scenario end or the end of a hold).
+    pub rig_finished: bool,
+    /// Whether the operator stopped the run (SIGINT/SIGTERM to `hil`).
+    pub operator_stop: bool,
     pub completed: bool,
 }
 
@@ -212,14 +109,9 @@ fn heartbeat_fault(hb: &Heartbeat) -> Option<String> {
     Some(text)
 }
 
-/// Spawns the three processes and runs the scenario to its end or first fault.
-pub fn run_processes(plan: &RunPlan, progress: bool) -> Result<RunOutcome, ProcessError> {
-    let node = IpcNode::new(&plan.run_id, "hil")?;
-    let heartbeats = node.heartbeat_in()?;
-    let control = node.control_out()?;
-    let mut guard = ChildGuard::default();
-    let mut outcome = RunOutcome::default();
-
+/// Starts the three processes; each dies with SIGTERM when the orchestrator dies, so the
+/// rig holds and the others end with their records flushed.
+fn spawn_loop_processes(plan: &RunPlan) -> Result<Vec<(String, ChildGuard)>, ProcessError> {
     let fastemu = std::env::current_exe()
         .map_err(|e| ProcessError(format!("cannot find own executable: {e}")))?;
     // `bench_rig` next to this executable; if it was not built (`cargo run` builds only
@@ -232,6 +124,7 @@ pub fn run_processes(plan: &RunPlan, progress: bool) -> Result<RunOutcome, Proce
     };
     let exes = [rig_exe, fastemu.clone(), fastemu];
     let subcommands: [Option<&str>; 3] = [rig_sub, Some("emulator"), Some("controller")];
+    let mut children = Vec::new();
     for (i, name) in PROCESS_NAMES.iter().enumerate() {
         let mut cmd = Command::new(&exes[i]);
         if let Some(sub) = subcommands[i] {
@@ -250,12 +143,12 @@ pub fn run_processes(plan: &RunPlan, progress: bool) -> Result<RunOutcome, Proce
             .stdout(Stdio::null())
             .stderr(Stdio::inherit());
         // If the orchestrator itself is killed (SIGKILL cannot be handled), the kernel
-        // kills the children too; the next run then clears the dead run's files.
+        // sends the children SIGTERM: the rig holds, the others flush and end.
         // SAFETY: prctl is async-signal-safe and touches no memory of the parent.
         unsafe {
             use std::os::unix::process::CommandExt;
             cmd.pre_exec(|| {
-                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
                     return Err(std::io::Error::last_os_error());
                 }
                 Ok(())
@@ -264,167 +157,252 @@ pub fn run_processes(plan: &RunPlan, progress: bool) -> Result<RunOutcome, Proce
         let child = cmd.spawn().map_err(|e| {
             ProcessError(format!("cannot start {name} ({}): {e}", exes[i].display()))
         })?;
-        guard.children.push((name.to_string(), child));
+        children.push((name.to_string(), ChildGuard::new(child)));
+    }
+    Ok(children)
+}
+
+/// Supervision state of a run.
+struct Supervisor {
+    children: Vec<(String, ChildGuard)>,
+    outcome: RunOutcome,
+    finished: [bool; 3],
+    last_heartbeat: [Option<Instant>; 3],
+    ready: [bool; 3],
+    started_at: Option<Instant>,
+    first_fault_at: Option<Instant>,
+    stop_sent_at: Option<Instant>,
+    end_sent_at: Option<Instant>,
+    interrupts_seen: u32,
+    sequence: u64,
+}
+
+impl Supervisor {
+    fn push_fault(&mut self, fault: String) {
+        if !self.outcome.faults.contains(&fault) {
+            self.outcome.faults.push(fault);
+        }
+        self.first_fault_at.get_or_insert_with(Instant::now);
     }
 
-    let mut finished = [false; 3];
-    let mut last_heartbeat = [None::<Instant>; 3];
-    let mut ready = [false; 3];
-    let mut first_fault_at: Option<Instant> = None;
-    let mut started_at: Option<Instant> = None;
-    let start_wait = Instant::now();
-    let mut last_progress = Instant::now();
-    let run_timeout = Duration::from_secs_f64(plan.duration_s + 20.0);
-    let mut stop_sent_at: Option<Instant> = None;
+    fn send(
+        &mut self,
+        control: &Out<RunControl>,
+        command: u32,
+        start_time_ns: u64,
+        start_unix_ns: u64,
+    ) {
+        self.sequence += 1;
+        control.publish(RunControl {
+            sequence: self.sequence,
+            start_time_ns,
+            start_unix_ns,
+            command,
+            reserved: 0,
+        });
+    }
 
-    let push_fault = |outcome: &mut RunOutcome, f: String, first: &mut Option<Instant>| {
-        if !outcome.faults.contains(&f) {
-            outcome.faults.push(f);
-        }
-        first.get_or_insert_with(Instant::now);
-    };
-
-    loop {
-        std::thread::sleep(Duration::from_millis(5));
-        if INTERRUPTED.load(Ordering::SeqCst) && stop_sent_at.is_none() {
-            let s = INTERRUPT_SIGNAL.load(Ordering::SeqCst);
-            push_fault(
-                &mut outcome,
-                format!("hil: interrupted by signal {s}"),
-                &mut first_fault_at,
-            );
-        }
-        // Process exits.
-        for (i, (name, child)) in guard.children.iter_mut().enumerate() {
-            if finished[i] {
+    /// Reaps exited children; a death before the end is a fault.
+    fn check_exits(&mut self) {
+        for i in 0..self.children.len() {
+            if self.finished[i] {
                 continue;
             }
+            let (name, child) = &mut self.children[i];
             if let Ok(Some(status)) = child.try_wait() {
-                finished[i] = true;
-                outcome
+                let name = name.clone();
+                let pid = child.id();
+                self.finished[i] = true;
+                self.outcome
                     .exit_statuses
                     .insert(name.clone(), describe_status(&status));
-                if !status.success() && stop_sent_at.is_none() {
-                    let pid = child.id();
-                    push_fault(
-                        &mut outcome,
-                        format!("{name}: process (pid {pid}) {}", describe_status(&status)),
-                        &mut first_fault_at,
-                    );
+                if i == process_id::RIG as usize && status.code().is_some() {
+                    self.outcome.rig_finished = true;
+                }
+                let orderly = status.code().is_some()
+                    && (self.outcome.rig_finished || self.stop_sent_at.is_some());
+                if !status.success() && !orderly {
+                    self.push_fault(format!(
+                        "{name}: process (pid {pid}) {}",
+                        describe_status(&status)
+                    ));
                 }
             }
         }
-        // Heartbeats.
+    }
+
+    fn check_heartbeats(&mut self, heartbeats: &In<Heartbeat>) {
+        let mut faults = Vec::new();
         heartbeats.receive_each(|hb| {
             let i = hb.process as usize;
             if i < 3 {
-                last_heartbeat[i] = Some(Instant::now());
+                self.last_heartbeat[i] = Some(Instant::now());
                 if hb.state == HEARTBEAT_READY {
-                    ready[i] = true;
+                    self.ready[i] = true;
+                }
+                if hb.process == process_id::RIG && hb.state == rig_state::FINISHED {
+                    self.outcome.rig_finished = true;
                 }
                 if let Some(f) = heartbeat_fault(&hb) {
-                    if !outcome.faults.contains(&f) {
-                        outcome.faults.push(f);
-                    }
-                    first_fault_at.get_or_insert_with(Instant::now);
+                    faults.push(f);
                 }
             }
         });
-        let now = Instant::now();
-        if started_at.is_none() {
-            if ready.iter().all(|&r| r) {
-                let t0 = monotonic_now_ns() + 100_000_000;
-                control.publish(RunControl {
-                    sequence: 0,
-                    start_time_ns: t0,
-                    command: run_command::START,
-                    reserved: 0,
-                });
-                started_at = Some(now);
-                if progress {
-                    eprintln!(
-                        "hil: all processes ready, starting ({} s of scenario)",
-                        plan.duration_s
-                    );
-                }
-            } else if now.duration_since(start_wait) > Duration::from_secs(20)
-                && first_fault_at.is_none()
-            {
-                let missing: Vec<&str> = (0..3)
-                    .filter(|&i| !ready[i])
-                    .map(|i| PROCESS_NAMES[i])
-                    .collect();
-                push_fault(
-                    &mut outcome,
-                    format!("hil: not ready within 20 s: {}", missing.join(", ")),
-                    &mut first_fault_at,
-                );
-            }
-        } else if let Some(t) = started_at {
-            // A process that stops sending heartbeats (e.g. SIGSTOP) is a fault too.
-            for i in 0..3 {
-                if !finished[i]
-                    && last_heartbeat[i]
-                        .is_some_and(|h| now.duration_since(h) > Duration::from_millis(1000))
-                    && stop_sent_at.is_none()
-                {
-                    push_fault(
-                        &mut outcome,
-                        format!(
-                            "{}: heartbeat lost (no heartbeat for 1 s)",
-                            PROCESS_NAMES[i]
-                        ),
-                        &mut first_fault_at,
-                    );
-                }
-            }
-            if now.duration_since(t) > run_timeout && first_fault_at.is_none() {
-                push_fault(
-                    &mut outcome,
-                    "hil: run timed out".into(),
-                    &mut first_fault_at,
-                );
-            }
-            if progress && now.duration_since(last_progress) > Duration::from_secs(1) {
-                last_progress = now;
-                eprintln!(
-                    "hil: t = {:.1} s of {:.1} s",
-                    now.duration_since(t).as_secs_f64().min(plan.duration_s),
-                    plan.duration_s
-                );
+        for f in faults {
+            self.push_fault(f);
+        }
+    }
+
+    /// A process that stops sending heartbeats (e.g. SIGSTOP) is a fault too.
+    fn check_silence(&mut self, now: Instant) {
+        let quiet_ok = self.stop_sent_at.is_some() || self.outcome.rig_finished;
+        let silent: Vec<&str> = PROCESS_NAMES
+            .iter()
+            .zip(self.last_heartbeat.iter().zip(&self.finished))
+            .filter(|(_, (last, finished))| {
+                !**finished
+                    && last.is_some_and(|h| now.duration_since(h) > Duration::from_millis(1000))
+            })
+            .map(|(name, _)| *name)
+            .collect();
+        if !quiet_ok {
+            for name in silent {
+                self.push_fault(format!("{name}: heartbeat lost (no heartbeat for 1 s)"));
             }
         }
-        if finished.iter().all(|&f| f) {
-            outcome.completed = first_fault_at.is_none();
+    }
+}
+
+/// Spawns the three processes and runs the scenario until the rig ends it.
+pub fn run_processes(plan: &RunPlan, progress: bool) -> Result<RunOutcome, ProcessError> {
+    let node = IpcNode::new(&plan.run_id, "hil")?;
+    let heartbeats = node.heartbeat_in()?;
+    let control = node.control_out()?;
+    let mut sup = Supervisor {
+        children: spawn_loop_processes(plan)?,
+        outcome: RunOutcome::default(),
+        finished: [false; 3],
+        last_heartbeat: [None; 3],
+        ready: [false; 3],
+        started_at: None,
+        first_fault_at: None,
+        stop_sent_at: None,
+        end_sent_at: None,
+        interrupts_seen: 0,
+        sequence: 0,
+    };
+    let start_wait = Instant::now();
+    let mut last_progress = Instant::now();
+    // The scenario, the longest hold, and margin: past this the run is stopped.
+    let run_timeout = Duration::from_secs_f64(plan.duration_s + plan.hold_max_s + 20.0);
+    loop {
+        std::thread::sleep(Duration::from_millis(5));
+        let now = Instant::now();
+        sup.check_exits();
+        sup.check_heartbeats(&heartbeats);
+        let interrupts = INTERRUPTS.load(Ordering::SeqCst);
+        match sup.started_at {
+            None => {
+                if interrupts > 0 {
+                    sup.outcome.operator_stop = true;
+                    sup.push_fault(format!(
+                        "hil: interrupted by signal {} before the start",
+                        INTERRUPT_SIGNAL.load(Ordering::SeqCst)
+                    ));
+                } else if sup.ready.iter().all(|&r| r) {
+                    let t0 = monotonic_now_ns() + 100_000_000;
+                    let unix_now = std::time::SystemTime::now()
+                        .duration_since(std::time::UNIX_EPOCH)
+                        .map_or(0, |d| d.as_nanos() as u64);
+                    sup.send(&control, run_command::START, t0, unix_now + 100_000_000);
+                    sup.started_at = Some(now);
+                    if progress {
+                        eprintln!(
+                            "hil: all processes ready, starting ({} s of scenario)",
+                            plan.duration_s
+                        );
+                    }
+                } else if now.duration_since(start_wait) > Duration::from_secs(20)
+                    && sup.first_fault_at.is_none()
+                {
+                    let missing: Vec<&str> = (0..3)
+                        .filter(|&i| !sup.ready[i])
+                        .map(|i| PROCESS_NAMES[i])
+                        .collect();
+                    sup.push_fault(format!(
+                        "hil: not ready within 20 s: {}",
+                        missing.join(", ")
+                    ));
+                }
+                if sup.first_fault_at.is_some() && sup.stop_sent_at.is_none() {
+                    sup.send(&control, run_command::STOP, 0, 0);
+                    sup.stop_sent_at = Some(now);
+                }
+            }
+            Some(t) => {
+                sup.check_silence(now);
+                // Operator stop: an orderly end (hold, unload, finish); a second signal
+                // stops at once.
+                if interrupts > sup.interrupts_seen {
+                    sup.interrupts_seen = interrupts;
+                    sup.outcome.operator_stop = true;
+                    if sup.end_sent_at.is_none() {
+                        if progress {
+                            eprintln!("hil: operator stop: the rig holds, unloads and finishes (signal again to stop at once)");
+                        }
+                        sup.send(&control, run_command::END, 0, 0);
+                        sup.end_sent_at = Some(now);
+                    } else if sup.stop_sent_at.is_none() {
+                        sup.send(&control, run_command::STOP, 0, 0);
+                        sup.stop_sent_at = Some(now);
+                    }
+                }
+                if now.duration_since(t) > run_timeout && sup.stop_sent_at.is_none() {
+                    sup.push_fault("hil: run timed out".into());
+                    sup.send(&control, run_command::STOP, 0, 0);
+                    sup.stop_sent_at = Some(now);
+                }
+                // The rig ended the run (or died): the others stop now.
+                let rig_done = sup.outcome.rig_finished || sup.finished[process_id::RIG as usize];
+                if rig_done && sup.stop_sent_at.is_none() {
+                    sup.send(&control, run_command::STOP, 0, 0);
+                    sup.stop_sent_at = Some(now);
+                }
+                if progress && now.duration_since(last_progress) > Duration::from_secs(1) {
+                    last_progress = now;
+                    eprintln!(
+                        "hil: t = {:.1} s of {:.1} s{}",
+                        now.duration_since(t).as_secs_f64(),
+                        plan.duration_s,
+                        if sup.first_fault_at.is_some() {
+                            " (fault: holding)"
+                        } else {
+                            ""
+                        }
+                    );
+                }
+            }
+        }
+        if sup.finished.iter().all(|&f| f) {
             break;
         }
-        // After the first fault, give the survivors 300 ms to report their safe states,
-        // then ask them to stop, and kill whoever has not exited 2 s later.
-        if let Some(f) = first_fault_at {
-            if stop_sent_at.is_none() && now.duration_since(f) > Duration::from_millis(300) {
-                control.publish(RunControl {
-                    sequence: 1,
-                    start_time_ns: 0,
-                    command: run_command::STOP,
-                    reserved: 0,
-                });
-                stop_sent_at = Some(now);
-            }
-            if stop_sent_at.is_some_and(|s| now.duration_since(s) > Duration::from_secs(2)) {
-                break;
-            }
+        if sup
+            .stop_sent_at
+            .is_some_and(|s| now.duration_since(s) > Duration::from_secs(3))
+        {
+            break;
         }
     }
-    guard.kill_all();
-    for (name, child) in &mut guard.children {
-        if let Ok(Some(status)) = child.try_wait() {
+    sup.outcome.completed = sup.first_fault_at.is_none() && sup.outcome.rig_finished;
+    let mut outcome = sup.outcome;
+    for (name, mut child) in sup.children.drain(..) {
+        if let Ok(None) = child.try_wait() {
             outcome
                 .exit_statuses
-                .entry(name.clone())
-                .or_insert_with(|| describe_status(&status));
+                .insert(name.clone(), "killed by hil (did not stop)".into());
         }
+        drop(child);
     }
-    drop(guard);
     drop(heartbeats);
     drop(control);
     drop(node);
@@ -432,8 +410,6 @@ pub fn run_processes(plan: &RunPlan, progress: bool) -> Result<RunOutcome, Proce
     Ok(outcome)
 }
 
-/// Machine-wide lock serialising `hil` runs: two real-time loops sharing the CPUs would
-/// spoil each other's timing (and their reports). Released when dropped.
 pub struct MachineLock {
     _file: std::fs::File,
 }

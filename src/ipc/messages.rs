@@ -1,11 +1,16 @@
-//! Fixed-size `#[repr(C)]` messages carried on the loop's publish-subscribe services.
+//! Fixed-size `#[repr(C)]` messages carried on the loop's publish-subscribe services: the
+//! rig ABI (`ABI_VERSION`). A rig that fastemu did not start publishes `DisplacementSample`
+//! and consumes `ActuatorCommand` with exactly these layouts (`include/fastemu_rig.h`).
 //!
-//! Times are `CLOCK_MONOTONIC` nanoseconds (the same base in every process), so a
-//! timestamp set by the rig can be compared with the controller's clock for end-to-end
-//! latency. Every message carries the sequence numbers it answers, so records from the
-//! three processes can be joined.
+//! Times are `CLOCK_MONOTONIC` nanoseconds (the same base in every process on one
+//! machine), so a timestamp set by the rig can be compared with the controller's clock for
+//! end-to-end latency. Every message carries the sequence numbers it answers, so records
+//! from the processes can be joined. Must not: hold pointers, `Vec` or `String` (zero-copy).
 
 use iceoryx2::prelude::ZeroCopySend;
+
+/// Version of the message layouts and their meaning; bumped on any change.
+pub const ABI_VERSION: u32 = 1;
 
 /// Status of a displacement sample (`DisplacementSample::status`).
 pub mod sample_status {
@@ -35,30 +40,102 @@ pub struct DisplacementSample {
     pub reserved: u32,
 }
 
+/// The element's local linear law at an operating point: near the point, the force the
+/// element exerts at displacement `z`, velocity `v` and time `t` is
+///
+/// `force_n + (stiffness_n_per_m + stiffness_slope_n_per_m2 (z - z0) / 2) (z - z0)
+///  + damping_ns_per_m (v - velocity_m_per_s) + force_rate_n_per_s (t - t0)`,
+/// `z0 = displacement_m`,
+///
+/// where `t0` is the instant of the displacement sample the law answers (the command's
+/// `sample_sequence`, on the actuator side's own sample clock). `force_rate_n_per_s` is the
+/// force's drift at fixed displacement (the element's relaxation).
+///
+/// The actuator side evaluates it at its own rate with its own displacement measurement
+/// until the next command arrives, so a short stall of the loop leaves the specimen on the
+/// element's linearised law, never on a constant force.
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[type_name("fastemu::LocalLaw")]
+#[repr(C)]
+pub struct LocalLaw {
+    /// Element force at the operating point, N, positive in compression.
+    pub force_n: f64,
+    /// Displacement the force belongs to, m.
+    pub displacement_m: f64,
+    /// Velocity the force belongs to, m/s.
+    pub velocity_m_per_s: f64,
+    /// Tangent stiffness at the operating point, N/m (>= 0).
+    pub stiffness_n_per_m: f64,
+    /// Tangent damping at the operating point, N s/m (>= 0).
+    pub damping_ns_per_m: f64,
+    /// Force drift at fixed displacement (relaxation), N/s.
+    pub force_rate_n_per_s: f64,
+    /// Change of the stiffness with displacement (the element's nonlinearity), N/m^2.
+    pub stiffness_slope_n_per_m2: f64,
+}
+
+impl LocalLaw {
+    /// A plain force: no dependence on displacement, velocity or time.
+    pub fn constant(force_n: f64) -> LocalLaw {
+        LocalLaw {
+            force_n,
+            ..LocalLaw::default()
+        }
+    }
+
+    /// The law's force at displacement `z_m`, velocity `v_m_per_s`, `since_s` after the
+    /// instant of its sample, N.
+    #[inline]
+    pub fn evaluate(&self, z_m: f64, v_m_per_s: f64, since_s: f64) -> f64 {
+        let dz = z_m - self.displacement_m;
+        self.force_n
+            + (self.stiffness_n_per_m + 0.5 * self.stiffness_slope_n_per_m2 * dz) * dz
+            + self.damping_ns_per_m * (v_m_per_s - self.velocity_m_per_s)
+            + self.force_rate_n_per_s * since_s
+    }
+
+    /// Whether every field is finite and the stiffness and damping are not negative.
+    pub fn is_valid(&self) -> bool {
+        [
+            self.force_n,
+            self.displacement_m,
+            self.velocity_m_per_s,
+            self.stiffness_n_per_m,
+            self.damping_ns_per_m,
+            self.force_rate_n_per_s,
+            self.stiffness_slope_n_per_m2,
+        ]
+        .iter()
+        .all(|v| v.is_finite())
+            && self.stiffness_n_per_m >= 0.0
+            && self.damping_ns_per_m >= 0.0
+    }
+}
+
 /// Emulator state carried in `ForceSetpoint::emulator_state` and heartbeats.
 pub mod emulator_state {
     pub const STARTING: u32 = 0;
     pub const RUNNING: u32 = 1;
-    /// Safe state: force setpoint held at the configured safe force; see the fault code.
+    /// A fault is latched (see the fault code): the model no longer steps.
     pub const TRIPPED: u32 = 2;
     pub const STOPPED: u32 = 3;
 }
 
-/// Emulator -> controller: the element force answering one displacement sample.
+/// Emulator -> controller: the element's force and local law answering one sample.
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("fastemu::ForceSetpoint")]
 #[repr(C)]
 pub struct ForceSetpoint {
     /// Setpoint counter (one per emulator cycle), from 0.
     pub sequence: u64,
-    /// Sequence of the displacement sample the force was computed from.
+    /// Sequence of the newest displacement sample the model has stepped through.
     pub sample_sequence: u64,
     /// `publish_time_ns` of that sample (carried through for end-to-end latency).
     pub sample_publish_time_ns: u64,
     /// Emulator loop time of this cycle's deadline, ns since the loop started.
     pub loop_time_ns: u64,
-    /// Element reaction force, N, positive in compression.
-    pub force_n: f64,
+    /// The element's law at that sample (`law.force_n` is the element force).
+    pub law: LocalLaw,
     /// One of `emulator_state`.
     pub emulator_state: u32,
     /// Fault code when tripped (see the runtime's fault enum), else 0.
@@ -68,25 +145,49 @@ pub struct ForceSetpoint {
     pub reserved: u32,
 }
 
-/// Controller -> rig: the actuator force command.
+/// What the actuator side does with an `ActuatorCommand` (`ActuatorCommand::mode`).
+pub mod command_mode {
+    /// Force control: apply `law.force_n` (zero-order hold until the next command).
+    pub const FORCE: u32 = 0;
+    /// Force control on the local law: every actuator period, apply `law.evaluate(z, v,
+    /// t - t0)` with the actuator side's own displacement `z` and velocity `v` (extrapolated
+    /// over its own output delay) and the time since the instant of sample
+    /// `sample_sequence`, clamped to `force_min_n..=force_max_n`.
+    pub const LAW: u32 = 1;
+    /// Interlock: leave force control and hold the specimen's position where it is now
+    /// (position control); hold the load programme too.
+    pub const HOLD: u32 = 2;
+    /// As `HOLD`, then, once the specimen is at rest, unload the load programme to zero
+    /// while holding position.
+    pub const HOLD_UNLOAD: u32 = 3;
+}
+
+/// Controller -> rig: the actuator command.
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("fastemu::ActuatorCommand")]
 #[repr(C)]
 pub struct ActuatorCommand {
+    /// Command counter, from 0 (keep-alive repeats get new numbers).
     pub sequence: u64,
-    /// Setpoint this command answers.
+    /// Setpoint this command answers (a repeat keeps it: the law is the same).
     pub setpoint_sequence: u64,
     /// Displacement sample at the origin of the chain.
     pub sample_sequence: u64,
     /// `publish_time_ns` of that sample.
     pub sample_publish_time_ns: u64,
-    /// Commanded actuator force, N, positive pushing the specimen into compression
-    /// reaction (the rig applies `-force` to the specimen as the element's reaction).
-    pub force_n: f64,
-    /// Controller state (running, ramping to safe, faulted).
+    /// The element's law (`FORCE`: only `law.force_n` is used). Positive force pushes
+    /// back against compression: the actuator applies the element's reaction.
+    pub law: LocalLaw,
+    /// Limits of the force the actuator side may apply in `FORCE`/`LAW` modes, N.
+    pub force_min_n: f64,
+    pub force_max_n: f64,
+    /// One of `command_mode`.
+    pub mode: u32,
+    /// One of `controller_state`.
     pub controller_state: u32,
     /// Latched fault code, 0 if none.
     pub fault_code: u32,
+    pub reserved: u32,
 }
 
 /// Any process -> orchestrator: liveness and state.
@@ -94,12 +195,13 @@ pub struct ActuatorCommand {
 #[type_name("fastemu::Heartbeat")]
 #[repr(C)]
 pub struct Heartbeat {
-    /// Which process (0 rig, 1 emulator, 2 controller).
+    /// Which process (`process_id`).
     pub process: u32,
     pub state: u32,
     pub sequence: u64,
     pub time_ns: u64,
     pub fault_code: u32,
+    /// Controller: the emulator's fault code when it reported itself tripped.
     pub reserved: u32,
 }
 
@@ -107,20 +209,25 @@ pub struct Heartbeat {
 pub mod controller_state {
     pub const STARTING: u32 = 0;
     pub const RUNNING: u32 = 1;
-    /// A fault is latched: the command ramps to the safe force.
-    pub const RAMPING_TO_SAFE: u32 = 2;
-    /// A fault is latched and the command has reached the safe force.
-    pub const SAFE: u32 = 3;
+    /// A fault is latched and its action is "indicate": commands go on.
+    pub const FAULT_INDICATED: u32 = 2;
+    /// A fault is latched: the commands ask the actuator side to hold the specimen.
+    pub const HOLDING: u32 = 3;
     pub const STOPPED: u32 = 4;
 }
 
-/// Rig state carried in heartbeats.
+/// Rig state carried in heartbeats and the rig's records.
 pub mod rig_state {
     pub const STARTING: u32 = 0;
+    /// Force control (law or force commands).
     pub const RUNNING: u32 = 1;
-    /// The rig's own interlock ramped the actuator to the safe force (commands stale).
-    pub const INTERLOCK: u32 = 2;
+    /// Interlock: position hold where it tripped, load programme held.
+    pub const HOLD: u32 = 2;
     pub const FINISHED: u32 = 3;
+    /// Position hold while the load programme unloads to zero.
+    pub const UNLOAD: u32 = 4;
+    /// Operator hold: position hold, programme paused; resumes on request.
+    pub const OPERATOR_HOLD: u32 = 5;
 }
 
 /// Process ids carried in `Heartbeat::process`.
@@ -137,11 +244,17 @@ pub const HEARTBEAT_READY: u32 = 100;
 pub mod run_command {
     /// Start the loops: first deadline at `RunControl::start_time_ns`.
     pub const START: u32 = 1;
-    /// Stop now: flush records and exit.
+    /// Stop now: flush records and exit (sent once the rig has finished).
     pub const STOP: u32 = 2;
+    /// Operator hold: the rig holds position and pauses the load programme.
+    pub const HOLD: u32 = 3;
+    /// Operator resume: back to force control, the programme continues without a jump.
+    pub const RESUME: u32 = 4;
+    /// Orderly end: hold, unload the programme to zero, then finish the run.
+    pub const END: u32 = 5;
 }
 
-/// Orchestrator -> every process: start time and stop requests.
+/// Orchestrator -> every process: start time and run control.
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("fastemu::RunControl")]
 #[repr(C)]
@@ -150,6 +263,8 @@ pub struct RunControl {
     /// `CLOCK_MONOTONIC` time of the rig's first sample, ns; every loop's grid is
     /// `start_time_ns + k * period` (plus its own phase offset).
     pub start_time_ns: u64,
+    /// Wall-clock time (Unix epoch, ns) at `start_time_ns`: the records' time base.
+    pub start_unix_ns: u64,
     /// One of `run_command`.
     pub command: u32,
     pub reserved: u32,

@@ -4,6 +4,7 @@
 //! their layouts cannot drift. Must not: allocate or log on the per-sample publish/receive
 //! path.
 
+pub mod cleanup;
 pub mod messages;
 pub mod transport;
 

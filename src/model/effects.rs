@@ -35,6 +35,7 @@
 //! allocated once in `new`). Identical inputs give bit-identical outputs.
 
 use super::element::{phi_functions, ForceStepper, StepFlags};
+use super::equiv::equivalent;
 use super::file::{render_model_toml, ModelFileError, ModelSpec};
 use super::params::ElementModel;
 
@@ -490,6 +491,7 @@ impl SpringpotBank {
 
 #[derive(Debug, Clone, Copy)]
 struct BankState {
+    rates_per_s: [f64; SPRINGPOT_BRANCHES],
     decay: [f64; SPRINGPOT_BRANCHES],
     /// `k_j phi1(r_j dt)`: branch force per unit displacement increment over a step.
     gain: [f64; SPRINGPOT_BRANCHES],
@@ -680,6 +682,18 @@ fn normal_quantile(p: f64) -> f64 {
     }
 }
 
+/// A model's local linear law (see `ModelStepper::local_law`).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct LocalLinearLaw {
+    pub force_n: f64,
+    pub displacement_m: f64,
+    pub velocity_m_per_s: f64,
+    pub stiffness_n_per_m: f64,
+    pub damping_ns_per_m: f64,
+    pub force_rate_n_per_s: f64,
+    pub stiffness_slope_n_per_m2: f64,
+}
+
 /// Force-from-displacement stepper of an augmented model at a fixed step `dt`.
 #[derive(Debug, Clone)]
 pub struct ModelStepper {
@@ -699,6 +713,12 @@ pub struct ModelStepper {
     delay_line: Vec<f64>,
     delay_head: usize,
     force_n: f64,
+    /// Circular frequency of the local law (`with_law_frequency`), rad/s.
+    law_omega_rad_per_s: f64,
+    /// Stiffness and damping the linear effects (friction sliders sticking, springpot
+    /// bank) add to the local law at that frequency.
+    law_effects_n_per_m: f64,
+    law_effects_ns_per_m: f64,
 }
 
 impl ModelStepper {
@@ -726,6 +746,7 @@ impl ModelStepper {
                         coefficient_ns_alpha_per_m * modulus_factor * time_factor.powf(alpha);
                     let springpot = SpringpotBank::new(coefficient, alpha);
                     let mut state = BankState {
+                        rates_per_s: springpot.rates_per_s,
                         decay: [0.0; SPRINGPOT_BRANCHES],
                         gain: [0.0; SPRINGPOT_BRANCHES],
                         force_n: [0.0; SPRINGPOT_BRANCHES],
@@ -766,6 +787,9 @@ impl ModelStepper {
             delay_line: vec![0.0; capacity],
             delay_head: 0,
             force_n: 0.0,
+            law_omega_rad_per_s: 0.0,
+            law_effects_n_per_m: 0.0,
+            law_effects_ns_per_m: 0.0,
         };
         let f0 = stepper.undelayed_force_n(z0_m);
         stepper.delay_line.fill(f0);
@@ -775,6 +799,86 @@ impl ModelStepper {
 
     pub fn dt_s(&self) -> f64 {
         self.dt_s
+    }
+
+    /// Sets the frequency at which `local_law` matches the model's small-signal modulus
+    /// (for a HIL rig: the specimen's resonance on the element, where a stall's transient
+    /// rings). Computes the linear effects' share once; allocation-free afterwards.
+    pub fn with_law_frequency(mut self, model: &AugmentedModel, frequency_hz: f64) -> ModelStepper {
+        let omega = 2.0 * std::f64::consts::PI * frequency_hz;
+        let (modulus_factor, time_factor) = model.temperature_factors();
+        let (mut k, mut c) = (0.0, 0.0);
+        for effect in &model.effects {
+            match *effect {
+                // Small oscillations about any state reverse every slider: all stick.
+                Effect::AmplitudeFriction {
+                    stiffness_n_per_m, ..
+                } => k += stiffness_n_per_m,
+                Effect::FractionalDamping {
+                    coefficient_ns_alpha_per_m,
+                    alpha,
+                } => {
+                    let coefficient =
+                        coefficient_ns_alpha_per_m * modulus_factor * time_factor.powf(alpha);
+                    let (re, im) = SpringpotBank::new(coefficient, alpha).modulus(omega);
+                    k += re;
+                    if omega > 0.0 {
+                        c += im / omega;
+                    }
+                }
+                _ => {}
+            }
+        }
+        self.law_omega_rad_per_s = omega;
+        self.law_effects_n_per_m = k;
+        self.law_effects_ns_per_m = c;
+        self
+    }
+
+    /// The model's local linear law at its current state: force, displacement, velocity,
+    /// stiffness, damping and force rate such that the force near that state is
+    /// `F + k (z - z0) + c (v - v0) + r (t - t0)`. Stiffness and damping are the
+    /// small-signal equivalent of the element at its current preload (paper Eq. 2 for the
+    /// consistent form) at the law frequency, plus the linear effects' share; the rate is
+    /// the relaxation of the Maxwell branches at fixed displacement. No allocation, no clock.
+    #[inline]
+    pub fn local_law(&self) -> LocalLinearLaw {
+        let eq = equivalent(
+            self.base.model(),
+            self.base.operating_force_n(),
+            self.law_omega_rad_per_s,
+        );
+        let [z0, z1, _, _] = self.z_history_m;
+        let mut rate = self.base.relaxation_rate_n_per_s();
+        if let Some(bank) = &self.bank {
+            for j in 0..SPRINGPOT_BRANCHES {
+                rate -= bank.rates_per_s[j] * bank.force_n[j];
+            }
+        }
+        let c = if eq.c_eq_ns_per_m.is_finite() {
+            eq.c_eq_ns_per_m
+        } else {
+            0.0
+        };
+        // d k_eq / dz = k_eq chi dFs/dz / (P0 + Fs) in the consistent form (g(Fs) scales
+        // every coefficient and dFs/dz = k1 g); other forms: left at 0 (linear law).
+        let slope = match self.base.model() {
+            ElementModel::Consistent(p) => {
+                let fs = self.base.operating_force_n();
+                let g = p.preload_factor(fs);
+                eq.k_eq_n_per_m * p.chi * p.k1_0_n_per_m * g / (p.p0_n + fs).max(p.p0_n * 1e-6)
+            }
+            _ => 0.0,
+        };
+        LocalLinearLaw {
+            stiffness_slope_n_per_m2: slope,
+            force_n: self.force_n,
+            displacement_m: z0,
+            velocity_m_per_s: (z0 - z1) / self.dt_s,
+            stiffness_n_per_m: eq.k_eq_n_per_m + self.law_effects_n_per_m,
+            damping_ns_per_m: c + self.law_effects_ns_per_m,
+            force_rate_n_per_s: rate,
+        }
     }
 
     /// Puts the model at rest in static equilibrium at `z_m` (relaxed branches, unloaded

@@ -141,6 +141,33 @@ impl ForceStepper {
         self.z_prev_m
     }
 
+    /// Drift of the force at fixed displacement now (the Maxwell branch relaxing), N/s:
+    /// `-a Fm` in the consistent form, `a (k1 z - F)` in the paper form (Eq. 3 with
+    /// `dz/dt = 0`), 0 for Kelvin-Voigt.
+    #[inline]
+    pub fn relaxation_rate_n_per_s(&self) -> f64 {
+        match (&self.model, self.state) {
+            (ElementModel::Consistent(p), State::Consistent { fm_n, .. }) => {
+                -p.relaxation_rate_per_s() * fm_n
+            }
+            (ElementModel::Paper(p), State::Paper { force_n }) => {
+                let (g, _) = paper_factor(p.chi, p.p0_n, force_n);
+                p.relaxation_rate_per_s() * (p.k1_0_n_per_m * g * self.z_prev_m - force_n)
+            }
+            _ => 0.0,
+        }
+    }
+
+    /// The force that sets the element's preload factor now: the elastic force `Fs` in the
+    /// consistent form, the total force in the paper form, the force for Kelvin-Voigt, N.
+    #[inline]
+    pub fn operating_force_n(&self) -> f64 {
+        match self.state {
+            State::Consistent { fs_n, .. } => fs_n,
+            State::Paper { force_n } | State::KelvinVoigt { force_n } => force_n,
+        }
+    }
+
     /// Advances one step to displacement `z_m`; returns the force at the step's end.
     #[inline]
     pub fn step(&mut self, z_m: f64) -> (f64, StepFlags) {

@@ -6,7 +6,6 @@
 //! command held constant over each loop period (zero-order hold). Integrated with RK4
 //! over `n_sub` sub-steps per period. Pure: no I/O, no clock, no allocation per step.
 
-use super::load::LoadProgramme;
 use crate::hil::config::RigConfig;
 
 const DELAY_LINE_LEN: usize = 4096;
@@ -77,26 +76,32 @@ impl RigPhysics {
         (v, dv, dfa)
     }
 
-    /// Advances one loop period from `t0_s` with command `command_n` issued at `t0_s`.
-    pub fn advance(&mut self, t0_s: f64, dt_s: f64, command_n: f64, load: &LoadProgramme) {
+    /// Advances one loop period from `t0_s` with command `command_n` issued at `t0_s`; the
+    /// external force goes linearly from `f_ext_start_n` to `f_ext_end_n` over the period
+    /// (as in the offline reference, so both see the same load).
+    pub fn advance(
+        &mut self,
+        t0_s: f64,
+        dt_s: f64,
+        command_n: f64,
+        f_ext_start_n: f64,
+        f_ext_end_n: f64,
+    ) {
         self.delay_head = (self.delay_head + 1) % DELAY_LINE_LEN;
         self.delay_line[self.delay_head] = (t0_s, command_n);
         self.delay_len = (self.delay_len + 1).min(DELAY_LINE_LEN);
         let n = self.n_sub;
         let h = dt_s / n as f64;
+        let load = |tau: f64| f_ext_start_n + (f_ext_end_n - f_ext_start_n) * (tau / dt_s);
         let (mut x, mut v, mut fa) = (self.x_m, self.v_m_per_s, self.actuator_force_n);
         for i in 0..n {
-            let ta = t0_s + i as f64 * h;
+            let ta = i as f64 * h;
             // The delayed command is taken at the sub-step's midpoint, constant over it.
-            let u = self.delayed_command_n(ta + 0.5 * h);
+            let u = self.delayed_command_n(t0_s + ta + 0.5 * h);
             if self.lag_s == 0.0 {
                 fa = u;
             }
-            let (fe0, fe_mid, fe1) = (
-                load.force_n(ta),
-                load.force_n(ta + 0.5 * h),
-                load.force_n(ta + h),
-            );
+            let (fe0, fe_mid, fe1) = (load(ta), load(ta + 0.5 * h), load(ta + h));
             let k1 = self.derivative(x, v, fa, u, fe0);
             let k2 = self.derivative(
                 x + 0.5 * h * k1.0,
@@ -122,8 +127,7 @@ impl RigPhysics {
         self.actuator_force_n = fa.clamp(-self.force_max_n, self.force_max_n);
     }
 
-    /// Mechanical energy of the specimen relative to rest at `x_ref_m` under stiffness
-    /// `k_n_per_m` (for the stability report), J.
+    /// Kinetic energy of the specimen, J.
     pub fn kinetic_energy_j(&self) -> f64 {
         0.5 * self.mass_kg * self.v_m_per_s * self.v_m_per_s
     }

@@ -1,34 +1,67 @@
 //! Offline reference for fidelity: the same specimen mass, rig damping, element model and
 //! external load, simulated without any loop (the element force acts on the mass exactly,
-//! as an ideal actuator would apply it). Allocates its output; offline only.
+//! as an ideal actuator would apply it). Stepped one period at a time, so a report of any
+//! length holds no whole-run array. Offline only.
 
 use super::load::LoadProgramme;
 use crate::hil::config::HilConfig;
 use crate::model::oscillator::{Oscillator, StartCondition};
 
-/// Reference displacement at `t_k = k dt`, k = 0..n_steps, m.
-pub fn reference_displacement_m(cfg: &HilConfig, n_steps: usize) -> Vec<f64> {
-    let dt = cfg.loop_.dt_s();
-    let load = LoadProgramme::new(&cfg.scenario, cfg.model.length_m);
-    let max_force = (0..=n_steps)
-        .map(|k| load.force_n(k as f64 * dt).abs())
-        .fold(0.0, f64::max);
-    let mut osc = Oscillator::new(
-        cfg.model.element,
-        cfg.rig.specimen_mass_kg,
-        dt,
-        2.0 * max_force,
-    )
-    .with_extra_damping(cfg.rig.damping_ns_per_m);
-    osc.start(StartCondition::Static, load.force_n(0.0));
-    let mut out = Vec::with_capacity(n_steps + 1);
-    out.push(osc.displacement_m());
-    for k in 0..n_steps {
-        osc.step(
-            load.force_n(k as f64 * dt),
-            load.force_n((k + 1) as f64 * dt),
-        );
-        out.push(osc.displacement_m());
+/// The reference displacement at `t_k = k dt`, k = 0, 1, 2, ... (`Iterator`).
+pub struct ReferenceStepper {
+    osc: Oscillator,
+    load: LoadProgramme,
+    dt_s: f64,
+    k: u64,
+}
+
+impl ReferenceStepper {
+    /// Sub-stepping is sized for the largest force the programme reaches within
+    /// `horizon_s` (scanned at the loop rate).
+    pub fn new(cfg: &HilConfig, horizon_s: f64) -> ReferenceStepper {
+        let dt_s = cfg.loop_.dt_s();
+        let load = LoadProgramme::new(&cfg.scenario, cfg.model.length_m);
+        let n = (horizon_s / dt_s).ceil() as u64;
+        let max_force = (0..=n)
+            .map(|k| load.force_n(k as f64 * dt_s).abs())
+            .fold(0.0, f64::max);
+        let mut osc = Oscillator::new(
+            cfg.model.element,
+            cfg.rig.specimen_mass_kg,
+            dt_s,
+            2.0 * max_force,
+        )
+        .with_extra_damping(cfg.rig.damping_ns_per_m);
+        osc.start(StartCondition::Static, load.force_n(0.0));
+        ReferenceStepper {
+            osc,
+            load,
+            dt_s,
+            k: 0,
+        }
     }
-    out
+}
+
+impl Iterator for ReferenceStepper {
+    type Item = f64;
+
+    /// The displacement at the next grid instant (the first call gives `t = 0`).
+    fn next(&mut self) -> Option<f64> {
+        if self.k > 0 {
+            let k = self.k - 1;
+            self.osc.step(
+                self.load.force_n(k as f64 * self.dt_s),
+                self.load.force_n((k + 1) as f64 * self.dt_s),
+            );
+        }
+        self.k += 1;
+        Some(self.osc.displacement_m())
+    }
+}
+
+/// Reference displacement at `t_k = k dt`, k = 0..=n_steps, m (short runs and tests).
+pub fn reference_displacement_m(cfg: &HilConfig, n_steps: usize) -> Vec<f64> {
+    ReferenceStepper::new(cfg, n_steps as f64 * cfg.loop_.dt_s())
+        .take(n_steps + 1)
+        .collect()
 }

@@ -1,29 +1,38 @@
 //! The runtime's loop logic without processes: the emulator iteration with a mock
-//! transport and clock (stale handling, trips, determinism, zero allocation), the
-//! controller's compensation and watchdog, and the rig physics step.
+//! transport and clock (per-sample steps, interpolation of missing samples, trips,
+//! determinism, zero allocation), the controller (law and force modes, limits,
+//! keep-alive, watchdog and the hold commands per configured action), the local law
+//! against the model it linearises, and the rig core's allocation-free period.
 
 use crate::alloc_counter::count_allocations;
-use fastemu::hil::config::{default_hil_config, HilConfig};
+use fastemu::hil::config::{default_hil_config, CommandMode, HilConfig};
 use fastemu::hil::controller::ControllerCore;
 use fastemu::hil::emulator::{EmulatorCore, EmulatorIo, EmulatorRecord};
-use fastemu::hil::fault::Fault;
-use fastemu::hil::records::RecordSink;
-use fastemu::ipc::messages::{emulator_state, sample_status, DisplacementSample, ForceSetpoint};
-use fastemu::rig::{LoadProgramme, RigPhysics};
+use fastemu::hil::fault::{Fault, FaultAction, FaultActions};
+use fastemu::ipc::messages::{
+    command_mode, controller_state, emulator_state, sample_status, DisplacementSample,
+    ForceSetpoint, LocalLaw,
+};
+use fastemu::model::effects::{ModelStepper, StepperMode};
+use fastemu::records::RecorderBuilder;
+use fastemu::rig::core::RigCore;
 use fastemu::rt::{MockClock, Scheduler, WaitMode};
 
-/// A mock transport: samples scripted per cycle (None = nothing new arrives).
+/// A mock transport: the samples that arrive in each cycle (empty = nothing new).
 struct MockIo {
-    script: Vec<Option<DisplacementSample>>,
+    script: Vec<Vec<DisplacementSample>>,
     cycle: usize,
     published: Vec<ForceSetpoint>,
 }
 
 impl EmulatorIo for MockIo {
-    fn receive_newest_sample(&mut self, _expected_seq: u64) -> Option<DisplacementSample> {
-        let s = self.script.get(self.cycle).copied().flatten();
+    fn receive_samples(&mut self, _expected: u64, on_sample: &mut dyn FnMut(DisplacementSample)) {
+        if let Some(batch) = self.script.get(self.cycle) {
+            for s in batch {
+                on_sample(*s);
+            }
+        }
         self.cycle += 1;
-        s
     }
     fn publish_setpoint(&mut self, setpoint: ForceSetpoint) {
         if self.published.len() < self.published.capacity() {
@@ -51,54 +60,78 @@ fn z_of(k: u64) -> f64 {
     4e-4 + 5e-5 * (k as f64 * 0.01).sin()
 }
 
-/// Runs the emulator core over `script` on a mock clock; returns records and the core.
+/// One sample per cycle for `n` cycles, except the listed cycles (nothing arrives).
+fn one_per_cycle(n: u64, missing: impl Fn(u64) -> bool) -> Vec<Vec<DisplacementSample>> {
+    (0..n)
+        .map(|k| {
+            if missing(k) {
+                vec![]
+            } else {
+                vec![sample(k, z_of(k))]
+            }
+        })
+        .collect()
+}
+
+/// Runs the emulator core over `script` on a mock clock; returns records, setpoints, core.
 fn run_core(
     cfg: &HilConfig,
-    script: Vec<Option<DisplacementSample>>,
-) -> (Vec<EmulatorRecord>, EmulatorCore) {
+    script: Vec<Vec<DisplacementSample>>,
+) -> (Vec<EmulatorRecord>, Vec<ForceSetpoint>, EmulatorCore) {
     let clock = MockClock::new(0);
     let mut scheduler = Scheduler::new(cfg.loop_.period_ns, 1_000, WaitMode::Sleep);
-    let mut core = EmulatorCore::new(&cfg.augmented, &cfg.loop_, cfg.emulator);
+    let mut core = EmulatorCore::new(
+        &cfg.augmented,
+        &cfg.loop_,
+        cfg.emulator,
+        cfg.stall_limit_periods(),
+    );
     let n = script.len();
     let mut io = MockIo {
         script,
         cycle: 0,
         published: Vec::with_capacity(n),
     };
-    let mut records = Vec::with_capacity(n + 8);
+    let mut records = Vec::with_capacity(4 * n + 8);
     for _ in 0..n {
         let stats = scheduler.wait_next(&clock);
         core.cycle(&stats, &mut io, &mut |r| records.push(r));
     }
-    (records, core)
+    (records, io.published, core)
 }
 
 #[test]
 fn emulator_cycle_does_not_allocate() {
     let cfg = config();
     let n = 2000u64;
-    let script: Vec<_> = (0..n)
-        .map(|k| {
-            if k % 7 == 3 {
-                None
-            } else {
-                Some(sample(k, z_of(k)))
-            }
-        })
-        .collect();
+    // Every 7th cycle nothing arrives; the next brings two samples.
+    let mut script: Vec<Vec<DisplacementSample>> = Vec::new();
+    for k in 0..n {
+        match k % 7 {
+            3 => script.push(vec![]),
+            4 => script.push(vec![sample(k - 1, z_of(k - 1)), sample(k, z_of(k))]),
+            _ => script.push(vec![sample(k, z_of(k))]),
+        }
+    }
     let clock = MockClock::new(0);
     let mut scheduler = Scheduler::new(cfg.loop_.period_ns, 1_000, WaitMode::Sleep);
-    let mut core = EmulatorCore::new(&cfg.augmented, &cfg.loop_, cfg.emulator);
+    let mut core = EmulatorCore::new(
+        &cfg.augmented,
+        &cfg.loop_,
+        cfg.emulator,
+        cfg.stall_limit_periods(),
+    );
     let mut io = MockIo {
         script,
         cycle: 0,
         published: Vec::with_capacity(n as usize),
     };
-    let dir = std::env::temp_dir().join(format!("fastemu-alloc-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let sink: RecordSink<EmulatorRecord> =
-        RecordSink::create(&dir.join("emulator.csv"), 4096).unwrap();
-    // Every few cycles the mock clock wakes late by more than a period (catch-up steps).
+    let dir = crate::common::TempDir::new("alloc");
+    let mut builder = RecorderBuilder::new(&dir.path, "emulator");
+    let sink = builder.sink::<EmulatorRecord>(8192);
+    let recorder = builder.spawn().unwrap();
+    recorder.start(0, "{}".into());
+    // Every few cycles the mock clock wakes late by more than a period.
     let allocations = count_allocations(|| {
         for k in 0..n {
             clock.set_wake_lateness_ns(if k % 500 == 499 {
@@ -111,90 +144,103 @@ fn emulator_cycle_does_not_allocate() {
             core.cycle(&stats, &mut io, &mut |r| sink.push(r));
         }
     });
-    let counts = sink.finish().unwrap();
-    std::fs::remove_dir_all(&dir).ok();
+    let result = recorder.finish();
     assert_eq!(allocations, 0, "the emulator loop body allocated");
-    assert!(core.counts.model_steps >= n);
-    assert_eq!(counts.dropped, 0);
+    assert_eq!(core.counts.model_steps, n, "one model step per sample");
+    assert_eq!(result.counts[0].1.dropped, 0);
+    assert_eq!(result.counts[0].1.written, n);
 }
 
 #[test]
-fn controller_and_rig_steps_do_not_allocate() {
+fn controller_and_rig_cores_do_not_allocate() {
     let cfg = config();
-    let mut core = ControllerCore::new(cfg.controller, cfg.loop_.period_ns);
-    core.set_start_time_ns(0);
-    let load = LoadProgramme::new(&cfg.scenario, cfg.model.length_m);
-    let mut rig = RigPhysics::new(&cfg.rig, 4e-4, 20_000.0);
-    let dt = cfg.loop_.dt_s();
+    let period_ns = cfg.loop_.period_ns;
+    let mut controller =
+        ControllerCore::new(cfg.controller, cfg.safety.actions, period_ns, 25_000_000);
+    controller.set_start_time_ns(0);
+    let mut rig = RigCore::new(&cfg);
     let mut sent = 0;
+    let mut records = Vec::with_capacity(4000);
     let allocations = count_allocations(|| {
         for k in 0..2000u64 {
+            let sample = rig.measure(k * period_ns).expect("no injection");
             let sp = ForceSetpoint {
                 sequence: k,
-                sample_sequence: k,
-                sample_publish_time_ns: k * cfg.loop_.period_ns,
-                loop_time_ns: k * cfg.loop_.period_ns,
-                force_n: 20_000.0 + 1000.0 * (k as f64 * 0.05).sin(),
+                sample_sequence: sample.sequence,
+                sample_publish_time_ns: k * period_ns,
+                loop_time_ns: k * period_ns,
+                law: LocalLaw {
+                    force_n: 20_000.0 + 1000.0 * (k as f64 * 0.05).sin(),
+                    displacement_m: sample.displacement_m,
+                    stiffness_n_per_m: 5.7e7,
+                    damping_ns_per_m: 75.0,
+                    ..LocalLaw::default()
+                },
                 emulator_state: emulator_state::RUNNING,
                 fault_code: 0,
                 model_flags: 0,
                 reserved: 0,
             };
-            let now = k * cfg.loop_.period_ns + 50_000;
-            if let Some((cmd, _)) = core.on_setpoint(&sp, now) {
-                rig.advance(k as f64 * dt, dt, cmd.force_n, &load);
+            let now = k * period_ns + 50_000;
+            if let Some((cmd, _)) = controller.on_setpoint(&sp, now) {
+                rig.on_command(&cmd);
                 sent += 1;
             }
-            core.on_tick(now + 1_000);
+            controller.on_tick(now + 1_000);
+            records.push(rig.finish_period(0, false));
+            rig.drain_events(|_| {});
         }
     });
-    assert_eq!(allocations, 0, "controller or rig step allocated");
+    assert_eq!(allocations, 0, "controller or rig period allocated");
     assert_eq!(sent, 2000);
+    assert_eq!(records.len(), 2000);
 }
 
 #[test]
-fn missing_samples_are_held_counted_and_trip_after_the_limit() {
+fn missing_samples_are_interpolated_and_a_silent_rig_trips_the_emulator() {
     let mut cfg = config();
     cfg.loop_.trip_after_stale_samples = 5;
-    // 10 good samples, 3 missing (held), 5 good, then 6 missing: trips on the 6th.
-    let mut script: Vec<_> = (0..10).map(|k| Some(sample(k, z_of(k)))).collect();
-    script.extend([None, None, None]);
-    script.extend((13..18).map(|k| Some(sample(k, z_of(k)))));
-    script.extend(std::iter::repeat_n(None, 8));
-    let (records, core) = run_core(&cfg, script);
+    // Samples 10-12 never arrive (the transport lost them); 13-17 arrive; then silence.
+    let mut script = one_per_cycle(18, |k| (10..13).contains(&k));
+    script.extend(std::iter::repeat_n(vec![], 8));
+    let (records, published, core) = run_core(&cfg, script);
+    assert_eq!(core.counts.missing_samples, 3);
     assert_eq!(
-        records[10].z_used_m, records[9].z_used_m,
-        "a missing sample holds the last one"
+        core.counts.model_steps, 18,
+        "one step per sample, missing ones included"
     );
-    assert_eq!(records[10].stale, 1);
-    assert_eq!(core.counts.skipped_samples, 3);
+    // The three missing samples are stepped on the straight line from 9 to 13.
+    for j in 1..=3u64 {
+        let r = &records[(9 + j) as usize];
+        let want = z_of(9) + j as f64 / 4.0 * (z_of(13) - z_of(9));
+        assert_eq!(r.sample_seq, 9 + j);
+        assert_eq!(r.interpolated, 1);
+        assert!(
+            (r.z_used_m - want).abs() < 1e-15,
+            "{} vs {want}",
+            r.z_used_m
+        );
+    }
     assert_eq!(core.fault(), Some(Fault::TooManyStaleSamples));
-    let first_tripped = records
-        .iter()
-        .position(|r| r.state == emulator_state::TRIPPED)
-        .unwrap();
-    assert_eq!(
-        first_tripped,
-        18 + 5,
-        "trips on the 6th consecutive missing sample"
-    );
+    assert!(published
+        .last()
+        .is_some_and(|s| s.emulator_state == emulator_state::TRIPPED
+            && s.fault_code == Fault::TooManyStaleSamples.code()));
 }
 
 fn check_trip(bad: DisplacementSample, expected: Fault) {
     let cfg = config();
-    let mut script: Vec<_> = (0..20).map(|k| Some(sample(k, z_of(k)))).collect();
-    script.push(Some(bad));
-    script.extend((21..30).map(|k| Some(sample(k, z_of(k)))));
-    let (records, core) = run_core(&cfg, script);
+    let mut script = one_per_cycle(20, |_| false);
+    script.push(vec![bad]);
+    script.extend((21..30).map(|k| vec![sample(k, z_of(k))]));
+    let (records, published, core) = run_core(&cfg, script);
     assert_eq!(core.fault(), Some(expected));
-    assert_eq!(records[19].state, emulator_state::RUNNING);
-    assert!(records[20..]
+    assert_eq!(records.len(), 20, "no model step after the trip");
+    let after: Vec<_> = published.iter().skip(20).collect();
+    assert!(!after.is_empty());
+    assert!(after
         .iter()
-        .all(|r| r.state == emulator_state::TRIPPED && r.fault_code == expected.code()));
-    // The safe state holds the last good force.
-    assert!(records[20..]
-        .iter()
-        .all(|r| r.force_n.to_bits() == records[19].force_n.to_bits()));
+        .all(|s| s.emulator_state == emulator_state::TRIPPED && s.fault_code == expected.code()));
 }
 
 #[test]
@@ -210,98 +256,268 @@ fn invalid_samples_trip_with_their_reason() {
 }
 
 #[test]
+fn a_wake_up_later_than_the_stall_limit_trips_the_emulator() {
+    let cfg = config();
+    let limit = cfg.stall_limit_periods();
+    let clock = MockClock::new(0);
+    let mut scheduler = Scheduler::new(cfg.loop_.period_ns, 1_000, WaitMode::Sleep);
+    let mut core = EmulatorCore::new(&cfg.augmented, &cfg.loop_, cfg.emulator, limit);
+    let mut io = MockIo {
+        script: one_per_cycle(400, |_| false),
+        cycle: 0,
+        published: Vec::with_capacity(400),
+    };
+    for k in 0..10 {
+        clock.set_wake_lateness_ns(if k == 5 {
+            limit * cfg.loop_.period_ns
+        } else {
+            0
+        });
+        let stats = scheduler.wait_next(&clock);
+        core.cycle(&stats, &mut io, &mut |_| {});
+    }
+    assert_eq!(
+        core.fault(),
+        None,
+        "a stall of exactly the limit is ridden through"
+    );
+    clock.set_wake_lateness_ns((limit + 2) * cfg.loop_.period_ns);
+    let stats = scheduler.wait_next(&clock);
+    core.cycle(&stats, &mut io, &mut |_| {});
+    assert_eq!(core.fault(), Some(Fault::EmulatorStalled));
+}
+
+#[test]
 fn same_inputs_give_identical_records() {
     let cfg = config();
-    let script = || -> Vec<_> {
-        (0..3000)
-            .map(|k| {
-                if k % 11 == 5 {
-                    None
-                } else {
-                    Some(sample(k, z_of(k)))
-                }
-            })
-            .collect()
-    };
-    let (a, _) = run_core(&cfg, script());
-    let (b, _) = run_core(&cfg, script());
+    let script = || one_per_cycle(3000, |k| k % 11 == 5);
+    let (a, pa, _) = run_core(&cfg, script());
+    let (b, pb, _) = run_core(&cfg, script());
     assert_eq!(a.len(), b.len());
     assert!(a
         .iter()
         .zip(&b)
         .all(|(x, y)| x.force_n.to_bits() == y.force_n.to_bits() && x == y));
+    assert_eq!(pa, pb);
+}
+
+/// The law sent with a setpoint predicts the model: a small displacement increment from
+/// the operating point is the tangent stiffness times it (up to the curvature term), and
+/// the force's drift at fixed displacement is the law's rate.
+#[test]
+fn the_local_law_linearises_the_model_at_its_operating_point() {
+    let cfg = config();
+    let dt = cfg.loop_.dt_s();
+    let mut stepper = ModelStepper::new(&cfg.augmented, StepperMode::Emulation, dt, 4e-4)
+        .with_law_frequency(&cfg.augmented, cfg.emulator.law_frequency_hz);
+    // A ramp builds up the Maxwell branch, so the rate is not zero.
+    for k in 0..400 {
+        stepper.step(4e-4 + 1e-6 * k as f64);
+    }
+    let law = stepper.local_law();
+    assert!(
+        law.stiffness_n_per_m > 5e7 && law.force_rate_n_per_s < -1e3,
+        "{law:?}"
+    );
+    // Held displacement: the drift over 4 steps is the rate to first order; the
+    // relaxation's second-order term is (4 dt / tau) / 2 = 0.7 % of the drift (tau = 73 ms).
+    let mut held = stepper.clone();
+    let mut f = 0.0;
+    for _ in 0..4 {
+        f = held.step(law.displacement_m).0;
+    }
+    let predicted = law.force_n + law.force_rate_n_per_s * 4.0 * dt;
+    assert!(
+        (f - predicted).abs() < 1e-2 * (f - law.force_n).abs(),
+        "{f} vs {predicted}"
+    );
+    // A fast increment of 2 um: the tangent stiffness plus the curvature.
+    let dz = 2e-6;
+    let mut jumped = stepper.clone();
+    let f1 = jumped.step(law.displacement_m + dz).0;
+    let as_law = LocalLaw {
+        force_n: law.force_n,
+        displacement_m: law.displacement_m,
+        velocity_m_per_s: 0.0,
+        stiffness_n_per_m: law.stiffness_n_per_m,
+        damping_ns_per_m: 0.0,
+        force_rate_n_per_s: law.force_rate_n_per_s,
+        stiffness_slope_n_per_m2: law.stiffness_slope_n_per_m2,
+    };
+    let predicted = as_law.evaluate(law.displacement_m + dz, 0.0, dt);
+    let increment = f1 - law.force_n;
+    assert!(
+        (f1 - predicted).abs() < 2e-3 * increment.abs(),
+        "{f1} vs {predicted} (increment {increment})"
+    );
+}
+
+fn setpoint(k: u64, period_ns: u64, law: LocalLaw) -> ForceSetpoint {
+    ForceSetpoint {
+        sequence: k,
+        sample_sequence: k,
+        sample_publish_time_ns: k * period_ns,
+        loop_time_ns: k * period_ns,
+        law,
+        emulator_state: emulator_state::RUNNING,
+        fault_code: 0,
+        model_flags: 0,
+        reserved: 0,
+    }
 }
 
 #[test]
-fn compensation_predicts_a_smooth_force_at_the_target_time() {
-    let cfg = config();
+fn force_mode_compensation_predicts_a_smooth_force_at_the_target_time() {
+    let mut cfg = config();
+    cfg.controller.command_mode = CommandMode::Force;
     let period_ns = cfg.loop_.period_ns;
-    let mut core = ControllerCore::new(cfg.controller, period_ns);
+    let mut core = ControllerCore::new(cfg.controller, cfg.safety.actions, period_ns, 25_000_000);
     core.set_start_time_ns(0);
     let omega = 2.0 * std::f64::consts::PI * 20.0;
     let force = |t: f64| 20_000.0 + 1_000.0 * (omega * t).sin();
     let mut last = None;
     for k in 0..50u64 {
-        let sp = ForceSetpoint {
-            sequence: k,
-            sample_sequence: k,
-            sample_publish_time_ns: k * period_ns,
-            loop_time_ns: k * period_ns,
-            force_n: force(k as f64 * period_ns as f64 * 1e-9),
-            emulator_state: emulator_state::RUNNING,
-            fault_code: 0,
-            model_flags: 0,
-            reserved: 0,
-        };
+        let sp = setpoint(
+            k,
+            period_ns,
+            LocalLaw::constant(force(k as f64 * period_ns as f64 * 1e-9)),
+        );
         let now = k * period_ns + 60_000;
         last = core
             .on_setpoint(&sp, now)
             .map(|(c, _)| (c, core.target_time_s(now)));
     }
     let (cmd, t_target) = last.unwrap();
+    assert_eq!(cmd.mode, command_mode::FORCE);
     assert!(
-        (cmd.force_n - force(t_target)).abs() < 1.0,
+        (cmd.law.force_n - force(t_target)).abs() < 1.0,
         "{} vs {}",
-        cmd.force_n,
+        cmd.law.force_n,
         force(t_target)
     );
 }
 
 #[test]
-fn watchdog_latches_stale_setpoints_and_ramps_to_the_safe_force() {
+fn law_mode_forwards_the_law_with_the_limits_the_actuator_side_applies() {
     let cfg = config();
     let period_ns = cfg.loop_.period_ns;
-    let mut core = ControllerCore::new(cfg.controller, period_ns);
+    let mut core = ControllerCore::new(cfg.controller, cfg.safety.actions, period_ns, 25_000_000);
     core.set_start_time_ns(0);
+    let law = LocalLaw {
+        force_n: 21_000.0,
+        displacement_m: 4.1e-4,
+        velocity_m_per_s: 1e-3,
+        stiffness_n_per_m: 5.7e7,
+        damping_ns_per_m: 75.0,
+        force_rate_n_per_s: -3e4,
+        stiffness_slope_n_per_m2: 8e9,
+    };
+    let (cmd, rec) = core
+        .on_setpoint(&setpoint(0, period_ns, law), 60_000)
+        .unwrap();
+    assert_eq!(cmd.mode, command_mode::LAW);
+    assert_eq!(cmd.law, law);
+    assert_eq!(
+        (cmd.force_min_n, cmd.force_max_n),
+        (cfg.controller.force_min_n, cfg.controller.force_max_n)
+    );
+    assert_eq!(rec.law_stiffness_n_per_m, law.stiffness_n_per_m);
+    // Beyond the force limit: saturated, stiffness kept.
+    let big = LocalLaw {
+        force_n: 1e6,
+        ..law
+    };
+    let (cmd, rec) = core
+        .on_setpoint(&setpoint(1, period_ns, big), period_ns + 60_000)
+        .unwrap();
+    assert!(cmd.law.force_n <= cfg.controller.force_max_n);
+    assert_eq!(cmd.law.stiffness_n_per_m, law.stiffness_n_per_m);
+    assert_eq!(rec.limited, 1);
+}
+
+/// Feeds `n` setpoints, then silence; returns the commands of the silence.
+fn silence_after_setpoints(
+    actions: FaultActions,
+) -> (
+    ControllerCore,
+    Vec<(u64, fastemu::ipc::messages::ActuatorCommand)>,
+) {
+    let cfg = config();
+    let period_ns = cfg.loop_.period_ns;
+    let stall_limit_ns = 25_000_000;
+    let mut core = ControllerCore::new(cfg.controller, actions, period_ns, stall_limit_ns);
+    core.set_start_time_ns(0);
+    let law = LocalLaw {
+        force_n: 30_000.0,
+        stiffness_n_per_m: 5.7e7,
+        ..LocalLaw::default()
+    };
     for k in 0..10u64 {
-        let sp = ForceSetpoint {
-            sequence: k,
-            sample_sequence: k,
-            sample_publish_time_ns: k * period_ns,
-            loop_time_ns: k * period_ns,
-            force_n: 30_000.0,
-            emulator_state: emulator_state::RUNNING,
-            fault_code: 0,
-            model_flags: 0,
-            reserved: 0,
-        };
-        core.on_setpoint(&sp, k * period_ns + 50_000);
+        core.on_setpoint(&setpoint(k, period_ns, law), k * period_ns + 50_000);
     }
-    let mut t = 10 * period_ns;
-    let mut last_force = 30_000.0;
-    for _ in 0..2000 {
-        t += period_ns;
-        if let Some((cmd, _)) = core.on_tick(t) {
-            assert!(
-                (cmd.force_n - last_force).abs()
-                    <= cfg.controller.safe_ramp_n_per_s * period_ns as f64 * 1e-9 + 1e-6
-            );
-            last_force = cmd.force_n;
+    let mut out = Vec::new();
+    for k in 10..400u64 {
+        let now = k * period_ns + 50_000;
+        if let Some((cmd, _)) = core.on_tick(now) {
+            out.push((k, cmd));
         }
     }
+    (core, out)
+}
+
+#[test]
+fn the_controller_keeps_the_law_alive_then_asks_for_a_hold_at_the_stall_limit() {
+    let cfg = config();
+    let period_ns = cfg.loop_.period_ns;
+    let keepalive = cfg.controller.keepalive_ns / period_ns;
+    let limit_periods = 25_000_000 / period_ns;
+    let (core, out) = silence_after_setpoints(FaultActions::HOLD_ALL);
     assert_eq!(core.fault(), Some(Fault::SetpointsStale));
-    assert_eq!(last_force, cfg.controller.safe_force_n);
-    assert_eq!(core.state(), fastemu::ipc::messages::controller_state::SAFE);
+    assert_eq!(core.state(), controller_state::HOLDING);
+    let trip = core.trip().unwrap();
+    assert!(
+        (limit_periods..=limit_periods + 2).contains(&trip.detection_latency_periods),
+        "{trip:?}"
+    );
+    let first_hold = out
+        .iter()
+        .position(|(_, c)| c.mode == command_mode::HOLD)
+        .unwrap();
+    // Before the limit: keep-alive repeats of the last law, one per keep-alive period.
+    let repeats = &out[..first_hold];
+    assert!(repeats
+        .iter()
+        .all(|(_, c)| c.mode == command_mode::LAW && c.setpoint_sequence == 9));
+    assert!(repeats.windows(2).all(|w| w[1].0 - w[0].0 == keepalive));
+    // The hold goes out in the period of the detection, then once per keep-alive.
+    let (k_hold, hold) = out[first_hold];
+    assert_eq!(k_hold, 9 + limit_periods + 1);
+    assert_eq!(hold.fault_code, Fault::SetpointsStale.code());
+    assert!(out[first_hold..]
+        .iter()
+        .all(|(_, c)| c.mode == command_mode::HOLD));
+}
+
+#[test]
+fn the_configured_action_decides_the_command_after_a_fault() {
+    let indicate = FaultActions {
+        emulator: FaultAction::Indicate,
+        ..FaultActions::HOLD_ALL
+    };
+    let (core, out) = silence_after_setpoints(indicate);
+    assert_eq!(core.fault(), Some(Fault::SetpointsStale));
+    assert_eq!(core.state(), controller_state::FAULT_INDICATED);
+    assert!(
+        out.iter().all(|(_, c)| c.mode == command_mode::LAW),
+        "indicate only: the law goes on"
+    );
+    assert!(out.last().unwrap().1.fault_code == Fault::SetpointsStale.code());
+    let unload = FaultActions {
+        emulator: FaultAction::HoldUnload,
+        ..FaultActions::HOLD_ALL
+    };
+    let (_, out) = silence_after_setpoints(unload);
+    assert_eq!(out.last().unwrap().1.mode, command_mode::HOLD_UNLOAD);
 }
 
 /// The emulator steps the model's effects, not just the element: with an
@@ -322,12 +538,16 @@ fn emulator_runs_model_effects_without_allocating() {
         ..cfg.augmented.clone()
     };
     let n = 1500u64;
-    let script: Vec<_> = (0..n).map(|k| Some(sample(k, z_of(k)))).collect();
     let clock = MockClock::new(0);
     let mut scheduler = Scheduler::new(cfg.loop_.period_ns, 1_000, WaitMode::Sleep);
-    let mut core = EmulatorCore::new(&cfg.augmented, &cfg.loop_, cfg.emulator);
+    let mut core = EmulatorCore::new(
+        &cfg.augmented,
+        &cfg.loop_,
+        cfg.emulator,
+        cfg.stall_limit_periods(),
+    );
     let mut io = MockIo {
-        script,
+        script: one_per_cycle(n, |_| false),
         cycle: 0,
         published: Vec::with_capacity(n as usize),
     };
@@ -343,11 +563,7 @@ fn emulator_runs_model_effects_without_allocating() {
         "the emulator loop body allocated with effects on"
     );
     let mut base = ForceStepper::new(cfg.augmented.element, cfg.loop_.dt_s(), z_of(0));
-    let mut compared = 0;
-    for r in records
-        .iter()
-        .filter(|r| r.state == emulator_state::RUNNING && r.sample_seq > 0)
-    {
+    for r in &records {
         let (base_force, _) = base.step(r.z_used_m);
         let expected = base_force + friction_stiffness_n_per_m * (r.z_used_m - z_of(0));
         assert!(
@@ -357,7 +573,8 @@ fn emulator_runs_model_effects_without_allocating() {
             r.force_n,
             expected
         );
-        compared += 1;
+        // The law carries the friction spring's stiffness (sliders stick for small steps).
+        assert!(r.law_stiffness_n_per_m > friction_stiffness_n_per_m);
     }
-    assert!(compared as u64 > n - 10, "compared only {compared} steps");
+    assert_eq!(records.len() as u64, n);
 }

@@ -1,33 +1,51 @@
-//! Process tests of `fastemu hil`: the closed loop with all three processes, replay of
-//! its record, SIGKILL of each process in turn, SIGSTOP of the emulator, and NaN /
-//! out-of-range samples injected by the rig. Assertions are on behaviour (exit codes,
-//! named faults, counts, fidelity bound, nothing left behind), never on timings.
+//! Process tests of `fastemu hil`: the closed loop with all three processes (clean run,
+//! replay and export of its records), real signals (SIGKILL and SIGSTOP of each process
+//! at the first axle, SIGKILL of `hil` itself, an operator's SIGINT) and faults injected
+//! from the configuration. Assertions are on behaviour read from the records: the named
+//! fault, the hold and where the specimen stayed, its rest, the exit code, and nothing
+//! left behind. Never on timings, and no retries: a stall beyond the ride-through limit
+//! is a fault and fails the test that did not expect one.
 //!
 //! The runs are serialised (a mutex): they use SCHED_FIFO loops, and parallel runs on a
 //! small machine would starve one another.
 
-use std::io::Read;
+use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use fastemu::hil::config::DEFAULT_CONFIG_TOML;
-use fastemu::hil::orchestrator::files_with_prefix;
+use fastemu::hil::emulator::EmulatorRecord;
+use fastemu::ipc::cleanup::files_with_prefix;
 use fastemu::ipc::file_prefix;
+use fastemu::ipc::messages::rig_state;
+use fastemu::records::event::event_kind;
+use fastemu::records::{EventRecord, RecordSet};
+use fastemu::rig::core::RigRecord;
 
 static SERIAL: Mutex<()> = Mutex::new(());
 
 const FASTEMU: &str = env!("CARGO_BIN_EXE_fastemu");
+/// The tests' scenario puts the first axle here (the default: 2.0 s) to keep runs short.
+const AXLE_S: f64 = 1.0;
 
-/// Kills and reaps the `hil` child on every exit path of a test.
-struct HilGuard(Option<Child>);
+/// A running `hil`: killed (SIGTERM, then SIGKILL) and reaped on every exit path.
+struct Hil {
+    child: Option<Child>,
+    /// Receives once, when `hil` printed that the loops start.
+    started: mpsc::Receiver<Instant>,
+    stderr: std::sync::Arc<Mutex<String>>,
+}
 
-impl Drop for HilGuard {
+impl Drop for Hil {
     fn drop(&mut self) {
-        if let Some(child) = &mut self.0 {
+        if let Some(child) = &mut self.child {
             if let Ok(None) = child.try_wait() {
-                // SIGTERM first: the orchestrator then reaps its own children.
+                // SIGTERM twice: an orderly stop, then at once; the orchestrator reaps.
+                unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+                std::thread::sleep(Duration::from_millis(50));
                 unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
                 let t = Instant::now();
                 while t.elapsed() < Duration::from_secs(5) {
@@ -50,52 +68,99 @@ fn scratch_dir(name: &str) -> PathBuf {
     dir
 }
 
-fn write_config(dir: &Path, replacements: &[(&str, &str)]) -> PathBuf {
-    let mut text = DEFAULT_CONFIG_TOML.to_string();
+/// The default configuration with the first axle at `AXLE_S`, plus `extra` TOML.
+fn write_config(dir: &Path, replacements: &[(&str, &str)], extra: &str) -> PathBuf {
+    let mut text = DEFAULT_CONFIG_TOML.replace(
+        "train_first_axle_s = 2.0",
+        &format!("train_first_axle_s = {AXLE_S}"),
+    );
     for (from, to) in replacements {
         assert!(text.contains(from), "default config lacks `{from}`");
         text = text.replace(from, to);
     }
+    text.push_str(extra);
     let path = dir.join("config.toml");
     std::fs::write(&path, text).unwrap();
     path
 }
 
-fn spawn_hil(config: Option<&Path>, out: &Path, duration_s: f64) -> HilGuard {
-    let mut cmd = Command::new(FASTEMU);
-    cmd.arg("hil")
+fn spawn_hil(config: &Path, out: &Path, duration_s: f64) -> Hil {
+    let mut child = Command::new(FASTEMU)
+        .arg("hil")
         .arg("--json")
         .arg("--out")
         .arg(out)
         .arg("--duration-s")
-        .arg(duration_s.to_string());
-    if let Some(c) = config {
-        cmd.arg("--config").arg(c);
+        .arg(duration_s.to_string())
+        .arg("--config")
+        .arg(config)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn fastemu hil");
+    let (tx, rx) = mpsc::channel();
+    let stderr = std::sync::Arc::new(Mutex::new(String::new()));
+    let sink = stderr.clone();
+    let pipe = child.stderr.take().unwrap();
+    std::thread::spawn(move || {
+        for line in BufReader::new(pipe).lines().map_while(Result::ok) {
+            if line.contains("all processes ready, starting") {
+                // The loops start 100 ms after this line.
+                let _ = tx.send(Instant::now() + Duration::from_millis(100));
+            }
+            if let Ok(mut s) = sink.lock() {
+                s.push_str(&line);
+                s.push('\n');
+            }
+        }
+    });
+    Hil {
+        child: Some(child),
+        started: rx,
+        stderr,
     }
-    cmd.stdout(Stdio::piped()).stderr(Stdio::null());
-    HilGuard(Some(cmd.spawn().expect("spawn fastemu hil")))
 }
 
-/// Waits for `hil` to exit (at most `timeout`); returns (exit code, parsed JSON).
-fn finish(guard: &mut HilGuard, timeout: Duration) -> (i32, serde_json::Value) {
-    let child = guard.0.as_mut().unwrap();
-    let t = Instant::now();
-    let status = loop {
-        if let Some(s) = child.try_wait().unwrap() {
-            break s;
-        }
-        assert!(t.elapsed() < timeout, "hil did not end within {timeout:?}");
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    let mut out = String::new();
-    child
-        .stdout
-        .take()
-        .unwrap()
-        .read_to_string(&mut out)
-        .unwrap();
-    let json = serde_json::from_str(out.trim()).unwrap_or(serde_json::Value::Null);
-    (status.code().unwrap_or(-1), json)
+impl Hil {
+    fn pid(&self) -> u32 {
+        self.child.as_ref().unwrap().id()
+    }
+
+    /// Sleeps until `t_s` of loop time.
+    fn at(&self, t_s: f64) {
+        let start = self
+            .started
+            .recv_timeout(Duration::from_secs(30))
+            .expect("hil did not start its loops");
+        let when = start + Duration::from_secs_f64(t_s);
+        std::thread::sleep(when.saturating_duration_since(Instant::now()));
+    }
+
+    /// Waits for `hil` to exit (at most `timeout`); returns (exit code, parsed JSON).
+    fn finish(&mut self, timeout: Duration) -> (i32, serde_json::Value) {
+        let child = self.child.as_mut().unwrap();
+        let t = Instant::now();
+        let status = loop {
+            if let Some(s) = child.try_wait().unwrap() {
+                break s;
+            }
+            assert!(t.elapsed() < timeout, "hil did not end within {timeout:?}");
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        let mut out = String::new();
+        child
+            .stdout
+            .take()
+            .unwrap()
+            .read_to_string(&mut out)
+            .unwrap();
+        let json = serde_json::from_str(out.trim()).unwrap_or(serde_json::Value::Null);
+        (status.code().unwrap_or(-1), json)
+    }
+
+    fn stderr(&self) -> String {
+        self.stderr.lock().map(|s| s.clone()).unwrap_or_default()
+    }
 }
 
 /// Child processes of `parent` whose command line contains `needle`.
@@ -158,52 +223,82 @@ fn assert_nothing_left(json: &serde_json::Value) {
     );
 }
 
-/// Waits until `hil` has started its child matching `needle` and the loop runs.
-fn wait_for_child(guard: &HilGuard, needle: &str) -> u32 {
-    let hil_pid = guard.0.as_ref().unwrap().id();
+fn the_child(hil: &Hil, needle: &str) -> u32 {
     let t = Instant::now();
     loop {
-        if let Some(&pid) = children_of(hil_pid, needle).first() {
+        if let Some(&pid) = children_of(hil.pid(), needle).first() {
             return pid;
         }
-        assert!(
-            t.elapsed() < Duration::from_secs(20),
-            "no {needle} child appeared"
-        );
+        assert!(t.elapsed() < Duration::from_secs(20), "no {needle} child");
         std::thread::sleep(Duration::from_millis(20));
     }
 }
 
+/// The rig's records, read back from the report directory.
+fn rig_records(dir: &Path) -> Vec<RigRecord> {
+    RecordSet::open(dir)
+        .unwrap()
+        .read_all::<RigRecord>()
+        .unwrap()
+}
+
+/// The physics of a hold after a fault near `fault_s`, from the rig's own records: the
+/// rig held (for at least 0.5 s), the specimen stayed within the pre-fault range
+/// +- 0.5 mm, and it was at rest at the end.
+fn assert_hold_in_records(dir: &Path, fault_s: f64, label: &str) {
+    let rig = rig_records(dir);
+    let pre: Vec<f64> = rig
+        .iter()
+        .filter(|r| r.t_s < fault_s)
+        .map(|r| r.x_m)
+        .collect();
+    assert!(!pre.is_empty(), "{label}: no records before the fault");
+    let lo = pre.iter().fold(f64::INFINITY, |m, x| m.min(*x));
+    let hi = pre.iter().fold(f64::NEG_INFINITY, |m, x| m.max(*x));
+    let after: Vec<&RigRecord> = rig.iter().filter(|r| r.t_s >= fault_s).collect();
+    for r in &after {
+        assert!(
+            r.x_m > lo - 0.5e-3 && r.x_m < hi + 0.5e-3,
+            "{label}: {:.1} um at {:.3} s, outside the pre-fault range [{:.1}, {:.1}] um +- 0.5 mm",
+            r.x_m * 1e6,
+            r.t_s,
+            lo * 1e6,
+            hi * 1e6
+        );
+    }
+    let held = rig.iter().filter(|r| r.state == rig_state::HOLD).count() as f64 / 4096.0;
+    assert!(
+        held >= 0.5,
+        "{label}: the rig's records show {held} s of hold"
+    );
+    let last = &rig[rig.len() - 205..];
+    let range = last.iter().fold(f64::NEG_INFINITY, |m, r| m.max(r.x_m))
+        - last.iter().fold(f64::INFINITY, |m, r| m.min(r.x_m));
+    assert!(
+        range < 5e-6,
+        "{label}: not at rest at the end ({} um)",
+        range * 1e6
+    );
+}
+
 #[test]
-fn closed_loop_is_stable_faithful_replayable_and_leaves_nothing_behind() {
+fn closed_loop_is_clean_faithful_replayable_exportable_and_leaves_nothing_behind() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let dir = scratch_dir("closed-loop");
-    // A run whose only faults are staleness watchdogs firing was stopped by a scheduling
-    // stall of this shared, non-RT machine (the watchdog doing its job), not by the loop:
-    // retry such a run (at most twice). Any other fault fails at once.
-    let mut attempt = 0;
-    let (code, json) = loop {
-        attempt += 1;
-        let mut hil = spawn_hil(None, &dir.join("report"), 2.5);
-        let (code, json) = finish(&mut hil, Duration::from_secs(60));
-        let faults = faults(&json);
-        let only_watchdogs = !faults.is_empty()
-            && faults
-                .iter()
-                .all(|f| f.contains("stale") || f.contains("heartbeat"));
-        if code != 0 && only_watchdogs && attempt < 3 {
-            eprintln!(
-                "closed loop: attempt {attempt} stopped by a watchdog ({faults:?}): retrying"
-            );
-            assert_nothing_left(&json);
-            std::fs::remove_dir_all(dir.join("report")).ok();
-            continue;
-        }
-        break (code, json);
-    };
-    assert_eq!(code, 0, "hil failed: {json}");
+    let report = dir.join("report");
+    let mut hil = spawn_hil(&write_config(&dir, &[], ""), &report, 2.5);
+    let (code, json) = hil.finish(Duration::from_secs(60));
+    assert_eq!(code, 0, "hil failed: {json}\n{}", hil.stderr());
     assert_eq!(json["stable"], true);
+    assert_eq!(json["clean"], true);
     assert!(faults(&json).is_empty());
+    assert!(json["safety"]["faults"].as_array().unwrap().is_empty());
+    for key in ["count", "longest_ms", "largest_transient_um"] {
+        assert!(
+            json["stalls"][key].is_number(),
+            "stalls.{key} missing: {json}"
+        );
+    }
     let steps = json["steps"].as_u64().unwrap();
     assert!(
         steps >= (2.5 * 4096.0 * 0.99) as u64,
@@ -221,201 +316,321 @@ fn closed_loop_is_stable_faithful_replayable_and_leaves_nothing_behind() {
     }
     for f in [
         "summary.json",
-        "rig.csv",
-        "emulator.csv",
-        "controller.csv",
+        "records.mcap",
         "histories.png",
         "hil-vs-reference.png",
         "latency-histogram.png",
     ] {
-        assert!(
-            dir.join("report").join(f).exists(),
-            "{f} missing from the report"
-        );
+        assert!(report.join(f).exists(), "{f} missing from the report");
     }
+    assert!(!report.join("parts").exists(), "parts left after the merge");
     assert_nothing_left(&json);
 
-    // Replay reproduces every force bit for bit ...
-    let record = dir.join("report").join("emulator.csv");
+    // Replay reproduces every force and law bit for bit from records.mcap ...
+    let replay = |record: &Path| {
+        let out = Command::new(FASTEMU)
+            .arg("replay")
+            .arg("--record")
+            .arg(record)
+            .output()
+            .unwrap();
+        (
+            out.status.success(),
+            String::from_utf8_lossy(&out.stdout).to_string(),
+        )
+    };
+    let (ok, text) = replay(&report.join("records.mcap"));
+    assert!(ok && text.contains(" 0 forces differ"), "{text}");
+    // ... from its CSV export too, and notices a single changed force.
+    let csv = dir.join("csv");
     let out = Command::new(FASTEMU)
-        .arg("replay")
-        .arg("--record")
-        .arg(&record)
+        .args(["export", "--format", "csv", "--record"])
+        .arg(report.join("records.mcap"))
+        .arg("--out")
+        .arg(&csv)
         .output()
         .unwrap();
-    let text = String::from_utf8_lossy(&out.stdout).to_string();
     assert!(
-        out.status.success() && text.contains(" 0 forces differ"),
-        "{text}"
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
     );
-    // ... and notices a single changed force.
+    for f in [
+        "rig.csv",
+        "emulator.csv",
+        "controller.csv",
+        "events.csv",
+        "meta.json",
+        "config.toml",
+    ] {
+        assert!(csv.join(f).exists(), "export lacks {f}");
+    }
+    let record = csv.join("emulator.csv");
+    let (ok, text) = replay(&record);
+    assert!(ok && text.contains(" 0 forces differ"), "{text}");
     let original = std::fs::read_to_string(&record).unwrap();
+    let header: Vec<&str> = original.lines().next().unwrap().split(',').collect();
+    let force_col = header.iter().position(|c| *c == "force_n").unwrap();
     let mut lines: Vec<String> = original.lines().map(String::from).collect();
     let row = lines.len() / 2;
     let mut cells: Vec<String> = lines[row].split(',').map(String::from).collect();
-    let last = cells.len() - 1;
-    let f: f64 = cells[last].parse().unwrap();
-    cells[last] = (f + f.abs() * 1e-12 + 1e-9).to_string();
+    let f: f64 = cells[force_col].parse().unwrap();
+    cells[force_col] = (f + f.abs() * 1e-12 + 1e-9).to_string();
     lines[row] = cells.join(",");
     std::fs::write(&record, lines.join("\n") + "\n").unwrap();
-    let out = Command::new(FASTEMU)
-        .arg("replay")
-        .arg("--record")
-        .arg(&record)
-        .output()
-        .unwrap();
-    assert!(!out.status.success(), "replay accepted a changed force");
+    let (ok, _) = replay(&record);
+    assert!(!ok, "replay accepted a changed force");
+    // The export holds the records' rows: one per model step.
+    let rows = std::fs::read_to_string(&record).unwrap().lines().count() - 1;
+    let recorded = RecordSet::open(&report)
+        .unwrap()
+        .read_all::<EmulatorRecord>()
+        .unwrap()
+        .len();
+    assert_eq!(rows, recorded);
     std::fs::remove_dir_all(&dir).ok();
 }
 
-fn kill_test(needle: &str, name: &str, survivor_fault: &str) {
-    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let dir = scratch_dir(&format!("kill-{name}"));
-    // If the run had already stopped on its own before the kill (a scheduling stall of
-    // this shared, non-RT machine tripping a watchdog or the loop), the kill tested
-    // nothing: retry (at most twice). A run that was healthy when killed is judged.
-    let mut attempt = 0;
-    let (code, json) = loop {
-        attempt += 1;
-        let mut hil = spawn_hil(None, &dir.join("report"), 5.0);
-        let pid = wait_for_child(&hil, needle);
-        // Let the loop run a little, then kill the process from outside.
-        std::thread::sleep(Duration::from_millis(1500));
-        unsafe { libc::kill(pid as i32, libc::SIGKILL) };
-        let (code, json) = finish(&mut hil, Duration::from_secs(20));
-        let killed_is_named = faults(&json)
-            .iter()
-            .any(|f| f.starts_with(name) && f.contains("signal 9"));
-        if !killed_is_named && attempt < 3 {
-            eprintln!(
-                "kill {name}: attempt {attempt} had stopped before the kill ({:?}): retrying",
-                faults(&json)
-            );
-            assert_nothing_left(&json);
-            std::fs::remove_dir_all(dir.join("report")).ok();
-            continue;
-        }
-        break (code, json);
-    };
-    assert_ne!(code, 0);
-    let faults = faults(&json);
-    assert!(
-        faults
-            .first()
-            .is_some_and(|f| f.starts_with(name) && f.contains("signal 9")),
-        "first fault should name {name}: {faults:?}"
-    );
-    assert!(
-        faults.iter().any(|f| f.contains(survivor_fault)),
-        "survivors should reach their safe state ({survivor_fault}): {faults:?}"
-    );
-    assert_nothing_left(&json);
-    std::fs::remove_dir_all(&dir).ok();
-}
-
-#[test]
-fn sigkill_of_each_process_ends_the_run_naming_it_and_the_next_run_works() {
-    kill_test(" emulator --config", "emulator", "controller: ");
-    kill_test(
-        " controller --config",
-        "controller",
-        "bench_rig: commands-stale",
-    );
-    kill_test(
-        "bench_rig --config",
-        "bench_rig",
-        "emulator: too-many-stale-samples",
-    );
-    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    // SIGKILL of the orchestrator itself: its children die with it (parent-death
-    // signal) and leave their iceoryx2 files, which the next run clears.
-    let dir = scratch_dir("after-kills");
-    let mut crashed = spawn_hil(None, &dir.join("crashed"), 5.0);
-    let crashed_pid = crashed.0.as_ref().unwrap().id();
-    wait_for_child(&crashed, " controller --config");
-    std::thread::sleep(Duration::from_millis(1000));
-    let crashed_prefix = format!("fe{crashed_pid}x");
-    unsafe { libc::kill(crashed_pid as i32, libc::SIGKILL) };
-    let _ = finish(&mut crashed, Duration::from_secs(10));
-    let t = Instant::now();
-    while !processes_of_run(&crashed_prefix).is_empty() {
-        assert!(
-            t.elapsed() < Duration::from_secs(10),
-            "children outlived the killed orchestrator"
-        );
-        std::thread::sleep(Duration::from_millis(20));
+/// Kills (or stops) `needle`'s process at the first axle; returns (exit code, JSON, dir).
+fn signal_at_axle(
+    name: &str,
+    needle: &str,
+    signal: i32,
+    stop_ms: u64,
+) -> (i32, serde_json::Value, PathBuf) {
+    let dir = scratch_dir(name);
+    let report = dir.join("report");
+    let mut hil = spawn_hil(&write_config(&dir, &[], ""), &report, 3.0);
+    let pid = the_child(&hil, needle);
+    hil.at(AXLE_S);
+    unsafe { libc::kill(pid as i32, signal) };
+    if signal == libc::SIGSTOP {
+        std::thread::sleep(Duration::from_millis(stop_ms));
+        unsafe { libc::kill(pid as i32, libc::SIGCONT) };
     }
-    // The next run works and clears the crashed run's state.
-    let mut hil = spawn_hil(None, &dir.join("report"), 1.0);
-    let (code, json) = finish(&mut hil, Duration::from_secs(60));
-    assert_eq!(code, 0, "run after the kills failed: {json}");
-    assert_nothing_left(&json);
-    assert!(
-        files_with_prefix(&crashed_prefix).is_empty(),
-        "state of the crashed run was not cleared"
+    let (code, json) = hil.finish(Duration::from_secs(60));
+    eprintln!(
+        "{name}: {}",
+        hil.stderr()
+            .lines()
+            .filter(|l| l.starts_with("hil: fault") || l.starts_with("hil: FAULT"))
+            .collect::<Vec<_>>()
+            .join("\n")
     );
-    std::fs::remove_dir_all(&dir).ok();
+    (code, json, report)
 }
 
 #[test]
-fn sigstop_of_the_emulator_trips_the_controller_watchdog() {
+fn sigkill_of_the_emulator_or_controller_at_the_first_axle_ends_in_a_hold() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let dir = scratch_dir("sigstop");
-    let mut hil = spawn_hil(None, &dir.join("report"), 5.0);
-    let pid = wait_for_child(&hil, " emulator --config");
-    std::thread::sleep(Duration::from_millis(1500));
-    unsafe { libc::kill(pid as i32, libc::SIGSTOP) };
-    let (code, json) = finish(&mut hil, Duration::from_secs(20));
-    assert_ne!(code, 0);
-    let faults = faults(&json);
-    assert!(
-        faults
-            .iter()
-            .any(|f| f.starts_with("controller: setpoints-stale")),
-        "{faults:?}"
-    );
-    assert_nothing_left(&json);
-    std::fs::remove_dir_all(&dir).ok();
+    for (name, needle, detector) in [
+        (
+            "emulator",
+            " emulator --config",
+            "controller: setpoints-stale",
+        ),
+        (
+            "controller",
+            " controller --config",
+            "bench_rig: commands-stale",
+        ),
+    ] {
+        let (code, json, report) =
+            signal_at_axle(&format!("kill-{name}"), needle, libc::SIGKILL, 0);
+        assert_eq!(code, 2, "{name}: {json}");
+        let f = faults(&json);
+        assert!(
+            f[0].starts_with(name) && f[0].contains("signal 9"),
+            "{name}: {f:?}"
+        );
+        assert!(f.iter().any(|x| x.starts_with(detector)), "{name}: {f:?}");
+        let safety = &json["safety"]["faults"][0];
+        assert_eq!(safety["action"], "hold", "{name}: {safety}");
+        assert!(
+            safety["time_to_rest_s"].is_number(),
+            "{name}: never at rest: {safety}"
+        );
+        assert!(safety["beyond_prefault_range_m"].as_f64().unwrap() < 0.5e-3);
+        assert_hold_in_records(&report, AXLE_S, name);
+        assert_nothing_left(&json);
+    }
 }
 
-fn injected_fault_test(kind: &str, expected: &str) {
+#[test]
+fn sigkill_of_the_rig_stops_the_run_naming_it() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let dir = scratch_dir(&format!("inject-{kind}"));
-    let config = write_config(
-        &dir,
-        &[
-            ("fault = \"none\"", &format!("fault = \"{kind}\"")),
-            ("fault_at_s = 0.0", "fault_at_s = 0.5"),
-        ],
-    );
-    let mut hil = spawn_hil(Some(&config), &dir.join("report"), 1.5);
-    let (code, json) = finish(&mut hil, Duration::from_secs(60));
-    assert_ne!(code, 0);
-    let faults = faults(&json);
+    let (code, json, report) = signal_at_axle("kill-rig", "bench_rig --config", libc::SIGKILL, 0);
+    assert_eq!(code, 2);
+    let f = faults(&json);
     assert!(
-        faults.iter().any(|f| f == &format!("emulator: {expected}")),
-        "{faults:?}"
+        f[0].starts_with("bench_rig") && f[0].contains("signal 9"),
+        "{f:?}"
     );
-    assert!(
-        faults
-            .iter()
-            .any(|f| f.starts_with("controller: emulator-tripped")),
-        "controller should ramp to safe: {faults:?}"
-    );
-    assert_eq!(
-        json["processes"]["controller"]["final_state"],
-        fastemu::ipc::messages::controller_state::SAFE
-    );
+    // The rig's records survive its own death up to the last flush before the kill.
+    let rig = rig_records(&report);
+    let last = rig.last().unwrap().t_s;
+    assert!(last > AXLE_S - 0.5, "the rig's record ends at {last} s");
     assert_nothing_left(&json);
+}
+
+#[test]
+fn sigstop_of_300_ms_is_a_fault_with_a_hold_and_of_5_ms_is_ridden_through() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    for (name, needle) in [
+        ("emulator", " emulator --config"),
+        ("controller", " controller --config"),
+    ] {
+        let (code, json, report) =
+            signal_at_axle(&format!("stop-{name}"), needle, libc::SIGSTOP, 300);
+        assert_eq!(code, 2, "{name}: {json}");
+        let f = faults(&json);
+        let expected = if name == "emulator" {
+            "controller: setpoints-stale"
+        } else {
+            "bench_rig: commands-stale"
+        };
+        assert!(f.iter().any(|x| x.starts_with(expected)), "{name}: {f:?}");
+        assert_hold_in_records(&report, AXLE_S, &format!("SIGSTOP {name}"));
+        assert_nothing_left(&json);
+    }
+    let (code, json, _) = signal_at_axle("stop-5ms", " emulator --config", libc::SIGSTOP, 5);
+    assert_eq!(code, 0, "a 5 ms stall is ridden through: {json}");
+    let transient = json["largest_transient_um"].as_f64().unwrap();
+    assert!(transient < 20.0, "largest transient {transient} um");
+    assert!(
+        json["stalls"]["count"].as_u64().unwrap() >= 1,
+        "the stall was not seen: {}",
+        json["stalls"]
+    );
+    assert!(json["stalls"]["longest_ms"].as_f64().unwrap() >= 4.0);
+    assert_nothing_left(&json);
+}
+
+#[test]
+fn sigkill_of_hil_leaves_a_holding_rig_that_records_cleans_up_and_exits() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = scratch_dir("kill-hil");
+    let report = dir.join("report");
+    let mut hil = spawn_hil(&write_config(&dir, &[], ""), &report, 5.0);
+    let pid = hil.pid();
+    let rig = the_child(&hil, "bench_rig --config");
+    hil.at(2.0);
+    unsafe { libc::kill(pid as i32, libc::SIGKILL) };
+    let killed_at = 2.0;
+    let _ = hil.finish(Duration::from_secs(10));
+    let prefix = format!("fe{pid}x");
+    // The rig holds, records, clears the run's shared memory and exits; the others end.
+    let t = Instant::now();
+    while !processes_of_run(&prefix).is_empty() {
+        assert!(
+            t.elapsed() < Duration::from_secs(20),
+            "processes outlived the killed orchestrator"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let set = RecordSet::open(&report).unwrap();
+    assert!(
+        set.is_parts(),
+        "no merge without the orchestrator: {:?}",
+        set.files
+    );
+    let last_time = |topic: &str| {
+        let mut last = 0u64;
+        set.visit(|t, log_time, _| {
+            if t == topic {
+                last = last.max(log_time);
+            }
+        })
+        .unwrap();
+        last
+    };
+    let start = set.meta_of("rig").unwrap().start_unix_ns;
+    for topic in ["/rig", "/emulator", "/controller"] {
+        let t = (last_time(topic) - start) as f64 * 1e-9;
+        assert!(
+            t > killed_at - 0.5,
+            "{topic} ends at {t} s, killed at {killed_at} s"
+        );
+    }
+    let events = set.read_all::<EventRecord>().unwrap();
+    assert!(
+        events.iter().any(|e| e.kind == event_kind::FAULT
+            && e.fault_code == fastemu::hil::fault::Fault::OrchestratorLost.code()),
+        "the rig did not record the orchestrator's loss"
+    );
+    assert_hold_in_records(&report, killed_at, "SIGKILL of hil");
+    assert!(
+        files_with_prefix(&prefix).is_empty(),
+        "the rig left the run's shared memory"
+    );
+    let _ = rig;
     std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
-fn nan_sample_trips_the_safe_state() {
-    injected_fault_test("nan", "non-finite-sample");
+fn faults_injected_from_the_configuration_are_named_recorded_and_held() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    for (name, inject, expected) in [
+        (
+            "emulator stall 300 ms",
+            "process = \"emulator\"\nkind = \"stall\"\nduration_ms = 300.0",
+            "controller: setpoints-stale",
+        ),
+        (
+            "controller kill",
+            "process = \"controller\"\nkind = \"kill\"",
+            "bench_rig: commands-stale",
+        ),
+        (
+            "rig NaN sample",
+            "process = \"rig\"\nkind = \"nan\"",
+            "emulator: non-finite-sample",
+        ),
+        (
+            "rig out-of-range sample",
+            "process = \"rig\"\nkind = \"out-of-range\"",
+            "emulator: displacement-out-of-range",
+        ),
+    ] {
+        let dir = scratch_dir(&format!("inject-{}", name.replace(' ', "-")));
+        let extra = format!("\n[[inject]]\n{inject}\nat_s = {AXLE_S}\n");
+        let report = dir.join("report");
+        let mut hil = spawn_hil(&write_config(&dir, &[], &extra), &report, 3.0);
+        let (code, json) = hil.finish(Duration::from_secs(60));
+        assert_eq!(code, 2, "{name}: {json}");
+        let f = faults(&json);
+        assert!(f.iter().any(|x| x.starts_with(expected)), "{name}: {f:?}");
+        let injected = json["safety"]["injected"].as_array().unwrap();
+        assert_eq!(injected.len(), 1, "{name}: {injected:?}");
+        assert_hold_in_records(&report, AXLE_S, name);
+        assert_nothing_left(&json);
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }
 
 #[test]
-fn out_of_range_sample_trips_the_safe_state() {
-    injected_fault_test("out-of-range", "displacement-out-of-range");
+fn an_operator_stop_holds_unloads_and_ends_the_run() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = scratch_dir("operator-stop");
+    let report = dir.join("report");
+    let mut hil = spawn_hil(&write_config(&dir, &[], ""), &report, 20.0);
+    hil.at(0.8);
+    unsafe { libc::kill(hil.pid() as i32, libc::SIGINT) };
+    let (code, json) = hil.finish(Duration::from_secs(60));
+    assert_eq!(code, 0, "an operator stop is not a fault: {json}");
+    assert_eq!(json["operator_stop"], true);
+    let rig = rig_records(&report);
+    assert!(
+        rig.iter().any(|r| r.state == rig_state::UNLOAD),
+        "no unload"
+    );
+    assert_eq!(rig.last().unwrap().external_force_n, 0.0, "not unloaded");
+    assert!(rig.last().unwrap().t_s < 10.0, "ran on after the stop");
+    let events = RecordSet::open(&report)
+        .unwrap()
+        .read_all::<EventRecord>()
+        .unwrap();
+    assert!(events.iter().any(|e| e.kind == event_kind::OPERATOR_STOP));
+    assert_nothing_left(&json);
+    std::fs::remove_dir_all(&dir).ok();
 }

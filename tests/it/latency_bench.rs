@@ -11,12 +11,12 @@ use hdrhistogram::serialization::interval_log::{IntervalLogIterator, LogEntry};
 use hdrhistogram::serialization::Deserializer;
 use hdrhistogram::Histogram;
 
-use fastemu::bench::child::ChildGuard;
 use fastemu::bench::latency::end_to_end::parse_hil_output;
 use fastemu::bench::latency::hlog::{write_interval_log, LoggedInterval};
 use fastemu::bench::latency::split_into_rounds;
 use fastemu::bench::latency::stats::{new_latency_histogram, percentile_curve, PercentileSummary};
 use fastemu::bench::latency::transport::{decode_sample, encode_sample, Transport};
+use fastemu::child::ChildGuard;
 use fastemu::ipc::messages::DisplacementSample;
 
 /// A fresh directory for one test's outputs.

@@ -18,3 +18,4 @@ mod model_determinism;
 mod model_modulus;
 mod model_tension;
 mod paper;
+mod safety_inproc;

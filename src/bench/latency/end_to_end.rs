@@ -10,7 +10,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use crate::bench::child::ChildGuard;
+use crate::child::ChildGuard;
 
 /// p50/p99/p99.9/max as the `hil` command reports them, ns.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]

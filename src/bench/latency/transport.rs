@@ -24,7 +24,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, ensure, Context};
 use hdrhistogram::Histogram;
 
-use crate::bench::child::ChildGuard;
+use crate::child::ChildGuard;
 use crate::ipc::messages::DisplacementSample;
 use crate::ipc::pingpong::{IoxPingPong, IoxRole};
 use crate::rt::clock::monotonic_now_ns;

@@ -1,0 +1,456 @@
+//! The `hil` report, built from the run's records in streaming passes (no whole-run
+//! arrays, so a run of hours reports in constant memory): the side streams first (events,
+//! emulator, controller: latency histograms, the processes' own gaps), then the rig's
+//! records against the offline reference stepped in lockstep (fidelity, stability,
+//! stalls and their transients, what each fault did to the specimen), then decimated plots.
+//! Offline code: never runs inside a loop.
+
+pub mod decimate;
+pub mod fidelity;
+pub mod latency;
+pub mod safety;
+pub mod stalls;
+
+use std::collections::VecDeque;
+use std::path::Path;
+
+use hdrhistogram::Histogram;
+use serde::Serialize;
+
+use super::config::HilConfig;
+use super::controller::ControllerRecord;
+use super::emulator::EmulatorRecord;
+use crate::ipc::messages::rig_state;
+use crate::plot::{draw_png, Panel, Series};
+use crate::records::{EventRecord, RecordSet};
+use crate::rig::core::RigRecord;
+use crate::rig::reference::ReferenceStepper;
+use decimate::Decimator;
+use fidelity::{CentredHighPass, Fidelity, ResidualAnalyser, Stability};
+use latency::{histogram, log_bins, percentiles, Latency};
+use safety::{Safety, SafetyTracker};
+use stalls::{Gap, StallTracker, Stalls, STALL_MIN_PERIODS};
+
+pub use fidelity::{
+    band_errors, BandError, STABLE_MAX_GROWTH_PER_S, STABLE_MAX_MEDIAN_RESONANT_PEAK_M,
+};
+pub use latency::Percentiles;
+
+/// Points per plotted series (each bucket contributes its min and max).
+const PLOT_BUCKETS: usize = 4000;
+
+/// Where the analysis read the records from.
+#[derive(Debug, Clone, Serialize, Default)]
+pub struct RecordsInfo {
+    pub files: Vec<String>,
+    /// Files cut short (a killed writer): read up to their last closed chunk.
+    pub truncated: Vec<String>,
+}
+
+/// Results of the analysis of one run's records.
+#[derive(Debug, Clone, Serialize, Default)]
+pub struct Analysis {
+    /// Emulator model steps.
+    pub steps: u64,
+    pub rig_steps: u64,
+    pub fidelity: Fidelity,
+    pub stability: Stability,
+    pub latency_ns: Latency,
+    pub safety: Safety,
+    pub stalls: Stalls,
+    /// Largest resonant (>100 Hz) residual before any hold, m: the largest transient.
+    pub largest_transient_m: f64,
+    pub records: RecordsInfo,
+    /// Every event, as one line each.
+    pub events: Vec<String>,
+}
+
+/// What the side streams give.
+struct SideStreams {
+    events: Vec<EventRecord>,
+    emulator_steps: u64,
+    end_to_end: Histogram<u64>,
+    wake_jitter: Histogram<u64>,
+    emulator_gaps: Vec<Gap>,
+    controller_gaps: Vec<Gap>,
+    emulator_force: Decimator,
+    truncated: Vec<String>,
+}
+
+/// Pass 1: events, the emulator's and the controller's records.
+fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStreams> {
+    let dt = cfg.loop_.dt_s();
+    let mut side = SideStreams {
+        events: Vec::new(),
+        emulator_steps: 0,
+        end_to_end: histogram(),
+        wake_jitter: histogram(),
+        emulator_gaps: Vec::new(),
+        controller_gaps: Vec::new(),
+        emulator_force: Decimator::new(0.0, 1e-3, PLOT_BUCKETS),
+        truncated: Vec::new(),
+    };
+    let mut last_cycle: Option<u64> = None;
+    let mut last_command_t: Option<f64> = None;
+    let keepalive_s = cfg.controller.keepalive_ns as f64 * 1e-9;
+    let stats = set.visit(|topic, _, data| {
+        use crate::records::Record;
+        match topic {
+            t if t == EventRecord::TOPIC => {
+                if let Some(e) = EventRecord::decode(data) {
+                    side.events.push(e);
+                }
+            }
+            t if t == EmulatorRecord::TOPIC => {
+                if let Some(r) = EmulatorRecord::decode(data) {
+                    side.emulator_steps += 1;
+                    side.emulator_force.push(r.t_s, r.force_n);
+                    if last_cycle != Some(r.cycle_idx) {
+                        side.wake_jitter.saturating_record(r.wake_late_ns.max(1));
+                        if let Some(c) = last_cycle {
+                            let gap = r.cycle_idx.saturating_sub(c);
+                            if gap >= STALL_MIN_PERIODS && side.emulator_gaps.len() < 10_000 {
+                                side.emulator_gaps.push((c as f64 * dt, gap as f64 * dt));
+                            }
+                        }
+                        last_cycle = Some(r.cycle_idx);
+                    }
+                }
+            }
+            t if t == ControllerRecord::TOPIC => {
+                if let Some(r) = ControllerRecord::decode(data) {
+                    if r.end_to_end_ns > 0 {
+                        side.end_to_end.saturating_record(r.end_to_end_ns);
+                    }
+                    if let Some(t0) = last_command_t {
+                        let gap = r.t_s - t0;
+                        if gap > keepalive_s + STALL_MIN_PERIODS as f64 * dt
+                            && side.controller_gaps.len() < 10_000
+                        {
+                            side.controller_gaps.push((t0, gap));
+                        }
+                    }
+                    last_command_t = Some(r.t_s);
+                }
+            }
+            _ => {}
+        }
+    })?;
+    side.truncated = stats
+        .truncated
+        .iter()
+        .map(|(p, e)| format!("{}: {e}", p.display()))
+        .collect();
+    side.events.sort_by(|a, b| a.t_s.total_cmp(&b.t_s));
+    Ok(side)
+}
+
+/// Decimated series of the rig pass, for the plots.
+struct RigPlots {
+    x_hil: Decimator,
+    x_ref: Decimator,
+    error: Decimator,
+    external: Decimator,
+    actuator: Decimator,
+    /// Around the first fault: (t, x, x_ref, actuator force, state), bounded.
+    fault_window: Vec<(f64, f64, f64, f64, u32)>,
+}
+
+/// What the rig pass gives.
+struct RigPass {
+    rig_steps: u64,
+    residual: ResidualAnalyser,
+    stalls: Stalls,
+    safety: Safety,
+    plots: RigPlots,
+}
+
+/// Pass 2: the rig's records against the offline reference.
+fn read_rig_stream(
+    set: &RecordSet,
+    cfg: &HilConfig,
+    side: &SideStreams,
+) -> anyhow::Result<RigPass> {
+    let rate = cfg.loop_.rate_hz;
+    let dt = cfg.loop_.dt_s();
+    let mut reference = ReferenceStepper::new(cfg, cfg.scenario.duration_s + cfg.safety.hold_max_s);
+    let mut ref_k = 0u64;
+    let mut x_ref_now = f64::NAN;
+    let mut residual = ResidualAnalyser::new(rate);
+    let mut high_pass = CentredHighPass::new(rate);
+    let mut hp_steps: VecDeque<u64> = VecDeque::new();
+    let mut stalls = StallTracker::new(rate);
+    let mut safety = SafetyTracker::new(&side.events, dt);
+    let first_fault = safety.first_fault_s();
+    let rig_gaps: std::cell::RefCell<Vec<Gap>> = std::cell::RefCell::new(Vec::new());
+    let mut catch_up_run: Option<(f64, u64)> = None;
+    let mut held = false;
+    let mut rig_steps = 0u64;
+    let mut plots = RigPlots {
+        x_hil: Decimator::new(0.0, 1e-3, PLOT_BUCKETS),
+        x_ref: Decimator::new(0.0, 1e-3, PLOT_BUCKETS),
+        error: Decimator::new(0.0, 1e-3, PLOT_BUCKETS),
+        external: Decimator::new(0.0, 1e-3, PLOT_BUCKETS),
+        actuator: Decimator::new(0.0, 1e-3, PLOT_BUCKETS),
+        fault_window: Vec::new(),
+    };
+    let on_hp = |i_hp: (usize, f64),
+                 hp_steps: &mut VecDeque<u64>,
+                 residual: &mut ResidualAnalyser,
+                 stalls: &mut StallTracker| {
+        let step = hp_steps.pop_front().unwrap_or(i_hp.0 as u64);
+        residual.push_high_passed(i_hp.1);
+        let gaps = rig_gaps.borrow();
+        let sources: [(&str, &[Gap]); 3] = [
+            ("emulator", &side.emulator_gaps),
+            ("controller", &side.controller_gaps),
+            ("bench_rig", &gaps),
+        ];
+        stalls.push_high_passed(step, i_hp.1, &sources);
+    };
+    set.for_each::<RigRecord>(|_, r| {
+        rig_steps += 1;
+        while ref_k <= r.step_idx {
+            x_ref_now = reference.next().unwrap_or(f64::NAN);
+            ref_k += 1;
+        }
+        safety.push(&r);
+        // A process's own gap: consecutive catch-up periods of the rig.
+        match (&mut catch_up_run, r.catch_up) {
+            (Some((_, n)), 1) => *n += 1,
+            (None, 1) => catch_up_run = Some((r.t_s, 1)),
+            (Some((t0, n)), _) => {
+                if *n >= STALL_MIN_PERIODS {
+                    rig_gaps.borrow_mut().push((*t0, *n as f64 * dt));
+                }
+                catch_up_run = None;
+            }
+            _ => {}
+        }
+        held |= !matches!(r.state, rig_state::RUNNING | rig_state::STARTING);
+        if !held {
+            residual.push_displacement(r.x_m, x_ref_now);
+            stalls.push_law_age(r.step_idx, r.law_age_periods);
+            hp_steps.push_back(r.step_idx);
+            if let Some(out) = high_pass.push(r.x_m - x_ref_now) {
+                on_hp(out, &mut hp_steps, &mut residual, &mut stalls);
+            }
+            plots.error.push(r.t_s, r.x_m - x_ref_now);
+            plots.x_ref.push(r.t_s, x_ref_now);
+        }
+        plots.x_hil.push(r.t_s, r.x_m);
+        plots.external.push(r.t_s, r.external_force_n);
+        plots.actuator.push(r.t_s, r.actuator_force_n);
+        if let Some(tf) = first_fault {
+            if r.t_s >= tf - 0.25 && plots.fault_window.len() < 200_000 {
+                plots
+                    .fault_window
+                    .push((r.t_s, r.x_m, x_ref_now, r.actuator_force_n, r.state));
+            }
+        }
+    })?;
+    for out in high_pass.finish() {
+        on_hp(out, &mut hp_steps, &mut residual, &mut stalls);
+    }
+    let gaps = rig_gaps.borrow();
+    let sources: [(&str, &[Gap]); 3] = [
+        ("emulator", &side.emulator_gaps),
+        ("controller", &side.controller_gaps),
+        ("bench_rig", &gaps),
+    ];
+    let stalls = stalls.finish(&sources);
+    Ok(RigPass {
+        rig_steps,
+        residual,
+        stalls,
+        safety: safety.finish(),
+        plots,
+    })
+}
+
+/// The frequency bands of the fidelity report.
+fn bands(cfg: &HilConfig) -> Vec<(String, f64, f64)> {
+    let harmonic = cfg.scenario.harmonic_frequency_hz;
+    let mut bands: Vec<(String, f64, f64)> = vec![
+        ("quasi-static 0-1 Hz".into(), 0.0, 1.0),
+        ("low 1-20 Hz".into(), 1.0, 20.0),
+        ("mid 20-100 Hz".into(), 20.0, 100.0),
+        ("resonance 100-300 Hz".into(), 100.0, 300.0),
+    ];
+    if harmonic > 0.0 {
+        bands.insert(
+            0,
+            (
+                format!("harmonic {harmonic} Hz"),
+                harmonic * 0.9,
+                harmonic * 1.1,
+            ),
+        );
+    }
+    bands
+}
+
+/// Analyses the records in `dir` (its `records.mcap`, or the parts a crashed run left)
+/// and draws the plots there.
+pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
+    let set = RecordSet::open(dir)?;
+    let side = read_side_streams(&set, cfg)?;
+    let rig = read_rig_stream(&set, cfg, &side)?;
+    anyhow::ensure!(
+        rig.rig_steps > 16,
+        "the rig's record has only {} rows",
+        rig.rig_steps
+    );
+    let k_tangent = cfg
+        .model
+        .element
+        .high_frequency_stiffness_n_per_m(cfg.scenario.preload_n);
+    let omega0 = (k_tangent / cfg.rig.specimen_mass_kg).sqrt();
+    let stability = rig.residual.stability(omega0);
+    let latency_ns = Latency {
+        end_to_end: percentiles(&side.end_to_end),
+        wake_jitter: percentiles(&side.wake_jitter),
+    };
+    draw_plots(dir, &side, &rig)?;
+    Ok(Analysis {
+        steps: side.emulator_steps,
+        rig_steps: rig.rig_steps,
+        fidelity: rig.residual.fidelity(&bands(cfg)),
+        largest_transient_m: stability.resonant_residual_max_m,
+        stability,
+        latency_ns,
+        safety: rig.safety,
+        stalls: rig.stalls,
+        records: RecordsInfo {
+            files: set.files.iter().map(|p| p.display().to_string()).collect(),
+            truncated: side.truncated.clone(),
+        },
+        events: side.events.iter().map(EventRecord::describe).collect(),
+    })
+}
+
+fn draw_plots(dir: &Path, side: &SideStreams, rig: &RigPass) -> anyhow::Result<()> {
+    let p = &rig.plots;
+    let series = |d: &Decimator, scale: f64| d.points(scale);
+    let (t_h, x_h) = series(&p.x_hil, 1e3);
+    let (t_r, x_r) = series(&p.x_ref, 1e3);
+    let (t_e, f_e) = series(&p.external, 1e-3);
+    let (t_a, f_a) = series(&p.actuator, 1e-3);
+    let (t_m, f_m) = series(&side.emulator_force, 1e-3);
+    draw_png(
+        &dir.join("histories.png"),
+        1400,
+        900,
+        1,
+        &[
+            Panel::new(
+                "Specimen displacement (min/max per pixel)",
+                "t (s)",
+                "displacement (mm)",
+            )
+            .with(Series::line("HIL (rig, true)", t_h, x_h, 0))
+            .with(Series::dashed(
+                "offline reference (until a hold)",
+                t_r,
+                x_r,
+                1,
+            )),
+            Panel::new("Forces", "t (s)", "force (kN)")
+                .with(Series::line("external load", t_e, f_e, 2))
+                .with(Series::line("emulated element force", t_m, f_m, 0))
+                .with(Series::dashed("actuator force", t_a, f_a, 1)),
+        ],
+    )?;
+    let (t_err, err) = series(&p.error, 1e6);
+    draw_png(
+        &dir.join("hil-vs-reference.png"),
+        1400,
+        600,
+        1,
+        &[Panel::new(
+            "HIL - reference displacement (until a hold)",
+            "t (s)",
+            "error (um)",
+        )
+        .with(Series::line("x_hil - x_ref", t_err, err, 3))],
+    )?;
+    let (xe, ye) = log_bins(&side.end_to_end);
+    let (xj, yj) = log_bins(&side.wake_jitter);
+    draw_png(
+        &dir.join("latency-histogram.png"),
+        1200,
+        600,
+        2,
+        &[
+            Panel::new(
+                "End-to-end latency (sample -> command)",
+                "latency (us)",
+                "count (+0.5)",
+            )
+            .log_x()
+            .log_y()
+            .with(Series::line("end to end", xe, ye, 0)),
+            Panel::new("Emulator wake-up jitter", "late (us)", "count (+0.5)")
+                .log_x()
+                .log_y()
+                .with(Series::line("wake late", xj, yj, 1)),
+        ],
+    )?;
+    if !p.fault_window.is_empty() {
+        draw_safety_plot(dir, rig)?;
+    }
+    Ok(())
+}
+
+/// `safety.png`: the specimen around the first fault, the hold marked.
+fn draw_safety_plot(dir: &Path, rig: &RigPass) -> anyhow::Result<()> {
+    let w = &rig.plots.fault_window;
+    let t0 = w[0].0;
+    let mut x = Decimator::new(t0, 1e-4, PLOT_BUCKETS);
+    let mut xr = Decimator::new(t0, 1e-4, PLOT_BUCKETS);
+    let mut fa = Decimator::new(t0, 1e-4, PLOT_BUCKETS);
+    let mut hold = Decimator::new(t0, 1e-4, PLOT_BUCKETS);
+    for &(t, xi, xri, fai, state) in w {
+        x.push(t, xi);
+        if matches!(state, rig_state::RUNNING) {
+            xr.push(t, xri);
+        }
+        fa.push(t, fai);
+        let holding = matches!(
+            state,
+            rig_state::HOLD | rig_state::UNLOAD | rig_state::OPERATOR_HOLD
+        );
+        hold.push(t, if holding { 1.0 } else { 0.0 });
+    }
+    let mut title = String::from("Specimen around the first fault");
+    if let Some(f) = rig.safety.faults.first() {
+        title = format!(
+            "{}: {} at {:.3} s -> {}",
+            f.process,
+            f.fault,
+            f.detected_at_s,
+            f.action.as_deref().unwrap_or("(controller acts)")
+        );
+    }
+    let (tx, yx) = x.points(1e3);
+    let (tr, yr) = xr.points(1e3);
+    let (tf, yf) = fa.points(1e-3);
+    let (th, yh) = hold.points(1.0);
+    draw_png(
+        &dir.join("safety.png"),
+        1400,
+        1000,
+        1,
+        &[
+            Panel::new(title, "t (s)", "displacement (mm)")
+                .with(Series::line("specimen (true)", tx, yx, 0))
+                .with(Series::dashed("offline reference", tr, yr, 1)),
+            Panel::new("Actuator force", "t (s)", "force (kN)")
+                .with(Series::line("actuator", tf, yf, 3)),
+            Panel::new("Interlock", "t (s)", "hold (1) / force control (0)")
+                .y_range(-0.1, 1.1)
+                .with(Series::line("hold", th, yh, 2)),
+        ],
+    )?;
+    Ok(())
+}

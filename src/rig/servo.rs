@@ -1,0 +1,557 @@
+//! The actuator's servo controller on the rig side: what a real servo controller (or a
+//! calculated channel, a Speedgoat or dSPACE model) runs every actuator period.
+//!
+//! - `LAW` commands: applies the element's local linear law with the rig's own
+//!   displacement measurement, extrapolated over the actuator's output delay (zero-order
+//!   hold, transport delay, lag), so neither the loop's delay nor a short stall of the
+//!   loop leaves the specimen on a constant force.
+//! - `FORCE` commands: applies the force (zero-order hold).
+//! - The interlock: stale commands, a hold command, a lost orchestrator or an operator
+//!   hold make it leave force control and hold the specimen's position where it tripped
+//!   (PID position control, as a servo controller's interlock does); the load programme
+//!   holds too. Then, when configured, the programme unloads to zero while position is held.
+//!
+//! Must not: allocate, lock, log, read a clock or do I/O (`update` and `on_command` run in
+//! the rig's loop; time is the period index).
+
+use crate::hil::fault::{Fault, FaultAction};
+use crate::ipc::messages::{command_mode, rig_state, ActuatorCommand};
+
+/// Longest window for rest detection, samples (50 ms at up to 20 kHz).
+const REST_WINDOW_MAX: usize = 1024;
+
+/// Weights of a Lagrange polynomial through the newest `order + 1` equally spaced samples
+/// (newest first, spacing `h`) for its value and slope at `lead` past the newest sample.
+pub fn lead_weights(order: usize, h: f64, lead: f64) -> ([f64; 4], [f64; 4]) {
+    let n = order.min(3) + 1;
+    let t: Vec<f64> = (0..n).map(|i| -(i as f64) * h).collect();
+    let mut value = [0.0; 4];
+    let mut slope = [0.0; 4];
+    for i in 0..n {
+        let mut li = 1.0;
+        for j in 0..n {
+            if i != j {
+                li *= (lead - t[j]) / (t[i] - t[j]);
+            }
+        }
+        value[i] = li;
+        // d/dx prod_j (x - t_j)/(t_i - t_j) = sum_m 1/(t_i - t_m) prod_{j != m} (...).
+        let mut d = 0.0;
+        for m in 0..n {
+            if m == i {
+                continue;
+            }
+            let mut term = 1.0 / (t[i] - t[m]);
+            for j in 0..n {
+                if j != i && j != m {
+                    term *= (lead - t[j]) / (t[i] - t[j]);
+                }
+            }
+            d += term;
+        }
+        slope[i] = d;
+    }
+    (value, slope)
+}
+
+/// The servo controller's settings (from `[rig]` and `[safety]`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ServoConfig {
+    pub period_s: f64,
+    /// Lead over which the measured displacement is extrapolated for `LAW` commands, s.
+    pub law_lead_s: f64,
+    /// Order of that extrapolation (0-3).
+    pub law_lead_order: usize,
+    /// No new command for more than this many periods: interlock (`commands-stale`).
+    pub command_stale_periods: u64,
+    /// Position-hold PID gains: N/m, N/(m s), N s/m.
+    pub hold_kp: f64,
+    pub hold_ki: f64,
+    pub hold_kd: f64,
+    /// Action on the rig's own detections (commands stale; orchestrator lost).
+    pub commands_stale_action: FaultAction,
+    pub orchestrator_lost_action: FaultAction,
+    /// At rest: the measured displacement stayed within this band over `rest_window_s`, m.
+    pub rest_band_m: f64,
+    pub rest_window_s: f64,
+    /// Minimum and maximum hold before the run ends, s.
+    pub hold_min_s: f64,
+    pub hold_max_s: f64,
+    /// Rate at which an unload takes the programme to zero, N/s.
+    pub unload_rate_n_per_s: f64,
+    /// Back to force control after an operator hold: blend over this long, s.
+    pub resume_blend_s: f64,
+}
+
+impl ServoConfig {
+    /// PID gains for a position loop on mass `mass_kg` with closed-loop poles
+    /// `(s^2 + 2 zeta w s + w^2)(s + w/4)`, `w = 2 pi bandwidth_hz`.
+    pub fn hold_gains(mass_kg: f64, bandwidth_hz: f64, damping_ratio: f64) -> (f64, f64, f64) {
+        let w = 2.0 * std::f64::consts::PI * bandwidth_hz;
+        let wi = 0.25 * w;
+        let kp = mass_kg * (w * w + 2.0 * damping_ratio * w * wi);
+        let ki = mass_kg * w * w * wi;
+        let kd = mass_kg * (2.0 * damping_ratio * w + wi);
+        (kp, ki, kd)
+    }
+}
+
+/// A trip of the interlock, as the rig records it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Trip {
+    pub fault: Fault,
+    /// The controller's fault code when it asked for the hold (`hold-requested`), else 0.
+    pub remote_fault_code: u32,
+    /// Period index of the detection.
+    pub step_idx: u64,
+    /// Periods between the last good input and the detection.
+    pub detection_latency_periods: u64,
+    pub action: FaultAction,
+    /// Position held, m (measured at the trip).
+    pub hold_position_m: f64,
+}
+
+/// What the servo asks the actuator for in one period.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ServoOutput {
+    /// Actuator force command, N.
+    pub command_n: f64,
+    /// One of `rig_state`.
+    pub state: u32,
+    /// `command_mode` in effect (`HOLD` while holding).
+    pub mode: u32,
+    /// Periods since the last command of any kind.
+    pub command_age_periods: u64,
+    /// Periods since the law last changed (a new setpoint behind the command).
+    pub law_age_periods: u64,
+}
+
+/// What the programme must do this period (the servo owns the decision).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ProgrammeRequest {
+    Run,
+    Hold,
+    Unload,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Phase {
+    Force,
+    Holding {
+        since_step: u64,
+        unload: bool,
+        operator: bool,
+    },
+    /// Back from an operator hold: blend from the hold force to force control.
+    Resuming {
+        since_step: u64,
+        hold_force_n: f64,
+    },
+}
+
+/// The servo controller's state.
+#[derive(Debug, Clone)]
+pub struct Servo {
+    cfg: ServoConfig,
+    value_weights: [f64; 4],
+    slope_weights: [f64; 4],
+    /// Measured displacements, newest first.
+    z_history_m: [f64; 4],
+    command: Option<ActuatorCommand>,
+    last_command_step: Option<u64>,
+    law_setpoint_seq: u64,
+    law_since_step: u64,
+    phase: Phase,
+    hold_position_m: f64,
+    hold_feedforward_n: f64,
+    /// External load when the hold began, and now (fed forward while holding).
+    hold_load_at_start_n: f64,
+    load_now_n: f64,
+    hold_integral_m_s: f64,
+    last_output_n: f64,
+    /// The current period (set by `update`).
+    step_idx: u64,
+    trip: Option<Trip>,
+    new_trip: bool,
+    /// Ring of recent measurements for rest detection (allocated once, in `new`).
+    rest_ring: Vec<f64>,
+    rest_len: usize,
+    rest_head: usize,
+    rest_filled: usize,
+    at_rest_since_step: Option<u64>,
+    unload_done: bool,
+    finished: bool,
+}
+
+impl Servo {
+    /// A servo at rest at measured displacement `z0_m`, applying `force0_n` until the first
+    /// command arrives.
+    pub fn new(cfg: ServoConfig, z0_m: f64, force0_n: f64) -> Servo {
+        let (value_weights, slope_weights) =
+            lead_weights(cfg.law_lead_order, cfg.period_s, cfg.law_lead_s);
+        let rest_len =
+            ((cfg.rest_window_s / cfg.period_s).round() as usize).clamp(2, REST_WINDOW_MAX);
+        Servo {
+            cfg,
+            value_weights,
+            slope_weights,
+            z_history_m: [z0_m; 4],
+            command: None,
+            last_command_step: None,
+            law_setpoint_seq: u64::MAX,
+            law_since_step: 0,
+            phase: Phase::Force,
+            hold_position_m: z0_m,
+            hold_feedforward_n: force0_n,
+            hold_load_at_start_n: force0_n,
+            load_now_n: force0_n,
+            hold_integral_m_s: 0.0,
+            last_output_n: force0_n,
+            step_idx: 0,
+            trip: None,
+            new_trip: false,
+            rest_ring: vec![z0_m; REST_WINDOW_MAX],
+            rest_len,
+            rest_head: 0,
+            rest_filled: 0,
+            at_rest_since_step: None,
+            unload_done: false,
+            finished: false,
+        }
+    }
+
+    pub fn config(&self) -> &ServoConfig {
+        &self.cfg
+    }
+
+    /// The latched trip, if any.
+    pub fn trip(&self) -> Option<Trip> {
+        self.trip
+    }
+
+    /// Returns a trip once, in the period it happened (for the event record).
+    pub fn take_new_trip(&mut self) -> Option<Trip> {
+        if self.new_trip {
+            self.new_trip = false;
+            self.trip
+        } else {
+            None
+        }
+    }
+
+    /// Whether the run should end: held for at least `hold_min_s` and at rest (and
+    /// unloaded when unloading), or held for `hold_max_s`.
+    pub fn finished(&self) -> bool {
+        self.finished
+    }
+
+    /// Whether the specimen is at rest now (measured displacement within the rest band).
+    pub fn at_rest(&self) -> bool {
+        self.at_rest_since_step.is_some()
+    }
+
+    pub fn holding(&self) -> bool {
+        matches!(self.phase, Phase::Holding { .. })
+    }
+
+    /// A command arrived in period `step_idx`.
+    #[inline]
+    pub fn on_command(&mut self, cmd: &ActuatorCommand, step_idx: u64) {
+        let age = self
+            .last_command_step
+            .map_or(0, |s| step_idx.saturating_sub(s));
+        self.last_command_step = Some(step_idx);
+        if cmd.setpoint_sequence != self.law_setpoint_seq {
+            self.law_setpoint_seq = cmd.setpoint_sequence;
+            self.law_since_step = step_idx;
+        }
+        match cmd.mode {
+            command_mode::HOLD | command_mode::HOLD_UNLOAD => {
+                let action = if cmd.mode == command_mode::HOLD {
+                    FaultAction::Hold
+                } else {
+                    FaultAction::HoldUnload
+                };
+                self.latch(Fault::HoldRequested, cmd.fault_code, step_idx, age, action);
+            }
+            _ => self.command = Some(*cmd),
+        }
+    }
+
+    /// The orchestrator died (its death signal reached the rig) in period `step_idx`.
+    pub fn on_orchestrator_lost(&mut self, step_idx: u64) {
+        let action = self.cfg.orchestrator_lost_action;
+        self.latch(Fault::OrchestratorLost, 0, step_idx, 0, action);
+    }
+
+    /// Operator hold: position hold and programme pause, without a fault.
+    pub fn operator_hold(&mut self, step_idx: u64) {
+        if matches!(self.phase, Phase::Force | Phase::Resuming { .. }) {
+            self.enter_hold(step_idx, false, true);
+        }
+    }
+
+    /// Operator resume from an operator hold (a fault hold is never resumed).
+    pub fn operator_resume(&mut self, step_idx: u64) {
+        if let Phase::Holding { operator: true, .. } = self.phase {
+            if self.trip.is_none() {
+                self.phase = Phase::Resuming {
+                    since_step: step_idx,
+                    hold_force_n: self.last_output_n,
+                };
+            }
+        }
+    }
+
+    /// Orderly end requested by the operator: hold, unload, finish.
+    pub fn operator_end(&mut self, step_idx: u64) {
+        match self.phase {
+            Phase::Holding { ref mut unload, .. } => *unload = true,
+            _ => self.enter_hold(step_idx, true, true),
+        }
+    }
+
+    fn enter_hold(&mut self, step_idx: u64, unload: bool, operator: bool) {
+        self.hold_position_m = self.z_history_m[0];
+        self.hold_feedforward_n = self.last_output_n;
+        self.hold_load_at_start_n = self.load_now_n;
+        self.hold_integral_m_s = 0.0;
+        self.at_rest_since_step = None;
+        self.phase = Phase::Holding {
+            since_step: step_idx,
+            unload,
+            operator,
+        };
+    }
+
+    fn latch(
+        &mut self,
+        fault: Fault,
+        remote_fault_code: u32,
+        step_idx: u64,
+        detection_latency_periods: u64,
+        action: FaultAction,
+    ) {
+        if self.trip.is_some() {
+            return;
+        }
+        self.trip = Some(Trip {
+            fault,
+            remote_fault_code,
+            step_idx,
+            detection_latency_periods,
+            action,
+            hold_position_m: self.z_history_m[0],
+        });
+        self.new_trip = true;
+        match action {
+            FaultAction::Indicate => {}
+            FaultAction::Hold | FaultAction::HoldUnload => {
+                let unload = action == FaultAction::HoldUnload;
+                match self.phase {
+                    // Already held by the operator: the hold becomes the fault's.
+                    Phase::Holding {
+                        since_step,
+                        unload: u,
+                        ..
+                    } => {
+                        self.phase = Phase::Holding {
+                            since_step,
+                            unload: u || unload,
+                            operator: false,
+                        }
+                    }
+                    _ => self.enter_hold(step_idx, unload, false),
+                }
+            }
+        }
+    }
+
+    fn push_rest(&mut self, z_m: f64) {
+        self.rest_head = (self.rest_head + 1) % self.rest_len;
+        self.rest_ring[self.rest_head] = z_m;
+        self.rest_filled = (self.rest_filled + 1).min(self.rest_len);
+    }
+
+    fn rest_range_m(&self) -> f64 {
+        let window = &self.rest_ring[..self.rest_len];
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for &z in window {
+            lo = lo.min(z);
+            hi = hi.max(z);
+        }
+        hi - lo
+    }
+
+    /// The law's force with the displacement extrapolated over the output delay.
+    #[inline]
+    fn law_force_n(&self, cmd: &ActuatorCommand) -> f64 {
+        let mut z = 0.0;
+        let mut v = 0.0;
+        for i in 0..4 {
+            z += self.value_weights[i] * self.z_history_m[i];
+            v += self.slope_weights[i] * self.z_history_m[i];
+        }
+        // Time since the law's sample, at the instant the force will act. The rate term
+        // is a first-order relaxation: valid for a stall's length, not for ever, so it
+        // stops growing at the rig's own stale-command limit.
+        let horizon_s = self.cfg.command_stale_periods as f64 * self.cfg.period_s;
+        let since_s = if cmd.sample_sequence == u64::MAX {
+            0.0
+        } else {
+            (self.step_idx.saturating_sub(cmd.sample_sequence) as f64 * self.cfg.period_s
+                + self.cfg.law_lead_s)
+                .min(horizon_s)
+        };
+        cmd.law
+            .evaluate(z, v, since_s)
+            .max(cmd.force_min_n)
+            .min(cmd.force_max_n)
+    }
+
+    #[inline]
+    fn force_control_n(&self) -> (f64, u32) {
+        match &self.command {
+            Some(cmd) if cmd.mode == command_mode::LAW => {
+                (self.law_force_n(cmd), command_mode::LAW)
+            }
+            Some(cmd) => (
+                cmd.law.force_n.max(cmd.force_min_n).min(cmd.force_max_n),
+                command_mode::FORCE,
+            ),
+            None => (self.last_output_n, command_mode::FORCE),
+        }
+    }
+
+    /// One actuator period `step_idx` with the displacement measured at its start and the
+    /// external load the programme applies now (a servo controller generates its load
+    /// programme, so it knows it). Returns the actuator command and what the load programme
+    /// must do.
+    #[inline]
+    pub fn update(
+        &mut self,
+        step_idx: u64,
+        z_measured_m: f64,
+        external_load_n: f64,
+    ) -> (ServoOutput, ProgrammeRequest) {
+        self.load_now_n = external_load_n;
+        // A non-finite reading is never used: the last good one stands in.
+        let z_measured_m = if z_measured_m.is_finite() {
+            z_measured_m
+        } else {
+            self.z_history_m[0]
+        };
+        self.z_history_m = [
+            z_measured_m,
+            self.z_history_m[0],
+            self.z_history_m[1],
+            self.z_history_m[2],
+        ];
+        self.push_rest(z_measured_m);
+        self.step_idx = step_idx;
+        let command_age = self
+            .last_command_step
+            .map_or(0, |s| step_idx.saturating_sub(s));
+        // The rig's own interlock: commands stopped (controller dead or stalled, link
+        // lost). Armed by the first command, so a slow start is not a fault.
+        if self.last_command_step.is_some() && command_age > self.cfg.command_stale_periods {
+            let action = self.cfg.commands_stale_action;
+            self.latch(Fault::CommandsStale, 0, step_idx, command_age, action);
+        }
+        let (command_n, state, mode, request) = match self.phase {
+            Phase::Force => {
+                let (f, mode) = self.force_control_n();
+                (f, rig_state::RUNNING, mode, ProgrammeRequest::Run)
+            }
+            Phase::Resuming {
+                since_step,
+                hold_force_n,
+            } => {
+                let (f, mode) = self.force_control_n();
+                let w = ((step_idx - since_step) as f64 * self.cfg.period_s
+                    / self.cfg.resume_blend_s.max(self.cfg.period_s))
+                .min(1.0);
+                if w >= 1.0 {
+                    self.phase = Phase::Force;
+                }
+                (
+                    (1.0 - w) * hold_force_n + w * f,
+                    rig_state::RUNNING,
+                    mode,
+                    ProgrammeRequest::Run,
+                )
+            }
+            Phase::Holding {
+                since_step,
+                unload,
+                operator,
+            } => self.hold_step(step_idx, z_measured_m, since_step, unload, operator),
+        };
+        self.last_output_n = command_n;
+        let law_age = step_idx.saturating_sub(self.law_since_step);
+        (
+            ServoOutput {
+                command_n,
+                state,
+                mode,
+                command_age_periods: command_age,
+                law_age_periods: law_age,
+            },
+            request,
+        )
+    }
+
+    fn hold_step(
+        &mut self,
+        step_idx: u64,
+        z_m: f64,
+        since_step: u64,
+        unload: bool,
+        operator: bool,
+    ) -> (f64, u32, u32, ProgrammeRequest) {
+        let dt = self.cfg.period_s;
+        let error_m = z_m - self.hold_position_m;
+        self.hold_integral_m_s += error_m * dt;
+        let velocity = (self.z_history_m[0] - self.z_history_m[1]) / dt;
+        // The load's change since the hold began is fed forward (equilibrium needs it); the
+        // PID takes the rest.
+        let command_n = self.hold_feedforward_n
+            + (self.load_now_n - self.hold_load_at_start_n)
+            + self.cfg.hold_kp * error_m
+            + self.cfg.hold_ki * self.hold_integral_m_s
+            + self.cfg.hold_kd * velocity;
+        // At rest: the window since the hold began is full and within the band.
+        let held_periods = step_idx - since_step;
+        let window_full = held_periods as usize >= self.rest_len;
+        if window_full && self.rest_range_m() <= self.cfg.rest_band_m {
+            self.at_rest_since_step.get_or_insert(step_idx);
+        } else {
+            self.at_rest_since_step = None;
+        }
+        let held_s = held_periods as f64 * dt;
+        let request = if unload && self.at_rest() {
+            ProgrammeRequest::Unload
+        } else {
+            ProgrammeRequest::Hold
+        };
+        let state = if request == ProgrammeRequest::Unload || (unload && self.unload_done) {
+            rig_state::UNLOAD
+        } else if operator && self.trip.is_none() {
+            rig_state::OPERATOR_HOLD
+        } else {
+            rig_state::HOLD
+        };
+        let settled = self.at_rest() && (!unload || self.unload_done);
+        if (!operator || self.trip.is_some() || unload)
+            && ((held_s >= self.cfg.hold_min_s && settled) || held_s >= self.cfg.hold_max_s)
+        {
+            self.finished = true;
+        }
+        (command_n, state, command_mode::HOLD, request)
+    }
+
+    /// The programme reports that an unload reached zero.
+    pub fn on_unloaded(&mut self) {
+        self.unload_done = true;
+    }
+}
