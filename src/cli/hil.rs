@@ -99,7 +99,7 @@ fn load_config(args: &HilArgs) -> anyhow::Result<HilConfig> {
             d > 0.0 && d.is_finite(),
             "--duration-s {d}: expected a number > 0"
         );
-        cfg.scenario.duration_s = d;
+        cfg.set_duration_s(d);
     }
     Ok(cfg)
 }
@@ -222,6 +222,19 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
             effect_names.join(", ")
         );
     }
+    let _registration = crate::hil::registry::register(&crate::hil::registry::RunEntry {
+        run_id: run_id.clone(),
+        pid: std::process::id(),
+        report_dir: out_dir.clone(),
+        config_origin: cfg.origin.clone(),
+        rate_hz: cfg.loop_.rate_hz,
+        started_unix_s: std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs()),
+        live_addr: None,
+    })
+    .map_err(|e| eprintln!("hil: warning: run not registered for `fastemu ctl`: {e}"))
+    .ok();
     let mut outcome = run_processes(&plan, true)?;
     // Process deaths first: they are the cause; the others' reactions follow from them.
     outcome.faults.sort_by_key(|f| !f.contains("process (pid"));
@@ -292,7 +305,8 @@ fn summarise(
         "clean": clean,
         "not_clean_because": why,
         "faults": outcome.faults,
-        "operator_stop": outcome.operator_stop,
+        "operator_stop": outcome.operator_stop
+            || analysis.is_some_and(|a| a.safety.operator_actions.iter().any(|x| x.ends_with("operator stop"))),
         "safety": value(analysis.map(|a| serde_json::to_value(&a.safety).unwrap_or_default())),
         "stalls": value(analysis.map(|a| json!({
             "count": a.stalls.count,
@@ -302,6 +316,7 @@ fn summarise(
                 "at_s": e.at_s, "length_ms": e.length_ms, "transient_um": e.transient_m * 1e6, "source": e.source,
             })).collect::<Vec<_>>(),
         }))),
+        "programme": value(analysis.map(|a| serde_json::to_value(&a.programme).unwrap_or_default())),
         "largest_transient_um": value(analysis.map(|a| json!(a.largest_transient_m * 1e6))),
         "max_transient_um": cfg.safety.max_transient_m * 1e6,
         "fidelity": value(analysis.map(|a| serde_json::to_value(&a.fidelity).unwrap_or_default())),

@@ -293,8 +293,8 @@ pub fn run_processes(plan: &RunPlan, progress: bool) -> Result<RunOutcome, Proce
     };
     let start_wait = Instant::now();
     let mut last_progress = Instant::now();
-    // The scenario, the longest hold, and margin: past this the run is stopped.
-    let run_timeout = Duration::from_secs_f64(plan.duration_s + plan.hold_max_s + 20.0);
+    // No wall-clock limit on the run: an operator hold lasts as long as the operator
+    // wants; the rig ends the run, and a silent process is a fault (heartbeats).
     loop {
         std::thread::sleep(Duration::from_millis(5));
         let now = Instant::now();
@@ -356,11 +356,6 @@ pub fn run_processes(plan: &RunPlan, progress: bool) -> Result<RunOutcome, Proce
                         sup.send(&control, run_command::STOP, 0, 0);
                         sup.stop_sent_at = Some(now);
                     }
-                }
-                if now.duration_since(t) > run_timeout && sup.stop_sent_at.is_none() {
-                    sup.push_fault("hil: run timed out".into());
-                    sup.send(&control, run_command::STOP, 0, 0);
-                    sup.stop_sent_at = Some(now);
                 }
                 // The rig ended the run (or died): the others stop now.
                 let rig_done = sup.outcome.rig_finished || sup.finished[process_id::RIG as usize];

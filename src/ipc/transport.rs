@@ -252,8 +252,8 @@ impl IpcNode {
         let (history, buffer, max_publishers, max_subscribers) = match stream {
             Stream::Displacement => (0, 256, 1, 4),
             Stream::Setpoint | Stream::Command => (0, 8, 1, 4),
-            Stream::Heartbeat => (0, 64, 4, 4),
-            Stream::Control => (1, 8, 2, 4),
+            Stream::Heartbeat => (0, 64, 4, 6),
+            Stream::Control => (1, 8, 4, 4),
         };
         self.node
             .service_builder(&self.service_name(stream.name())?)

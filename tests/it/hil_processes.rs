@@ -634,3 +634,76 @@ fn an_operator_stop_holds_unloads_and_ends_the_run() {
     assert_nothing_left(&json);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+fn ctl(args: &[&str]) -> (bool, String) {
+    let out = Command::new(FASTEMU)
+        .arg("ctl")
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.success(),
+        format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        ),
+    )
+}
+
+#[test]
+fn ctl_holds_resumes_and_stops_a_running_run_from_another_process() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = scratch_dir("ctl");
+    let report = dir.join("report");
+    let mut hil = spawn_hil(&write_config(&dir, &[], ""), &report, 30.0);
+    hil.at(0.5);
+    let run_id = format!("fe{}x", hil.pid());
+    let (ok, status) = ctl(&["status"]);
+    assert!(
+        ok && status.contains(&run_id) && status.contains("bench_rig: running"),
+        "{status}"
+    );
+    let id = status.split_whitespace().nth(1).unwrap().to_string();
+    let (ok, text) = ctl(&["--run-id", &id, "hold"]);
+    assert!(ok && text.contains("hold (operator)"), "{text}");
+    std::thread::sleep(Duration::from_millis(600));
+    let (ok, text) = ctl(&["--run-id", &id, "resume"]);
+    assert!(ok && text.contains("running"), "{text}");
+    std::thread::sleep(Duration::from_millis(300));
+    let (ok, text) = ctl(&["--run-id", &id, "stop"]);
+    assert!(ok, "{text}");
+    let (code, json) = hil.finish(Duration::from_secs(60));
+    assert_eq!(code, 0, "{json}\n{}", hil.stderr());
+    assert_eq!(json["operator_stop"], true);
+    let actions = json["safety"]["operator_actions"].as_array().unwrap();
+    assert_eq!(actions.len(), 3, "{actions:?}");
+    // The records show the hold (programme paused), the resume, and the unload to zero.
+    let rig = rig_records(&report);
+    // The first contiguous operator hold (`stop` holds again before it unloads).
+    let held: Vec<&RigRecord> = rig
+        .iter()
+        .skip_while(|r| r.state != rig_state::OPERATOR_HOLD)
+        .take_while(|r| r.state == rig_state::OPERATOR_HOLD)
+        .collect();
+    assert!(
+        held.len() as f64 / 4096.0 > 0.4,
+        "held {} periods",
+        held.len()
+    );
+    assert!(held
+        .iter()
+        .all(|r| r.programme_time_s == held[0].programme_time_s));
+    let resumed = rig
+        .iter()
+        .position(|r| r.t_s > held.last().unwrap().t_s && r.state == rig_state::RUNNING);
+    assert!(resumed.is_some(), "never resumed");
+    assert!(rig.iter().any(|r| r.state == rig_state::UNLOAD));
+    assert_eq!(rig.last().unwrap().external_force_n, 0.0);
+    assert!(
+        !ctl(&["--run-id", &id, "status"]).0,
+        "the finished run is still listed"
+    );
+    assert_nothing_left(&json);
+    std::fs::remove_dir_all(&dir).ok();
+}
