@@ -164,6 +164,8 @@ pub fn run(args: CtlArgs) -> anyhow::Result<ExitCode> {
         CtlAction::Resume => (run_command::RESUME, &[rig_state::RUNNING]),
         CtlAction::Stop => (run_command::END, &[rig_state::UNLOAD, rig_state::FINISHED]),
     };
+    // Subscribe first: a stop may finish the run quickly.
+    let input = node.heartbeat_in()?;
     let control = node.control_out()?;
     control.publish(RunControl {
         sequence: std::process::id() as u64,
@@ -173,7 +175,6 @@ pub fn run(args: CtlArgs) -> anyhow::Result<ExitCode> {
         reserved: 0,
     });
     // Confirm from the rig's heartbeats (it reads run control every 10 ms).
-    let input = node.heartbeat_in()?;
     let t = Instant::now();
     let mut last = None;
     while t.elapsed() < Duration::from_secs(2) {

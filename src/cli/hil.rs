@@ -36,6 +36,20 @@ pub struct HilArgs {
     /// `events.csv`) into the report directory (handy for short runs).
     #[arg(long)]
     pub csv: bool,
+    /// Serve the run live over the Foxglove WebSocket protocol (open it in the Foxglove
+    /// app with configs/foxglove-layout.json).
+    #[arg(long)]
+    pub live: bool,
+    /// Address of the live view (`--live`); 127.0.0.1 keeps it on this machine.
+    #[arg(long, default_value = "127.0.0.1:8765")]
+    pub live_addr: String,
+    /// Offer hold / resume / stop as services on the live view (whoever can reach it can
+    /// then act on the run).
+    #[arg(long)]
+    pub live_control: bool,
+    /// Messages per second of the live displacement and force channels.
+    #[arg(long, default_value_t = 512.0)]
+    pub live_rate_hz: f64,
 }
 
 /// `yyyymmddThhmmssZ` for a Unix time (UTC), without a date crate.
@@ -162,6 +176,49 @@ fn not_clean_because(
     why
 }
 
+/// Starts the live view when asked (before the run, so a client can connect early).
+fn start_live(
+    args: &HilArgs,
+    cfg: &HilConfig,
+    out_dir: &std::path::Path,
+) -> anyhow::Result<Option<crate::live::LiveHandle>> {
+    if !args.live {
+        anyhow::ensure!(
+            !args.live_control,
+            "--live-control needs --live (the services are offered on the live view)"
+        );
+        return Ok(None);
+    }
+    anyhow::ensure!(
+        args.live_rate_hz.is_finite() && args.live_rate_hz > 0.0,
+        "--live-rate-hz {}: expected a number > 0",
+        args.live_rate_hz
+    );
+    let live = crate::live::start(
+        cfg,
+        out_dir,
+        &crate::live::LiveOptions {
+            addr: args.live_addr.clone(),
+            rate_hz: args.live_rate_hz,
+            control: args.live_control,
+        },
+    )?;
+    eprintln!(
+        "hil: live view on ws://{} (Foxglove: open a connection to it; layout configs/foxglove-layout.json){}",
+        live.addr,
+        if args.live_control { "; hold/resume/stop offered as services" } else { "" }
+    );
+    let host = live.addr.rsplit_once(':').map_or("", |(h, _)| h);
+    if !matches!(host, "127.0.0.1" | "localhost" | "::1" | "[::1]") {
+        eprintln!(
+            "hil: warning: the live view listens on {}: anyone who can reach this address can watch the run{}",
+            live.addr,
+            if args.live_control { " and hold, resume or stop it" } else { "" }
+        );
+    }
+    Ok(Some(live))
+}
+
 pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
     install_signal_handlers();
     quiet_iceoryx2_logs();
@@ -222,6 +279,7 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
             effect_names.join(", ")
         );
     }
+    let live = start_live(&args, &cfg, &out_dir)?;
     let _registration = crate::hil::registry::register(&crate::hil::registry::RunEntry {
         run_id: run_id.clone(),
         pid: std::process::id(),
@@ -231,11 +289,14 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         started_unix_s: std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_secs()),
-        live_addr: None,
+        live_addr: live.as_ref().map(|l| l.addr.clone()),
     })
     .map_err(|e| eprintln!("hil: warning: run not registered for `fastemu ctl`: {e}"))
     .ok();
-    let mut outcome = run_processes(&plan, true)?;
+    let mut outcome = run_processes(&plan, true, live.as_ref())?;
+    if let Some(l) = live {
+        l.stop();
+    }
     // Process deaths first: they are the cause; the others' reactions follow from them.
     outcome.faults.sort_by_key(|f| !f.contains("process (pid"));
     let records = merge_records(&out_dir);

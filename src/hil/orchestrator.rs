@@ -273,8 +273,13 @@ impl Supervisor {
     }
 }
 
-/// Spawns the three processes and runs the scenario until the rig ends it.
-pub fn run_processes(plan: &RunPlan, progress: bool) -> Result<RunOutcome, ProcessError> {
+/// Spawns the three processes and runs the scenario until the rig ends it; operator
+/// requests from the live view's services (`live`) are relayed to the rig.
+pub fn run_processes(
+    plan: &RunPlan,
+    progress: bool,
+    live: Option<&crate::live::LiveHandle>,
+) -> Result<RunOutcome, ProcessError> {
     let node = IpcNode::new(&plan.run_id, "hil")?;
     let heartbeats = node.heartbeat_in()?;
     let control = node.control_out()?;
@@ -356,6 +361,19 @@ pub fn run_processes(plan: &RunPlan, progress: bool) -> Result<RunOutcome, Proce
                         sup.send(&control, run_command::STOP, 0, 0);
                         sup.stop_sent_at = Some(now);
                     }
+                }
+                if let Some(command) = live.and_then(|l| l.take_request()) {
+                    if progress {
+                        eprintln!(
+                            "hil: operator request from the live view: {}",
+                            match command {
+                                run_command::HOLD => "hold",
+                                run_command::RESUME => "resume",
+                                _ => "stop",
+                            }
+                        );
+                    }
+                    sup.send(&control, command, 0, 0);
                 }
                 // The rig ended the run (or died): the others stop now.
                 let rig_done = sup.outcome.rig_finished || sup.finished[process_id::RIG as usize];

@@ -302,10 +302,18 @@ impl Servo {
         }
     }
 
-    /// Orderly end requested by the operator: hold, unload, finish.
+    /// Orderly end requested by the operator: hold, unload, finish. The hold's clock
+    /// restarts, so an end after a long operator hold still unloads before finishing.
     pub fn operator_end(&mut self, step_idx: u64) {
         match self.phase {
-            Phase::Holding { ref mut unload, .. } => *unload = true,
+            Phase::Holding {
+                ref mut unload,
+                ref mut since_step,
+                ..
+            } => {
+                *unload = true;
+                *since_step = step_idx;
+            }
             _ => self.enter_hold(step_idx, true, true),
         }
     }

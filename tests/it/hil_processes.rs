@@ -27,6 +27,31 @@ use fastemu::rig::core::RigRecord;
 
 static SERIAL: Mutex<()> = Mutex::new(());
 
+/// Serialises the tests that run `hil` (other modules take it too).
+pub fn serial() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Kills a process (SIGTERM twice, then SIGKILL) and reaps nothing: for tests that own
+/// the `Child` themselves and wait on it.
+pub struct KillOnDrop(pub u32);
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        let alive = |pid: u32| unsafe { libc::kill(pid as i32, 0) } == 0;
+        if alive(self.0) {
+            unsafe { libc::kill(self.0 as i32, libc::SIGTERM) };
+            std::thread::sleep(Duration::from_millis(50));
+            unsafe { libc::kill(self.0 as i32, libc::SIGTERM) };
+            let t = Instant::now();
+            while alive(self.0) && t.elapsed() < Duration::from_secs(5) {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            unsafe { libc::kill(self.0 as i32, libc::SIGKILL) };
+        }
+    }
+}
+
 const FASTEMU: &str = env!("CARGO_BIN_EXE_fastemu");
 /// The tests' scenario puts the first axle here (the default: 2.0 s) to keep runs short.
 const AXLE_S: f64 = 1.0;
