@@ -209,13 +209,6 @@ pub fn run_rig(
         reserved: 0,
     });
     let written = recorder.finish();
-    let counts = |topic: &str| {
-        written
-            .counts
-            .iter()
-            .find(|(t, _)| t == topic)
-            .map_or(SinkCounts::default(), |(_, c)| *c)
-    };
     let summary = RigSummary {
         steps: core.step_idx(),
         missed_deadlines: missed,
@@ -224,8 +217,8 @@ pub fn run_rig(
         held: core.servo().holding(),
         at_rest: core.servo().at_rest(),
         orchestrator_lost,
-        records: counts("/rig"),
-        events: counts("/events"),
+        records: written.counts_of("/rig"),
+        events: written.counts_of("/events"),
         record_error: written.error,
     };
     write_summary(out_dir, "rig", &summary)?;
