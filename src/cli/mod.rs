@@ -4,7 +4,6 @@
 pub mod bench;
 pub mod diagnose;
 pub mod equiv;
-pub mod fitplots;
 pub mod hil;
 pub mod identify;
 pub mod loopproc;

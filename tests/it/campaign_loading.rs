@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use fastemu::campaign::load_campaign;
+use fastemu::ident::campaign::load_campaign;
 
 fn scratch(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("fastemu-campaign-{}-{name}", std::process::id()));

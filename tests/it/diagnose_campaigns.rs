@@ -2,9 +2,9 @@
 
 use std::path::PathBuf;
 
-use fastemu::campaign::load_campaign;
-use fastemu::diagnose::{diagnose, DiagnoseOptions};
-use fastemu::fit::cycle_data;
+use fastemu::ident::campaign::load_campaign;
+use fastemu::ident::diagnose::{diagnose, DiagnoseOptions};
+use fastemu::ident::fit::cycle_data;
 use fastemu::model::effects::AugmentedModel;
 use fastemu::model::file::parse_model_toml;
 

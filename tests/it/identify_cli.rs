@@ -6,8 +6,8 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use fastemu::campaign::load_campaign;
-use fastemu::cli::identify::identify_eq2;
+use fastemu::ident::campaign::load_campaign;
+use fastemu::ident::identify::identify_eq2;
 use fastemu::model::equiv::{zener_eq2, TABLE2_FREQUENCIES_HZ, TABLE2_PRELOADS_N};
 use fastemu::model::params::ZenerParams;
 

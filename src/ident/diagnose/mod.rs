@@ -37,9 +37,11 @@
 //! whose required variation is absent from the campaign are reported as not identifiable
 //! and not tried.
 //!
-//! Must not: do I/O (the CLI writes files and progress).
+//! Must not: do I/O (`report` writes files; progress goes through a callback).
 
-use crate::fit::{
+pub mod report;
+
+use crate::ident::fit::{
     assign_folds, cross_validate, run_parallel, CrossValidation, CycleData, EffectKind, Template,
 };
 use crate::model::effects::{AugmentedModel, Effect};
@@ -283,7 +285,7 @@ fn data_driven_element(element: &ElementModel, data: &[CycleData]) -> ElementMod
         .iter()
         .map(|d| {
             let (re, im) =
-                crate::campaign::cdiv(d.force_harmonics_n[0], d.displacement_harmonics_m[0]);
+                crate::ident::campaign::cdiv(d.force_harmonics_n[0], d.displacement_harmonics_m[0]);
             (re, im / (2.0 * std::f64::consts::PI * d.frequency_hz))
         })
         .collect();
@@ -577,7 +579,7 @@ pub fn diagnose(
         template.starts(data)[0].clone(),
         alternative.starts(data)[0].clone(),
     ];
-    let calibration = crate::fit::fit_template(&template, &all, &starts, 100);
+    let calibration = crate::ident::fit::fit_template(&template, &all, &starts, 100);
     template.baseline = template.model(&calibration.params);
     let baseline_template = template.clone();
     let baseline_cv = cross_validate(

@@ -14,7 +14,7 @@ pub mod lm;
 
 use std::f64::consts::PI;
 
-use crate::campaign::{cabs, cmul, Campaign, Complex, N_HARMONICS};
+use crate::ident::campaign::{cabs, cmul, Campaign, Complex, N_HARMONICS};
 use crate::model::effects::{AugmentedModel, Effect, FrictionLaw, ModelStepper, StepperMode};
 use crate::model::params::ElementModel;
 
@@ -103,7 +103,7 @@ pub fn assign_noise_weights(data: &mut [CycleData]) {
     let features = |d: &CycleData| -> [f64; 4] {
         let x = d.frequency_hz.ln();
         let stiffness =
-            crate::campaign::cdiv(d.force_harmonics_n[0], d.displacement_harmonics_m[0]);
+            crate::ident::campaign::cdiv(d.force_harmonics_n[0], d.displacement_harmonics_m[0]);
         [1.0, x, x * x, cabs(stiffness).max(1e-300).ln()]
     };
     let rows: Vec<(f64, [f64; 4])> = data

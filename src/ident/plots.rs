@@ -4,8 +4,8 @@
 use std::f64::consts::PI;
 use std::path::Path;
 
-use crate::campaign::{cdiv, N_HARMONICS};
-use crate::fit::{predict_cycle, predict_cycle_with_waveform, CycleData};
+use crate::ident::campaign::{cdiv, N_HARMONICS};
+use crate::ident::fit::{predict_cycle, predict_cycle_with_waveform, CycleData};
 use crate::model::effects::AugmentedModel;
 use crate::plot::{draw_png, Panel, Series};
 
