@@ -27,5 +27,7 @@
 pub mod campaign;
 pub mod diagnose;
 pub mod fit;
+pub mod history;
 pub mod identify;
 pub mod plots;
+pub mod runrec;

@@ -6,9 +6,12 @@ use std::path::PathBuf;
 
 use serde_json::json;
 
+use super::verdict::{order_fraction, Unexplained};
 use super::{effect_params, DiagnoseOptions, Diagnosis};
 use crate::ident::fit::{predict_cycle, rms_gap, CycleData, EffectKind};
-use crate::ident::plots::{distinct_levels, plot_equivalents, plot_loops, reconstruct};
+use crate::ident::plots::{
+    distinct_levels, plot_equivalents, plot_histories, plot_loops, reconstruct,
+};
 use crate::model::effects::AugmentedModel;
 use crate::plot::{draw_png, Panel, Series};
 
@@ -22,7 +25,7 @@ pub struct ReportPaths {
 /// What the gap measures, for `metric` in the JSON and the report.
 pub fn metric(n_folds: usize) -> String {
     format!(
-        "held-out relative RMS residual of the force at the test frequency in excess of measurement noise: sqrt(mean_w |F_sim,1 - F_meas,1|^2 / |F_meas,1|^2 - mean_w nu_i) over the harmonic tests, mean_w a precision-weighted mean (weights 1 / max(nu~_i, median nu~ / 2), nu~_i the campaign's smoothed noise level), F_sim,1 from the steady-state force simulated from each test's measured displacement cycle by a model fitted without that test ({n_folds}-fold cross-validation), nu_i the noise share of that residual estimated from the DFT bins next to the test frequency (floored at a tenth of the noise RMS; raw_gap_* include the noise)"
+        "held-out relative RMS residual of the force at the test frequency in excess of measurement noise: sqrt(mean_w |F_sim,1 - F_meas,1|^2 / |F_meas,1|^2 - mean_w nu_i) over the held-out tests, mean_w a precision-weighted mean (weights 1 / max(nu~_i, median nu~ / 2), nu~_i the campaign's smoothed noise level), F_sim,1 from the steady-state force simulated from each test's measured displacement cycle by a model fitted without that test ({n_folds}-fold cross-validation), nu_i the noise share of that residual estimated from the DFT bins next to the test frequency (floored at a tenth of the noise RMS; raw_gap_* include the noise); a history test contributes its band's relative squared residual sum (F_sim - F_meas)^2 / sum (F_meas - mean)^2 and its noise share from the spectrum above the band"
     )
 }
 
@@ -62,7 +65,12 @@ pub fn json_summary(d: &Diagnosis, model_path: &std::path::Path) -> serde_json::
                 "raw_ratio": r.raw_ratio,
                 "wilcoxon_z": r.wilcoxon_z,
                 "folds_improved": r.folds_improved,
+                "history_evidence": r.history_evidence,
                 "named": d.named.contains(&r.kind),
+                "out_of_range": r.out_of_range.map(|o| json!({
+                    "param": o.param, "value": o.value, "range": [o.range.0, o.range.1],
+                    "text": o.to_string(), "suggests": o.suggestion(),
+                })),
             })
         })
         .collect();
@@ -79,7 +87,38 @@ pub fn json_summary(d: &Diagnosis, model_path: &std::path::Path) -> serde_json::
         "candidates": candidates,
         "not_identifiable": d.not_tried.iter().filter(|n| n.not_identifiable).map(|n| n.kind.name()).collect::<Vec<_>>(),
         "model_out": model_path.display().to_string(),
+        "unexplained": unexplained_json(d.verdict.unexplained.as_ref()),
+        "specimen_changed": d.verdict.specimen_changed(),
+        "order_trend": d.verdict.trend.as_ref().map(|t| json!({
+            "change": t.change, "t": t.t, "beats_design": t.beats_design,
+            "by_clock": t.by_clock, "significant": t.significant(),
+        })),
+        "repeats": d.verdict.repeats.iter().map(|c| json!({
+            "first": c.first_id, "last": c.last_id, "change": c.change, "z": c.z,
+            "significant": c.significant(),
+        })).collect::<Vec<_>>(),
+        "history_tests": d.history_ids,
     })
+}
+
+/// The SPEC 5.1 `unexplained` object (or null).
+pub fn unexplained_json(u: Option<&Unexplained>) -> serde_json::Value {
+    match u {
+        Some(u) => json!({"gap": u.gap, "noise_floor": u.noise_floor, "where": u.where_}),
+        None => serde_json::Value::Null,
+    }
+}
+
+/// The headline sentence on what remains (SPEC 5.1): never "nothing beats the baseline"
+/// when the gap is beyond noise.
+pub fn unexplained_headline(u: &Unexplained) -> String {
+    format!(
+        "Unexplained residual: held-out gap {:.3e}, {:.1}x the noise floor {:.3e}, remains after the named effects; it concentrates in: {}",
+        u.gap,
+        u.gap / u.noise_floor.max(1e-300),
+        u.noise_floor,
+        u.where_.join("; ")
+    )
 }
 
 /// Folds actually used (`--folds` is capped at the number of tests).
@@ -93,10 +132,11 @@ fn gap_by(
     data: &[CycleData],
     key: impl Fn(&CycleData) -> f64,
 ) -> Vec<(f64, f64, f64, usize)> {
-    distinct_levels(data.iter().map(&key))
+    distinct_levels(data.iter().filter(|c| !c.is_history()).map(&key))
         .into_iter()
         .map(|level| {
             let idx: Vec<usize> = (0..data.len())
+                .filter(|&i| !data[i].is_history())
                 .filter(|&i| {
                     (key(&data[i]) - level).abs()
                         <= 0.01 * level.abs().max(key(&data[i]).abs()) + 1e-9
@@ -116,7 +156,8 @@ fn gap_by(
 /// force residual relative to each test's force scale, at `n` phase points.
 fn residual_over_cycle(model: &AugmentedModel, data: &[CycleData], n: usize) -> Vec<f64> {
     let mut sum = vec![0.0; n + 1];
-    for d in data {
+    let data: Vec<&CycleData> = data.iter().filter(|d| !d.is_history()).collect();
+    for d in &data {
         let predicted = predict_cycle(model, d);
         let mut diff = [(0.0, 0.0); crate::ident::campaign::N_HARMONICS];
         for h in 0..diff.len() {
@@ -138,6 +179,7 @@ struct Plots {
     gap_map: PathBuf,
     loops: PathBuf,
     equivalents: PathBuf,
+    histories: Option<PathBuf>,
 }
 
 fn write_plots(
@@ -192,6 +234,43 @@ fn write_plots(
         }
         panels.push(panel);
     }
+    // Test order: each test's held-out residual (noise included) against its place in the
+    // campaign, with the noise share; history tests drawn as their own series.
+    let fractions = order_fraction(data);
+    let pick = |history: bool, values: &[f64]| -> (Vec<f64>, Vec<f64>) {
+        (0..data.len())
+            .filter(|&i| data[i].is_history() == history)
+            .map(|i| (fractions[i], values[i].max(1e-12).sqrt()))
+            .unzip()
+    };
+    let noise: Vec<f64> = data.iter().map(|c| c.noise_relative).collect();
+    let (xb, yb) = pick(false, &d.baseline_cv.held_out_error);
+    let (xa, ya) = pick(false, &d.final_cv.held_out_error);
+    let (xn, yn) = pick(false, &noise);
+    let mut order_panel = Panel::new(
+        if d.verdict.specimen_changed() {
+            "held-out residual by test order: THE SPECIMEN CHANGED".to_string()
+        } else if d.verdict.unexplained.is_some() {
+            "held-out residual by test order (unexplained residual remains)".to_string()
+        } else {
+            "held-out residual by test order".to_string()
+        },
+        if d.verdict.trend.as_ref().is_some_and(|t| t.by_clock) {
+            "started_at (0 = first test, 1 = last)"
+        } else {
+            "test order in campaign.toml (0 = first, 1 = last)"
+        },
+        "relative residual (noise incl.)",
+    )
+    .log_y()
+    .with(Series::points("baseline (calibrated)", xb, yb, 1))
+    .with(Series::points("augmented", xa, ya, 2))
+    .with(Series::points("noise share", xn, yn, 0));
+    if data.iter().any(CycleData::is_history) {
+        let (xh, yh) = pick(true, &d.final_cv.held_out_error);
+        order_panel = order_panel.with(Series::points("history tests (augmented)", xh, yh, 3));
+    }
+    panels.push(order_panel);
     let n = 64;
     let phase: Vec<f64> = (0..=n).map(|k| 360.0 * k as f64 / n as f64).collect();
     panels.push(
@@ -215,9 +294,21 @@ fn write_plots(
     );
     let gap_map = args.out.join("gap_map.png");
     draw_png(&gap_map, 1500, 900, 3, &panels)?;
+    let histories = args.out.join("histories.png");
+    let has_history = data.iter().any(CycleData::is_history);
+    if has_history {
+        plot_histories(
+            &histories,
+            data,
+            &[
+                ("baseline (calibrated)", &d.baseline_model),
+                ("augmented", &d.final_model),
+            ],
+        )?;
+    }
     let loops = args.out.join("loops.png");
-    // The four tests where the calibrated baseline misses most (held-out).
-    let mut worst: Vec<usize> = (0..data.len()).collect();
+    // The four harmonic tests where the calibrated baseline misses most (held-out).
+    let mut worst: Vec<usize> = (0..data.len()).filter(|&i| !data[i].is_history()).collect();
     worst.sort_by(|&a, &b| {
         d.baseline_cv.held_out_error[b].total_cmp(&d.baseline_cv.held_out_error[a])
     });
@@ -232,9 +323,10 @@ fn write_plots(
         ],
     )?;
     let equivalents = args.out.join("keq_ceq.png");
+    let harmonic: Vec<CycleData> = data.iter().filter(|c| !c.is_history()).cloned().collect();
     plot_equivalents(
         &equivalents,
-        data,
+        &harmonic,
         length_m,
         &[
             ("baseline (calibrated)", &d.baseline_model),
@@ -246,6 +338,7 @@ fn write_plots(
         gap_map,
         loops,
         equivalents,
+        histories: has_history.then_some(histories),
     })
 }
 
@@ -260,22 +353,48 @@ fn render_report(
     let mut r = String::new();
     let named: Vec<&str> = d.named.iter().map(|k| k.name()).collect();
     let _ = writeln!(r, "# Discrepancy report\n");
+    let n_history = data.iter().filter(|c| c.is_history()).count();
+    if let Some(u) = &d.verdict.unexplained {
+        let _ = writeln!(r, "**{}.**\n", unexplained_headline(u));
+    }
+    if d.verdict.specimen_changed() {
+        let _ = writeln!(r, "**{}**\n", specimen_sentence(d));
+    }
     let _ = writeln!(
         r,
-        "- Campaign: `{}` ({} harmonic tests)",
+        "- Campaign: `{}` ({} harmonic tests, {n_history} history tests)",
         args.campaign.display(),
-        data.len()
+        data.len() - n_history
     );
     let _ = writeln!(r, "- Baseline model: `{}`", args.model.display());
     let _ = writeln!(
         r,
         "- **Named effects: {}**",
-        if named.is_empty() {
-            "none (nothing beats the calibrated baseline beyond noise)".to_string()
-        } else {
+        if !named.is_empty() {
             named.join(", ")
+        } else if d.verdict.unexplained.is_some() {
+            "none: no library effect explains the gap within its physical range (see the unexplained residual above)".to_string()
+        } else {
+            "none (nothing beats the calibrated baseline beyond noise, and the residual is at the noise floor)".to_string()
         }
     );
+    if d.verdict.unexplained.is_none() {
+        let _ = writeln!(
+            r,
+            "- Unexplained residual: none (the held-out gap after the named effects is at the noise floor: {:.1}x)",
+            d.gap_after / d.noise_floor.max(1e-300)
+        );
+    }
+    for c in latest_candidates(d) {
+        if let Some(o) = c.out_of_range {
+            let _ = writeln!(
+                r,
+                "- `{}` {o}: not named. This suggests {}.",
+                c.kind.name(),
+                o.suggestion()
+            );
+        }
+    }
     let _ = writeln!(
         r,
         "- Held-out gap: **{:.4e} -> {:.4e}** ({:.1}x smaller)",
@@ -327,7 +446,8 @@ fn render_report(
         "Each candidate is the current model plus one effect, fitted on the training folds and scored on the held-out fold. \
          Score = held-out gap ratio (noise excluded) x (1 + 0.02 per extra parameter). Named only if score < {}, \
          the penalised raw-residual ratio < {}, the paired Wilcoxon z (per-test held-out errors, noise-normalised) > {}, \
-         it is better in at least K-1 of K folds, and it explains a held-out gap above {:.0e}.\n",
+         it is better in at least K-1 of K folds (or every history test beyond its noise loses most of its excess while the harmonic tests do not get worse), \
+         it explains a held-out gap above {:.0e}, and its fitted parameters lie inside their physical range.\n",
         DiagnoseOptions::default().max_score,
         DiagnoseOptions::default().max_raw_ratio,
         DiagnoseOptions::default().min_wilcoxon_z,
@@ -351,7 +471,12 @@ fn render_report(
             c.wilcoxon_z,
             c.folds_improved,
             d.folds.iter().max().map_or(0, |m| m + 1),
-            if c.qualifies { "yes" } else { "no" }
+            match (c.qualifies, c.out_of_range) {
+                (_, Some(o)) => format!("no: {o}"),
+                (true, None) if c.history_evidence => "yes (history tests)".to_string(),
+                (true, None) => "yes".to_string(),
+                (false, None) => "no".to_string(),
+            }
         );
     }
     let _ = writeln!(r, "\n### Not tried\n");
@@ -390,8 +515,54 @@ fn render_report(
         }
         let _ = writeln!(r);
     }
+    let _ = writeln!(r, "### Test order and repeated tests\n");
+    match &d.verdict.trend {
+        Some(t) => {
+            let _ = writeln!(
+                r,
+                "In-phase residual against test order ({}): {:+.3} % from the first to the last test, t = {:.2}; order explains the residuals {} than any design variable. {}",
+                if t.by_clock { "started_at" } else { "order in campaign.toml" },
+                100.0 * t.change,
+                t.t,
+                if t.beats_design { "better" } else { "no better" },
+                if t.significant() {
+                    "**The specimen changed during the campaign.**"
+                } else {
+                    "No change of the specimen beyond noise."
+                }
+            );
+        }
+        None => {
+            let _ = writeln!(r, "Too few tests for a trend with test order.");
+        }
+    }
+    if d.verdict.repeats.is_empty() {
+        let _ = writeln!(
+            r,
+            "\nNo test was repeated. A lab's habit that makes drift visible without any model: repeat the first test at the end of the campaign (same settings); diagnose compares repeated tests directly."
+        );
+    }
+    for c in &d.verdict.repeats {
+        let _ = writeln!(
+            r,
+            "\nRepeated test {} -> {}: measured dynamic stiffness {:+.3} % (z = {:.1}){}",
+            c.first_id,
+            c.last_id,
+            100.0 * c.change,
+            c.z,
+            if c.significant() {
+                ": the specimen changed between them."
+            } else {
+                ": no change beyond noise."
+            }
+        );
+    }
+    let _ = writeln!(r);
     let _ = writeln!(r, "Per test (held-out relative residual at the test frequency, noise included, and the estimated noise share):\n\n| test | preload (kN) | f (Hz) | amplitude (kN) | T (degC) | before | after | noise |\n| --- | --- | --- | --- | --- | --- | --- | --- |");
     for (i, t) in data.iter().enumerate() {
+        if t.is_history() {
+            continue;
+        }
         let _ = writeln!(
             r,
             "| {} | {:.1} | {} | {:.2} | {:.1} | {:.3e} | {:.3e} | {:.3e} |",
@@ -405,12 +576,43 @@ fn render_report(
             t.noise_relative.sqrt()
         );
     }
+    if data.iter().any(CycleData::is_history) {
+        let _ = writeln!(r, "\nHistory tests (held-out relative residual in the band, noise included, and the noise share):\n\n| test | band (Hz) | force range (kN) | T (degC) | before | after | noise | beyond noise after |\n| --- | --- | --- | --- | --- | --- | --- | --- |");
+        for (i, t) in data.iter().enumerate() {
+            let Some(h) = &t.history else { continue };
+            let _ = writeln!(
+                r,
+                "| {} | {:.1} | {:.1}-{:.1} | {:.1} | {:.3e} | {:.3e} | {:.3e} | {} |",
+                t.id,
+                h.band_hz,
+                h.force_min_n / 1e3,
+                h.force_max_n / 1e3,
+                t.temperature_c,
+                d.baseline_cv.held_out_error[i].sqrt(),
+                d.final_cv.held_out_error[i].sqrt(),
+                t.noise_relative.sqrt(),
+                if super::verdict::history_beyond_noise(
+                    d.final_cv.held_out_error[i],
+                    t.noise_relative,
+                    h.dof
+                ) {
+                    "yes"
+                } else {
+                    "no"
+                }
+            );
+        }
+    }
     let _ = writeln!(r, "\n## Plots\n");
-    for (title, path) in [
+    let mut listed = vec![
         ("Gap map", &plots.gap_map),
         ("Loops", &plots.loops),
         ("k_eq and c_eq", &plots.equivalents),
-    ] {
+    ];
+    if let Some(h) = &plots.histories {
+        listed.push(("History tests: measured, baseline and augmented force", h));
+    }
+    for (title, path) in listed {
         let name = path
             .file_name()
             .map(|n| n.to_string_lossy().to_string())
@@ -470,4 +672,193 @@ pub fn write_outputs(
         report_path.display()
     );
     Ok(json_summary(diagnosis, &model_path))
+}
+
+/// The sentence for a specimen that changed during the campaign.
+pub fn specimen_sentence(d: &Diagnosis) -> String {
+    let mut parts = Vec::new();
+    if let Some(t) = d.verdict.trend.as_ref().filter(|t| t.significant()) {
+        parts.push(format!(
+            "the residual trends with test order: the measured force fell {:.2} % against the model from the first to the last test (t = {:.1}){}",
+            100.0 * t.change,
+            t.t,
+            if t.by_clock { ", by started_at" } else { ", in campaign order" }
+        ));
+    }
+    for c in d.verdict.repeats.iter().filter(|c| c.significant()) {
+        parts.push(format!(
+            "repeated test {} -> {} changed its dynamic stiffness by {:+.2} % (z = {:.1})",
+            c.first_id,
+            c.last_id,
+            100.0 * c.change,
+            c.z
+        ));
+    }
+    format!(
+        "The specimen changed during the campaign: {}. Effects named from such a campaign may stand in for the change; repeat the first test at the end to check.",
+        parts.join("; ")
+    )
+}
+
+/// Writes the run diagnosis (`report.md`, `histories.png`, `augmented_model.toml`) under
+/// `out`; returns the `--json` object (SPEC 5 keys, `unexplained`, and `advice`).
+pub fn write_run_outputs(
+    run_dir: &std::path::Path,
+    model_label: &str,
+    out: &std::path::Path,
+    d: &super::run::RunDiagnosis,
+    config: &crate::hil::config::HilConfig,
+    started: std::time::Instant,
+) -> anyhow::Result<serde_json::Value> {
+    use anyhow::Context;
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let advice = run_advice(d, config);
+    let named: Vec<&str> = d.named.iter().map(|k| k.name()).collect();
+    let model_path = out.join("augmented_model.toml");
+    let header = format!(
+        "Rig artefacts of run {} fitted by `fastemu diagnose --run` to the model {model_label} (not recalibrated).\nNamed: {}. The emulator (StepperMode::Emulation) leaves channel-delay and moving-mass out.",
+        run_dir.display(),
+        if named.is_empty() { "none".to_string() } else { named.join(", ") }
+    );
+    std::fs::write(&model_path, d.final_model.render_toml(&header))
+        .with_context(|| format!("cannot write {}", model_path.display()))?;
+    let plot_path = out.join("histories.png");
+    plot_histories(
+        &plot_path,
+        std::slice::from_ref(&d.unit),
+        &[
+            ("run's model", &d.model),
+            ("with named artefacts", &d.final_model),
+        ],
+    )?;
+    let elapsed_s = started.elapsed().as_secs_f64();
+    let mut r = String::new();
+    let _ = writeln!(r, "# Loop diagnosis of a HIL run\n");
+    for a in &advice {
+        let _ = writeln!(r, "**{a}.**\n");
+    }
+    if let Some(u) = &d.unexplained {
+        let _ = writeln!(r, "**{}.**\n", unexplained_headline(u));
+    }
+    let _ = writeln!(
+        r,
+        "- Run: `{}`; model: {model_label} (as the emulator ran it, not recalibrated)",
+        run_dir.display()
+    );
+    let _ = writeln!(
+        r,
+        "- **Named rig artefacts: {}**",
+        if named.is_empty() {
+            "none".to_string()
+        } else {
+            named.join(", ")
+        }
+    );
+    let _ = writeln!(
+        r,
+        "- Residual of the applied force against the emulated model (band to {:.0} Hz, noise excluded): **{:.4e} -> {:.4e}**; noise floor {:.4e}",
+        d.unit.history.as_ref().map_or(0.0, |h| h.band_hz),
+        d.gap_before,
+        d.gap_after,
+        d.noise_floor
+    );
+    let _ = writeln!(r, "- Run time {elapsed_s:.2} s\n");
+    let _ = writeln!(r, "| round | artefact | relative residual | parameters | qualifies |\n| --- | --- | --- | --- | --- |");
+    for c in &d.candidates {
+        let params = effect_params(&c.model, c.kind)
+            .iter()
+            .map(|(k, v)| format!("{k} = {v:.4e}"))
+            .collect::<Vec<_>>()
+            .join(", ");
+        let _ = writeln!(
+            r,
+            "| {} | {} | {:.4e} | {params} | {} |",
+            c.round,
+            c.kind.name(),
+            c.error.sqrt(),
+            match c.out_of_range {
+                Some(o) => format!("no: {o}; {}", o.suggestion()),
+                None if c.qualifies => "yes".into(),
+                None => "no".into(),
+            }
+        );
+    }
+    let _ = writeln!(r, "\n![measured vs emulated force](histories.png)");
+    let report_path = out.join("report.md");
+    std::fs::write(&report_path, r)
+        .with_context(|| format!("cannot write {}", report_path.display()))?;
+    eprintln!(
+        "diagnose: run record: named [{}], residual {:.4e} -> {:.4e}; report {} ({elapsed_s:.2} s)",
+        named.join(", "),
+        d.gap_before,
+        d.gap_after,
+        report_path.display()
+    );
+    for a in &advice {
+        eprintln!("diagnose: {a}");
+    }
+    let candidates: Vec<serde_json::Value> = d
+        .candidates
+        .iter()
+        .map(|c| {
+            let params: serde_json::Map<String, serde_json::Value> =
+                effect_params(&c.model, c.kind)
+                    .into_iter()
+                    .map(|(k, v)| (k.to_string(), json!(v)))
+                    .collect();
+            json!({
+                "effect": c.kind.name(),
+                "score": c.gap / d.gap_before.max(1e-300),
+                "params": params,
+                "round": c.round,
+                "named": d.named.contains(&c.kind) && c.qualifies,
+                "out_of_range": c.out_of_range.map(|o| json!({
+                    "param": o.param, "value": o.value, "range": [o.range.0, o.range.1],
+                    "text": o.to_string(), "suggests": o.suggestion(),
+                })),
+            })
+        })
+        .collect();
+    Ok(json!({
+        "effect": named.first(),
+        "effects": named,
+        "gap_before": d.gap_before,
+        "gap_after": d.gap_after,
+        "noise_floor": d.noise_floor,
+        "metric": "relative RMS residual of the applied (actuator) force against the force of the run's own model driven by the measured displacement, inside the record's signal band, in excess of the noise share estimated from the spectrum above the band",
+        "candidates": candidates,
+        "not_identifiable": Vec::<&str>::new(),
+        "model_out": model_path.display().to_string(),
+        "unexplained": unexplained_json(d.unexplained.as_ref()),
+        "advice": advice,
+        "force_lag_s": d.force_lag_s(),
+    }))
+}
+
+/// What the named artefacts mean for the run, in the words of its config.
+fn run_advice(d: &super::run::RunDiagnosis, config: &crate::hil::config::HilConfig) -> Vec<String> {
+    let mut out = Vec::new();
+    for effect in &d.final_model.effects {
+        match *effect {
+            crate::model::effects::Effect::ChannelDelay { force_lag_s }
+                if d.named.contains(&EffectKind::ChannelDelay) =>
+            {
+                out.push(crate::ident::runrec::delay_knob_advice(config, force_lag_s));
+            }
+            crate::model::effects::Effect::MovingMass { mass_kg }
+                if d.named.contains(&EffectKind::MovingMass) =>
+            {
+                out.push(format!(
+                    "the applied force carries {mass_kg:.1} kg times the measured acceleration beyond the emulated force: a mass the loop does not account for (the rig's moving parts between actuator and specimen)"
+                ));
+            }
+            _ => {}
+        }
+    }
+    if out.is_empty() && d.unexplained.is_none() {
+        out.push(
+            "the applied force follows the emulated force to noise: no loop artefact found".into(),
+        );
+    }
+    out
 }

@@ -1,0 +1,187 @@
+//! A HIL run as a campaign of one history test (SPEC 5.1): the rig's record (measured
+//! displacement, applied force) against the model the emulator ran, not recalibrated.
+//! What disagrees is the loop, so only the rig artefacts are tried: `channel-delay`
+//! (applied force early or late against the emulated force: delay compensation) and
+//! `moving-mass` (an acceleration term: a mass the loop does not account for).
+//!
+//! With one test there is nothing to hold out; each artefact has one or two parameters
+//! against thousands of independent bins, so the in-sample improvement is the evidence:
+//! an artefact is named when it removes more of the relative squared residual than
+//! `4 nu sqrt(2 / dof)` (noise share `nu`, see `history`), explains a gap above the naming
+//! rule's 1e-3, leaves at most 0.8 of the gap, and fits inside its physical range.
+//!
+//! Must not: do I/O.
+
+use super::verdict::{history_beyond_noise, Unexplained, MIN_GAP, MIN_RATIO};
+use crate::ident::fit::{
+    fit_template, relative_error, CycleData, EffectKind, OutOfRange, Template,
+};
+use crate::model::effects::{AugmentedModel, Effect, DEFAULT_TEMPERATURE_C};
+
+/// The artefacts tried on a run.
+pub const RUN_ARTEFACTS: [EffectKind; 2] = [EffectKind::ChannelDelay, EffectKind::MovingMass];
+
+/// One artefact tried in one round.
+#[derive(Debug, Clone)]
+pub struct RunCandidate {
+    pub kind: EffectKind,
+    pub round: usize,
+    /// Model with the artefact fitted (and the ones named before it).
+    pub model: AugmentedModel,
+    /// Relative squared residual with it, and the gap (noise excluded).
+    pub error: f64,
+    pub gap: f64,
+    pub out_of_range: Option<OutOfRange>,
+    pub qualifies: bool,
+}
+
+/// What a run's record says about the loop.
+#[derive(Debug, Clone)]
+pub struct RunDiagnosis {
+    /// The model the emulator ran (rig artefacts of its file left out, as the emulator does).
+    pub model: AugmentedModel,
+    pub unit: CycleData,
+    pub error_before: f64,
+    pub gap_before: f64,
+    pub candidates: Vec<RunCandidate>,
+    pub named: Vec<EffectKind>,
+    pub final_model: AugmentedModel,
+    pub error_after: f64,
+    pub gap_after: f64,
+    pub noise_floor: f64,
+    pub unexplained: Option<Unexplained>,
+}
+
+impl RunDiagnosis {
+    /// Fitted force lag of the applied force behind the emulated one, s (if named).
+    pub fn force_lag_s(&self) -> Option<f64> {
+        self.final_model.effects.iter().find_map(|e| match e {
+            Effect::ChannelDelay { force_lag_s } => Some(*force_lag_s),
+            _ => None,
+        })
+    }
+}
+
+fn excess(error: f64, noise: f64) -> f64 {
+    (error - noise).max(0.01 * noise).max(1e-300).sqrt()
+}
+
+/// The operating temperature the run's model states (temperature-shift), else 23 degC.
+pub fn operating_temperature_c(model: &AugmentedModel) -> f64 {
+    model
+        .effects
+        .iter()
+        .find_map(|e| match e {
+            Effect::TemperatureShift {
+                operating_temperature_c,
+                ..
+            } => Some(*operating_temperature_c),
+            _ => None,
+        })
+        .unwrap_or(DEFAULT_TEMPERATURE_C)
+}
+
+/// Diagnoses a run's record `unit` (a history unit) against `model`.
+pub fn diagnose_run(
+    model: &AugmentedModel,
+    unit: CycleData,
+    progress: &mut dyn FnMut(&str),
+) -> RunDiagnosis {
+    let mut model = model.clone();
+    model
+        .effects
+        .retain(|e| !matches!(e, Effect::ChannelDelay { .. } | Effect::MovingMass { .. }));
+    let dof = unit.history.as_ref().map_or(1.0, |h| h.dof);
+    let noise = unit.noise_relative;
+    let error_before = relative_error(&model, &unit);
+    progress(&format!(
+        "run record: relative residual {:.4e} against the run's model (noise {:.4e}, band to {:.0} Hz)",
+        error_before.sqrt(),
+        noise.sqrt(),
+        unit.history.as_ref().map_or(0.0, |h| h.band_hz)
+    ));
+    let mut current = model.clone();
+    let mut current_error = error_before;
+    let mut named: Vec<EffectKind> = Vec::new();
+    let mut candidates = Vec::new();
+    let units = [&unit];
+    for round in 1..=RUN_ARTEFACTS.len() {
+        let mut best: Option<RunCandidate> = None;
+        for kind in RUN_ARTEFACTS.iter().copied().filter(|k| !named.contains(k)) {
+            let mut template = Template::new(current.clone(), unit.temperature_c);
+            template.fit_element = false;
+            template.fit_chi = false;
+            let template = template.with_effect(kind, None);
+            let fit = fit_template(&template, &units, &template.starts(&[]), 60);
+            let fitted = template.model(&fit.params);
+            let error = relative_error(&fitted, &unit);
+            let out_of_range = fitted
+                .effects
+                .iter()
+                .find(|e| e.name() == kind.name())
+                .and_then(|e| kind.out_of_range(e));
+            let gap_now = excess(current_error, noise);
+            let gap = excess(error, noise);
+            let explained = (gap_now * gap_now - gap * gap).max(0.0).sqrt();
+            let qualifies = out_of_range.is_none()
+                && current_error - error > 4.0 * noise * (2.0 / dof).sqrt()
+                && explained > MIN_GAP
+                && gap < 0.8 * gap_now;
+            progress(&format!(
+                "round {round}: {:<14} residual {:.4e}{}{}",
+                kind.name(),
+                error.sqrt(),
+                out_of_range.map_or(String::new(), |o| format!(" {o}")),
+                if qualifies { " qualifies" } else { "" }
+            ));
+            let candidate = RunCandidate {
+                kind,
+                round,
+                model: fitted,
+                error,
+                gap,
+                out_of_range,
+                qualifies,
+            };
+            if qualifies && best.as_ref().is_none_or(|b| candidate.error < b.error) {
+                best = Some(candidate.clone());
+            }
+            candidates.push(candidate);
+        }
+        match best {
+            Some(b) => {
+                progress(&format!("round {round}: named {}", b.kind.name()));
+                named.push(b.kind);
+                current = b.model;
+                current_error = b.error;
+            }
+            None => break,
+        }
+    }
+    let gap_before = excess(error_before, noise);
+    let gap_after = excess(current_error, noise);
+    let noise_floor = noise.sqrt();
+    let unexplained = (history_beyond_noise(current_error, noise, dof)
+        && gap_after >= MIN_RATIO * noise_floor
+        && gap_after >= MIN_GAP)
+        .then(|| Unexplained {
+            gap: gap_after,
+            noise_floor,
+            where_: vec![format!("the run's record {}", unit.id)],
+            harmonic_z: 0.0,
+            history_ids: vec![unit.id.clone()],
+        });
+    RunDiagnosis {
+        model,
+        unit,
+        error_before,
+        gap_before,
+        candidates,
+        named,
+        final_model: current,
+        error_after: current_error,
+        gap_after,
+        noise_floor,
+        unexplained,
+    }
+}
