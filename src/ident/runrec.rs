@@ -16,7 +16,7 @@
 use std::fmt;
 use std::path::{Path, PathBuf};
 
-use crate::csvio::{read_columns, uniform_step};
+use crate::csvio::read_columns;
 use crate::hil::config::{parse_hil_config, HilConfig};
 use crate::hil::process::EmulatorMeta;
 
@@ -78,11 +78,17 @@ pub fn load_run_history(run_dir: &Path) -> Result<RunHistory, RunRecordError> {
         message: e.message.clone(),
     };
     let cols = read_columns(&rig, &["t_s", "z_measured_m", "actuator_force_n"]).map_err(csv_err)?;
-    let origin = rig.display().to_string();
-    let dt_s = uniform_step(&cols.data[0], &cols.lines, &origin, "t_s").map_err(csv_err)?;
-    let mut columns = cols.data.into_iter().skip(1);
-    let displacement_m = columns.next().unwrap_or_default();
-    let applied_force_n = columns.next().unwrap_or_default();
+    let mut columns = cols.data.into_iter();
+    let time_s = columns.next().unwrap_or_default();
+    let (dt_s, displacement_m, applied_force_n) = uniform_series(
+        &time_s,
+        &columns.next().unwrap_or_default(),
+        &columns.next().unwrap_or_default(),
+    )
+    .map_err(|message| RunRecordError {
+        path: rig.display().to_string(),
+        message,
+    })?;
     let meta_path = run_dir.join("emulator-meta.json");
     let config_path = run_dir.join("config.toml");
     let (config_text, config_origin, config_base_dir) = if meta_path.is_file() {
@@ -121,6 +127,49 @@ pub fn load_run_history(run_dir: &Path) -> Result<RunHistory, RunRecordError> {
         config_origin,
         config_base_dir,
     })
+}
+
+/// The record on a uniform grid at its nominal step (the median step). A loop that
+/// missed deadlines skips periods, so some steps are whole multiples of the nominal one;
+/// the gaps are filled by linear interpolation.
+fn uniform_series(
+    time_s: &[f64],
+    a: &[f64],
+    b: &[f64],
+) -> Result<(f64, Vec<f64>, Vec<f64>), String> {
+    if time_s.len() < 2 {
+        return Err(format!("{} samples: too short a record", time_s.len()));
+    }
+    let mut steps: Vec<f64> = time_s.windows(2).map(|w| w[1] - w[0]).collect();
+    steps.sort_by(f64::total_cmp);
+    let dt_s = steps[steps.len() / 2];
+    if !(dt_s > 0.0) {
+        return Err("`t_s` does not increase".into());
+    }
+    for (i, w) in time_s.windows(2).enumerate() {
+        let ratio = (w[1] - w[0]) / dt_s;
+        if ratio < 0.5 || (ratio - ratio.round()).abs() > 0.01 || ratio > 1000.0 {
+            return Err(format!(
+                "`t_s` step {} s at row {} is no whole multiple of the nominal step {dt_s} s",
+                w[1] - w[0],
+                i + 2
+            ));
+        }
+    }
+    let n = ((time_s[time_s.len() - 1] - time_s[0]) / dt_s).round() as usize + 1;
+    let (mut out_a, mut out_b) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    let mut j = 0;
+    for k in 0..n {
+        let t = time_s[0] + k as f64 * dt_s;
+        while j + 2 < time_s.len() && time_s[j + 1] <= t + 1e-9 * dt_s {
+            j += 1;
+        }
+        let span = (time_s[j + 1] - time_s[j]).max(1e-300);
+        let u = ((t - time_s[j]) / span).clamp(0.0, 1.0);
+        out_a.push(a[j] + u * (a[j + 1] - a[j]));
+        out_b.push(b[j] + u * (b[j + 1] - b[j]));
+    }
+    Ok((dt_s, out_a, out_b))
 }
 
 /// What a fitted channel delay between emulated and applied force means for the loop,
