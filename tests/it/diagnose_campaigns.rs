@@ -27,7 +27,55 @@ fn scratch_dir(name: &str) -> PathBuf {
 
 /// Generates a campaign, runs the workflow, returns (named effects, gap before, gap after).
 fn run_case(name: &str, truth: &Truth, baseline_chi: f64, seed: u64) -> (Vec<String>, f64, f64) {
-    run_case_with_noise(name, truth, baseline_chi, seed, &Noise::typical())
+    let (named, before, after, unexplained) = run_case_full(name, truth, baseline_chi, seed);
+    assert!(
+        unexplained.is_none(),
+        "{name}: the library explains this truth, yet unexplained = {unexplained:?}"
+    );
+    (named, before, after)
+}
+
+/// As `run_case`, also returning the unexplained residual (gap, where).
+fn run_case_full(
+    name: &str,
+    truth: &Truth,
+    baseline_chi: f64,
+    seed: u64,
+) -> (Vec<String>, f64, f64, Option<(f64, Vec<String>)>) {
+    let dir = scratch_dir(name);
+    write_campaign_with(
+        &dir,
+        truth,
+        &standard_design(),
+        &Noise::typical(),
+        seed,
+        &Acquisition::typical(),
+    );
+    let campaign = load_campaign(&dir).expect("campaign loads");
+    let data = cycle_data(&campaign);
+    let spec = parse_model_toml(&off_baseline_toml(baseline_chi), "baseline.toml").unwrap();
+    let baseline = AugmentedModel::from_spec(&spec, "baseline.toml").unwrap();
+    let diagnosis = diagnose(&baseline, &data, &DiagnoseOptions::default(), &mut |m| {
+        eprintln!("[{name}] {m}")
+    });
+    let _ = std::fs::remove_dir_all(&dir);
+    let named = diagnosis
+        .named
+        .iter()
+        .map(|k| k.name().to_string())
+        .collect();
+    eprintln!(
+        "[{name}] gap after {:.3e}, noise floor {:.3e} ({:.2}x)",
+        diagnosis.gap_after,
+        diagnosis.noise_floor,
+        diagnosis.gap_after / diagnosis.noise_floor
+    );
+    (
+        named,
+        diagnosis.gap_before,
+        diagnosis.gap_after,
+        diagnosis.verdict.unexplained.map(|u| (u.gap, u.where_)),
+    )
 }
 
 fn run_case_with_noise(

@@ -104,6 +104,9 @@ pub struct CandidateResult {
     pub qualifies: bool,
     /// The fit on all tests leaves the effect's physical range: never named.
     pub out_of_range: Option<OutOfRange>,
+    /// Whether it would qualify but for its physical range (a finding worth reporting:
+    /// the best fit of this effect is unphysical, so its cause is something else).
+    pub would_qualify: bool,
     /// The candidate fitted on all tests.
     pub model: AugmentedModel,
     /// The template it was fitted with (the friction law chosen, for `amplitude-friction`).
@@ -555,6 +558,7 @@ fn lookahead_pair(
                 && given_first.qualifies
                 && given_other.qualifies
                 && out_of_range.is_none(),
+            would_qualify: joint.qualifies && given_first.qualifies && given_other.qualifies,
             out_of_range,
             model,
             template: pair_template,
@@ -746,6 +750,7 @@ pub fn diagnose(
                 folds_improved: m.folds_improved,
                 history_evidence: m.history_evidence,
                 qualifies: m.qualifies && out_of_range.is_none(),
+                would_qualify: m.qualifies,
                 out_of_range,
                 model,
                 template: candidate,

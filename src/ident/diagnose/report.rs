@@ -67,6 +67,7 @@ pub fn json_summary(d: &Diagnosis, model_path: &std::path::Path) -> serde_json::
                 "folds_improved": r.folds_improved,
                 "history_evidence": r.history_evidence,
                 "named": d.named.contains(&r.kind),
+                "would_qualify_but_for_range": r.would_qualify && r.out_of_range.is_some(),
                 "out_of_range": r.out_of_range.map(|o| json!({
                     "param": o.param, "value": o.value, "range": [o.range.0, o.range.1],
                     "text": o.to_string(), "suggests": o.suggestion(),
@@ -385,7 +386,13 @@ fn render_report(
             d.gap_after / d.noise_floor.max(1e-300)
         );
     }
-    for c in latest_candidates(d) {
+    let unphysical: Vec<&super::CandidateResult> = d
+        .rounds
+        .iter()
+        .flatten()
+        .filter(|c| c.would_qualify && c.out_of_range.is_some())
+        .collect();
+    for c in &unphysical {
         if let Some(o) = c.out_of_range {
             let _ = writeln!(
                 r,
@@ -394,6 +401,12 @@ fn render_report(
                 o.suggestion()
             );
         }
+    }
+    if !unphysical.is_empty() && !named.is_empty() && d.verdict.unexplained.is_some() {
+        let _ = writeln!(
+            r,
+            "- The best fit of the library is unphysical and a residual remains: the named effects may stand in for a cause outside the library."
+        );
     }
     let _ = writeln!(
         r,
