@@ -1,7 +1,9 @@
 //! History tests: any displacement programme (a recorded passage, the rig record of a HIL
 //! run) compared with the model in the time domain.
 //!
-//! Owns: `prepare_history` (choose the signal band from the measured force's spectrum,
+//! Owns: `prepare_history` (choose the signal band from the measured force's spectrum:
+//! where it stands `BAND_SNR` above the noise at the top of the spectrum, and no further
+//! than what holds all but `ENERGY_OUTSIDE_BAND` of its variance;
 //! estimate the noise inside it, band-limit and decimate both channels) and
 //! `predict_history` (the model's force for the recorded displacement, band-limited the
 //! same way, rig artefacts applied exactly per frequency bin as for harmonic tests).
@@ -34,6 +36,8 @@ use crate::model::effects::{AugmentedModel, Effect, ModelStepper, StepperMode};
 /// The band keeps the frequencies where the measured force's smoothed spectrum exceeds
 /// this multiple of the noise level at the top of the spectrum.
 const BAND_SNR: f64 = 30.0;
+/// Share of the force's variance (mean and end line removed) the band may leave out.
+const ENERGY_OUTSIDE_BAND: f64 = 5e-3;
 /// Samples per period of the band edge after decimation.
 const SAMPLES_PER_BAND_PERIOD: f64 = 8.0;
 
@@ -169,6 +173,27 @@ fn log_bins(freqs: &[f64], values: &[f64]) -> Vec<(f64, f64)> {
     out
 }
 
+/// Median of `values` over log-spaced groups of bins (ratio 1.25), divided by ln 2 (the
+/// median of an exponentially distributed periodogram value is ln 2 times its mean):
+/// robust against narrow peaks (a resonance, a hum) in a noise spectrum.
+fn log_bin_medians(freqs: &[f64], values: &[f64]) -> Vec<(f64, f64)> {
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < freqs.len() {
+        let edge = freqs[i] * 1.25;
+        let mut j = i;
+        while j < freqs.len() && (freqs[j] <= edge || j == i) {
+            j += 1;
+        }
+        let mut group: Vec<f64> = values[i..j].to_vec();
+        group.sort_by(f64::total_cmp);
+        let f_mid = 0.5 * (freqs[i] + freqs[j - 1]);
+        out.push((f_mid, group[group.len() / 2] / std::f64::consts::LN_2));
+        i = j;
+    }
+    out
+}
+
 /// Band, noise and decimation of a record (displacement and force at step `dt_s`).
 pub fn prepare_history(
     dt_s: f64,
@@ -208,6 +233,17 @@ pub fn prepare_history(
         .filter(|(_, p)| *p > BAND_SNR * top_level)
         .map(|(f, _)| *f)
         .fold(band_lo, f64::max);
+    // Nor beyond what holds all but ENERGY_OUTSIDE_BAND of the force's variance: sparse
+    // disturbances (a loop's missed deadlines ringing the specimen's resonance) carry
+    // little energy but stand far above the noise.
+    let total: f64 = power[1..].iter().sum();
+    let mut cumulative = 0.0;
+    if let Some(k) = (1..n_bins).find(|&k| {
+        cumulative += power[k];
+        cumulative >= (1.0 - ENERGY_OUTSIDE_BAND) * total
+    }) {
+        band_hz = band_hz.min(freqs[k]);
+    }
     band_hz = band_hz.clamp(band_lo, band_hi);
     let k_band = ((band_hz / df).floor() as usize).clamp(1, n_bins - 1);
 
@@ -231,7 +267,7 @@ pub fn prepare_history(
             .iter()
             .map(|&k| (f_spectrum[k] - ratio * z_spectrum[k]).norm_sqr())
             .collect();
-        let points: Vec<(f64, f64)> = log_bins(&rf, &rp)
+        let points: Vec<(f64, f64)> = log_bin_medians(&rf, &rp)
             .into_iter()
             .filter(|(_, p)| *p > 0.0)
             .map(|(f, p)| (f.ln(), p.ln()))

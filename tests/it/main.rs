@@ -6,6 +6,7 @@ mod campaign_loading;
 mod cli_errors;
 mod common;
 mod diagnose_campaigns;
+mod diagnose_run;
 mod diagnose_verdicts;
 mod effects_model;
 mod gen;

@@ -769,7 +769,7 @@ pub fn write_run_outputs(
     );
     let _ = writeln!(
         r,
-        "- Residual of the applied force against the emulated model (band to {:.0} Hz, noise excluded): **{:.4e} -> {:.4e}**; noise floor {:.4e}",
+        "- Relative RMS residual of the applied force against the emulated model (band to {:.0} Hz, noise included): **{:.4e} -> {:.4e}**; estimated noise floor {:.4e}",
         d.unit.history.as_ref().map_or(0.0, |h| h.band_hz),
         d.gap_before,
         d.gap_after,
@@ -838,7 +838,7 @@ pub fn write_run_outputs(
         "gap_before": d.gap_before,
         "gap_after": d.gap_after,
         "noise_floor": d.noise_floor,
-        "metric": "relative RMS residual of the applied (actuator) force against the force of the run's own model driven by the measured displacement, inside the record's signal band, in excess of the noise share estimated from the spectrum above the band",
+        "metric": "relative RMS residual of the applied (actuator) force against the force of the run's own model driven by the measured displacement, inside the record's signal band (noise included; noise_floor is the noise share estimated from the spectrum above the band)",
         "candidates": candidates,
         "not_identifiable": Vec::<&str>::new(),
         "model_out": model_path.display().to_string(),

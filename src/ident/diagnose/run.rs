@@ -4,11 +4,14 @@
 //! (applied force early or late against the emulated force: delay compensation) and
 //! `moving-mass` (an acceleration term: a mass the loop does not account for).
 //!
-//! With one test there is nothing to hold out; each artefact has one or two parameters
-//! against thousands of independent bins, so the in-sample improvement is the evidence:
-//! an artefact is named when it removes more of the relative squared residual than
-//! `4 nu sqrt(2 / dof)` (noise share `nu`, see `history`), explains a gap above the naming
-//! rule's 1e-3, leaves at most 0.8 of the gap, and fits inside its physical range.
+//! With one test there is nothing to hold out; each artefact has one parameter against
+//! hundreds of independent bins, so the in-sample improvement is the evidence, judged
+//! by the lack-of-fit F test against what the residual itself leaves (not against the
+//! noise estimate: a loop's record holds broadband disturbances above the band, missed
+//! deadlines and the specimen's resonance, that make an extrapolated noise level
+//! unreliable): an artefact is named when `F = (e0 - e1) / (e1 / (dof - 1)) > MIN_F`,
+//! it explains a relative residual `sqrt(e0 - e1)` above the naming rule's 1e-3, and it
+//! fits inside its physical range. Gaps here are relative RMS residuals, noise included.
 //!
 //! Must not: do I/O.
 
@@ -17,6 +20,10 @@ use crate::ident::fit::{
     fit_template, relative_error, CycleData, EffectKind, OutOfRange, Template,
 };
 use crate::model::effects::{AugmentedModel, Effect, DEFAULT_TEMPERATURE_C};
+
+/// Lack-of-fit F (one parameter) an artefact must reach; far beyond p = 0.001 (~11), as
+/// neighbouring bins of a deterministic residual are not independent.
+pub const MIN_F: f64 = 25.0;
 
 /// The artefacts tried on a run.
 pub const RUN_ARTEFACTS: [EffectKind; 2] = [EffectKind::ChannelDelay, EffectKind::MovingMass];
@@ -28,7 +35,7 @@ pub struct RunCandidate {
     pub round: usize,
     /// Model with the artefact fitted (and the ones named before it).
     pub model: AugmentedModel,
-    /// Relative squared residual with it, and the gap (noise excluded).
+    /// Relative squared residual with it, and its square root.
     pub error: f64,
     pub gap: f64,
     pub out_of_range: Option<OutOfRange>,
@@ -120,13 +127,10 @@ pub fn diagnose_run(
                 .iter()
                 .find(|e| e.name() == kind.name())
                 .and_then(|e| kind.out_of_range(e));
-            let gap_now = excess(current_error, noise);
-            let gap = excess(error, noise);
-            let explained = (gap_now * gap_now - gap * gap).max(0.0).sqrt();
-            let qualifies = out_of_range.is_none()
-                && current_error - error > 4.0 * noise * (2.0 / dof).sqrt()
-                && explained > MIN_GAP
-                && gap < 0.8 * gap_now;
+            let gap = error.sqrt();
+            let explained = (current_error - error).max(0.0).sqrt();
+            let f_statistic = (current_error - error) / (error / (dof - 1.0).max(1.0)).max(1e-300);
+            let qualifies = out_of_range.is_none() && f_statistic > MIN_F && explained > MIN_GAP;
             progress(&format!(
                 "round {round}: {:<14} residual {:.4e}{}{}",
                 kind.name(),
@@ -158,14 +162,14 @@ pub fn diagnose_run(
             None => break,
         }
     }
-    let gap_before = excess(error_before, noise);
-    let gap_after = excess(current_error, noise);
+    let gap_before = error_before.sqrt();
+    let gap_after = current_error.sqrt();
     let noise_floor = noise.sqrt();
     let unexplained = (history_beyond_noise(current_error, noise, dof)
-        && gap_after >= MIN_RATIO * noise_floor
+        && excess(current_error, noise) >= MIN_RATIO * noise_floor
         && gap_after >= MIN_GAP)
         .then(|| Unexplained {
-            gap: gap_after,
+            gap: excess(current_error, noise),
             noise_floor,
             where_: vec![format!("the run's record {}", unit.id)],
             harmonic_z: 0.0,
