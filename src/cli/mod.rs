@@ -10,6 +10,7 @@ pub mod loopproc;
 pub mod paper;
 pub mod replay;
 pub mod simulate;
+pub mod synth;
 
 use anyhow::Context;
 use std::path::Path;

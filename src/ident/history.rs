@@ -38,15 +38,17 @@ use crate::model::effects::{AugmentedModel, Effect, ModelStepper, StepperMode};
 const BAND_SNR: f64 = 30.0;
 /// Share of the force's variance (mean and end line removed) the band may leave out.
 const ENERGY_OUTSIDE_BAND: f64 = 5e-3;
-/// Samples per period of the band edge after decimation.
-const SAMPLES_PER_BAND_PERIOD: f64 = 8.0;
+/// The displacement driving the model keeps this many times the compared band.
+const DRIVE_BAND_FACTOR: usize = 4;
+/// Samples per period of the driving band's edge after decimation.
+const SAMPLES_PER_BAND_PERIOD: f64 = 3.0;
 
 /// A history test reduced to what fitting needs.
 #[derive(Debug, Clone)]
 pub struct HistoryData {
     /// Step of the decimated series, s.
     pub dt_s: f64,
-    /// Band-limited, decimated displacement, m.
+    /// Displacement limited to `DRIVE_BAND_FACTOR` times the band, decimated, m.
     pub displacement_m: Vec<f64>,
     /// Band-limited, decimated measured force, N.
     pub force_n: Vec<f64>,
@@ -296,9 +298,9 @@ pub fn prepare_history(
     let centroid = (1..=k_band).map(|k| freqs[k] * power[k]).sum::<f64>() / signal_band;
 
     // Band-limit both channels, restore the end lines, decimate.
-    let limit = |spectrum: &[Complex64], line: (f64, f64)| -> Vec<f64> {
+    let limit_at = |spectrum: &[Complex64], line: (f64, f64), k_max: usize| -> Vec<f64> {
         let mut s = spectrum.to_vec();
-        for c in s.iter_mut().skip(k_band + 1) {
+        for c in s.iter_mut().skip(k_max + 1) {
             *c = Complex64::new(0.0, 0.0);
         }
         let mut x = inverse(s, n);
@@ -307,9 +309,14 @@ pub fn prepare_history(
         }
         x
     };
-    let z_limited = limit(&z_spectrum, z_line);
-    let f_limited = limit(&f_spectrum, f_line);
-    let step = ((1.0 / (SAMPLES_PER_BAND_PERIOD * band_hz * dt_s)).floor() as usize).max(1);
+    // The model is driven by the displacement over a band DRIVE_BAND_FACTOR times wider
+    // than the one compared: a nonlinear element (friction) driven by a smoothed
+    // displacement does not give the smoothed force.
+    let k_drive = (DRIVE_BAND_FACTOR * k_band).min(n_bins - 1);
+    let z_limited = limit_at(&z_spectrum, z_line, k_drive);
+    let f_limited = limit_at(&f_spectrum, f_line, k_band);
+    let drive_hz = k_drive as f64 * df;
+    let step = ((1.0 / (SAMPLES_PER_BAND_PERIOD * drive_hz * dt_s)).floor() as usize).max(1);
     let z: Vec<f64> = z_limited.iter().step_by(step).copied().collect();
     let f: Vec<f64> = f_limited.iter().step_by(step).copied().collect();
     let mean = f.iter().sum::<f64>() / f.len() as f64;

@@ -31,3 +31,4 @@ pub mod history;
 pub mod identify;
 pub mod plots;
 pub mod runrec;
+pub mod synth;

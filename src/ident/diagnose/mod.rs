@@ -586,23 +586,6 @@ fn lookahead_pair(
         .map(|(r, _, _)| (first_index, r))
 }
 
-/// Fits each variant (`cv` of a template) and keeps the one with the smallest in-sample
-/// residual on all tests: the choice between friction laws with equally many parameters
-/// is made on the fit, never on held-out errors.
-fn best_variant(
-    variants: Vec<Template>,
-    cv: impl Fn(&Template) -> CrossValidation,
-) -> (Template, CrossValidation) {
-    variants
-        .into_iter()
-        .map(|t| {
-            let result = cv(&t);
-            (t, result)
-        })
-        .min_by(|a, b| a.1.full_fit.sse.total_cmp(&b.1.full_fit.sse))
-        .expect("at least one variant")
-}
-
 /// Runs the workflow. `progress` receives one-line messages.
 pub fn diagnose(
     baseline: &AugmentedModel,
@@ -716,46 +699,69 @@ pub fn diagnose(
             n_folds,
             options,
         };
-        let mut results = run_parallel(&remaining, options.n_threads, |&kind| {
-            let (candidate, cv) = best_variant(
-                current_template.variants_with_effect(kind, Some(&prefix)),
-                |t| {
-                    cross_validate(
-                        t,
-                        data,
-                        &folds,
-                        n_folds,
-                        options.max_iterations,
-                        options.n_threads,
-                    )
-                },
-            );
-            let m = scoring.compare(
-                &cv.held_out_error,
-                raw_gap(&cv.held_out_error, scoring.data),
-                kind.n_params(),
-                &reference,
-            );
-            let model = candidate.model(&cv.full_fit.params);
-            let out_of_range = out_of_range(&model, &[kind]);
-            CandidateResult {
-                kind,
-                round,
-                raw_gap: raw_gap(&cv.held_out_error, scoring.data),
-                cv,
-                gap_ratio: m.gap_ratio,
-                raw_ratio: m.raw_ratio,
-                score: m.score,
-                wilcoxon_z: m.z,
-                folds_improved: m.folds_improved,
-                history_evidence: m.history_evidence,
-                qualifies: m.qualifies && out_of_range.is_none(),
-                would_qualify: m.qualifies,
-                out_of_range,
-                model,
-                template: candidate,
-            }
+        // Every variant of every candidate is one work item, so the two friction laws run
+        // side by side rather than one after the other in one worker.
+        let items: Vec<(EffectKind, Template)> = remaining
+            .iter()
+            .flat_map(|&kind| {
+                current_template
+                    .variants_with_effect(kind, Some(&prefix))
+                    .into_iter()
+                    .map(move |t| (kind, t))
+            })
+            .collect();
+        let fitted = run_parallel(&items, options.n_threads, |(_, t)| {
+            cross_validate(
+                t,
+                data,
+                &folds,
+                n_folds,
+                options.max_iterations,
+                options.n_threads,
+            )
         });
+        let mut by_kind: Vec<(EffectKind, Template, CrossValidation)> = Vec::new();
+        for ((kind, template), cv) in items.into_iter().zip(fitted) {
+            match by_kind.iter_mut().find(|(k, _, _)| *k == kind) {
+                // The choice between laws with equally many parameters is made on the
+                // in-sample fit, never on held-out errors.
+                Some(entry) if cv.full_fit.sse < entry.2.full_fit.sse => {
+                    *entry = (kind, template, cv)
+                }
+                Some(_) => {}
+                None => by_kind.push((kind, template, cv)),
+            }
+        }
+        let mut results: Vec<CandidateResult> = by_kind
+            .into_iter()
+            .map(|(kind, candidate, cv)| {
+                let m = scoring.compare(
+                    &cv.held_out_error,
+                    raw_gap(&cv.held_out_error, scoring.data),
+                    kind.n_params(),
+                    &reference,
+                );
+                let model = candidate.model(&cv.full_fit.params);
+                let out_of_range = out_of_range(&model, &[kind]);
+                CandidateResult {
+                    kind,
+                    round,
+                    raw_gap: raw_gap(&cv.held_out_error, scoring.data),
+                    cv,
+                    gap_ratio: m.gap_ratio,
+                    raw_ratio: m.raw_ratio,
+                    score: m.score,
+                    wilcoxon_z: m.z,
+                    folds_improved: m.folds_improved,
+                    history_evidence: m.history_evidence,
+                    qualifies: m.qualifies && out_of_range.is_none(),
+                    would_qualify: m.qualifies,
+                    out_of_range,
+                    model,
+                    template: candidate,
+                }
+            })
+            .collect();
         for r in &results {
             progress(&format!(
                 "round {round}: {:<20} held-out gap {:.4e} (raw {:.4e}) ratio {:.3} raw ratio {:.3} score {:.3} z {:.2} folds {}/{}{}{}{}",

@@ -9,7 +9,7 @@
 //!   value (`e_i` exponentially, the estimate less), so the differences have a median at or
 //!   below zero and the test does not rest on a noise distribution;
 //! - each history test on its own: its band holds many independent bins (`dof`), so
-//!   `e > 2 nu` and `e - nu > 4 nu sqrt(2 / dof)` (a factor two for what the noise
+//!   `e > 3 nu` and `e - nu > 4 nu sqrt(2 / dof)` (a factor three for what the noise
 //!   extrapolation into the band can miss);
 //! - and the residual must be material: the held-out gap (noise excluded) at least
 //!   `MIN_RATIO` times the noise floor and at least `MIN_GAP`. An effect the library
@@ -109,7 +109,7 @@ impl Verdict {
 
 /// Whether a history test's held-out error is beyond its noise on its own.
 pub fn history_beyond_noise(error: f64, noise: f64, dof: f64) -> bool {
-    error > 2.0 * noise && error - noise > 4.0 * noise * (2.0 / dof.max(1.0)).sqrt()
+    error > 3.0 * noise && error - noise > 4.0 * noise * (2.0 / dof.max(1.0)).sqrt()
 }
 
 /// The verdict on the final model's held-out errors `errors` (and its in-sample signed
