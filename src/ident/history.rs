@@ -290,7 +290,7 @@ pub fn prepare_history(
         top_level * k_band as f64
     };
     let signal_band: f64 = power[1..=k_band].iter().sum();
-    if signal_band <= 0.0 {
+    if !(signal_band > 0.0) {
         return Err(HistoryError(
             "the force does not vary: a history test needs a varying force".into(),
         ));
@@ -321,6 +321,9 @@ pub fn prepare_history(
     let f: Vec<f64> = f_limited.iter().step_by(step).copied().collect();
     let mean = f.iter().sum::<f64>() / f.len() as f64;
     let scale = (f.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / f.len() as f64).sqrt();
+    // The noise share relative to the band-limited force's variance about its mean (the
+    // end line included, as in `e`): one-sided periodogram bins hold 2 |X_k|^2 / n^2.
+    let noise_variance = 2.0 * noise_band / (n as f64 * n as f64);
     Ok(HistoryData {
         dt_s: dt_s * step as f64,
         force_min_n: f.iter().copied().fold(f64::INFINITY, f64::min),
@@ -329,7 +332,7 @@ pub fn prepare_history(
         force_n: f,
         band_hz,
         force_scale_n: scale.max(1e-300),
-        noise_relative: noise_band / signal_band,
+        noise_relative: noise_variance / (scale * scale).max(1e-300),
         dof: 2.0 * k_band as f64,
         frequency_centroid_hz: centroid,
         duration_s: n as f64 * dt_s,
