@@ -274,3 +274,59 @@ fn null_campaigns_with_passages_name_nothing_and_leave_nothing_unexplained() {
     assert!(d.verdict.unexplained.is_none());
     assert!(!d.verdict.specimen_changed());
 }
+
+/// The false-alarm rate of the verdicts on null campaigns (the library explains the truth:
+/// only the baseline's parameters are off): 24 campaigns, white noise alone, the typical
+/// white + coloured + drifting noise, and loud coloured noise, half of them with passages.
+/// A false alarm is any named effect, an unexplained residual, or a changed specimen.
+/// Opt-in (`FASTEMU_SOAK`): about four minutes on two cores.
+#[test]
+fn soak_false_alarm_rate_on_null_campaigns() {
+    if std::env::var_os("FASTEMU_SOAK").is_none() {
+        return;
+    }
+    let white = Noise {
+        coloured_force: 0.0,
+        drift_force: 0.0,
+        ..Noise::typical()
+    };
+    let loud = Noise {
+        white_force: 0.02,
+        white_displacement: 0.02,
+        coloured_force: 0.03,
+        coloured_rho: 0.99,
+        drift_force: 0.02,
+    };
+    let mut alarms = Vec::new();
+    let n = 24;
+    for k in 0..n {
+        let (label, noise) = match k % 3 {
+            0 => ("white", white),
+            1 => ("typical", Noise::typical()),
+            _ => ("loud", loud),
+        };
+        let passages = if k % 2 == 0 {
+            Passage::rising(3)
+        } else {
+            Vec::new()
+        };
+        let name = format!("null-{label}-{k}");
+        let d = diagnose_case(
+            &name,
+            &Truth::paper_like(),
+            &standard_design(),
+            &passages,
+            &noise,
+            5000 + k as u64,
+        );
+        if !d.named.is_empty() || d.verdict.unexplained.is_some() || d.verdict.specimen_changed() {
+            alarms.push(name);
+        }
+    }
+    eprintln!("FALSE ALARMS {}/{n}: {alarms:?}", alarms.len());
+    assert!(
+        alarms.len() as f64 <= 0.05 * n as f64,
+        "false alarms {}/{n}: {alarms:?}",
+        alarms.len()
+    );
+}

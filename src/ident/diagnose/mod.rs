@@ -779,6 +779,22 @@ pub fn diagnose(
                 if r.qualifies { " qualifies" } else { "" }
             ));
         }
+        // When the candidate that describes the discrepancy best would qualify but fits
+        // only outside its physical range, the strongest pattern in the data is not any
+        // library effect: the physical candidates that still qualify are stand-ins for it
+        // (a delay and a springpot imitating a load-path resonance), so none is named.
+        let best_would = results
+            .iter()
+            .filter(|r| r.would_qualify)
+            .min_by(|a, b| a.score.total_cmp(&b.score));
+        if let Some(best) = best_would.filter(|b| b.out_of_range.is_some()) {
+            progress(&format!(
+                "round {round}: the best description, {}, is unphysical: nothing named",
+                best.kind.name()
+            ));
+            rounds.push(results);
+            break;
+        }
         let winner = results
             .iter()
             .filter(|r| r.qualifies)
