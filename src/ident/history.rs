@@ -118,7 +118,7 @@ fn inverse(mut spectrum: Vec<Complex64>, n: usize) -> Vec<f64> {
     PLANNER.with(|p| {
         let plan = p.borrow_mut().plan_fft_inverse(n);
         spectrum[0].im = 0.0;
-        if n % 2 == 0 {
+        if n.is_multiple_of(2) {
             if let Some(last) = spectrum.last_mut() {
                 last.im = 0.0;
             }
@@ -290,7 +290,7 @@ pub fn prepare_history(
         top_level * k_band as f64
     };
     let signal_band: f64 = power[1..=k_band].iter().sum();
-    if !(signal_band > 0.0) {
+    if signal_band.is_nan() || signal_band <= 0.0 {
         return Err(HistoryError(
             "the force does not vary: a history test needs a varying force".into(),
         ));

@@ -143,7 +143,7 @@ fn uniform_series(
     let mut steps: Vec<f64> = time_s.windows(2).map(|w| w[1] - w[0]).collect();
     steps.sort_by(f64::total_cmp);
     let dt_s = steps[steps.len() / 2];
-    if !(dt_s > 0.0) {
+    if dt_s.is_nan() || dt_s <= 0.0 {
         return Err("`t_s` does not increase".into());
     }
     for (i, w) in time_s.windows(2).enumerate() {

@@ -61,11 +61,12 @@ pub fn diagnose_case(
         std::fs::write(dir.join("baseline.toml"), off_baseline_toml(0.3)).unwrap();
     }
     eprintln!(
-        "[{name}] named {:?}, gap {:.3e} -> {:.3e}, noise floor {:.3e}, unexplained {:?}, trend {:?}, out of range {:?}",
+        "[{name}] named {:?}, gap {:.3e} -> {:.3e}, noise floor {:.3e}, harmonic z {:.2}, unexplained {:?}, trend {:?}, out of range {:?}",
         names(&diagnosis),
         diagnosis.gap_before,
         diagnosis.gap_after,
         diagnosis.noise_floor,
+        diagnosis.verdict.harmonic_z,
         diagnosis.verdict.unexplained.as_ref().map(|u| (u.gap, &u.where_)),
         diagnosis.verdict.trend.as_ref().map(|t| (t.change, t.t, t.beats_design)),
         out_of_range(&diagnosis),

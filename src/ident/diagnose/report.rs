@@ -90,6 +90,7 @@ pub fn json_summary(d: &Diagnosis, model_path: &std::path::Path) -> serde_json::
         "model_out": model_path.display().to_string(),
         "unexplained": unexplained_json(d.verdict.unexplained.as_ref()),
         "specimen_changed": d.verdict.specimen_changed(),
+        "residual_wilcoxon_z": d.verdict.harmonic_z,
         "order_trend": d.verdict.trend.as_ref().map(|t| json!({
             "change": t.change, "t": t.t, "beats_design": t.beats_design,
             "by_clock": t.by_clock, "significant": t.significant(),

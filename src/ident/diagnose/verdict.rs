@@ -95,6 +95,8 @@ impl RepeatCheck {
 #[derive(Debug, Clone)]
 pub struct Verdict {
     pub unexplained: Option<Unexplained>,
+    /// Wilcoxon z of the harmonic tests' held-out errors against their noise shares.
+    pub harmonic_z: f64,
     pub trend: Option<OrderTrend>,
     pub repeats: Vec<RepeatCheck>,
 }
@@ -155,6 +157,7 @@ pub fn verdict(
     });
     Verdict {
         unexplained,
+        harmonic_z,
         trend,
         repeats,
     }
@@ -226,8 +229,11 @@ fn adjusted_r2(rss: f64, tss: f64, n: usize, p: usize) -> f64 {
     1.0 - (rss / (n - p) as f64) / (tss / (n - 1) as f64)
 }
 
+/// A design variable: name, unit, and its value for a test.
+pub type DesignKey = (&'static str, &'static str, fn(&CycleData) -> f64);
+
 /// Keys of the design variables (for the order trend's confound check and the map).
-pub const DESIGN_KEYS: [(&str, &str, fn(&CycleData) -> f64); 4] = [
+pub const DESIGN_KEYS: [DesignKey; 4] = [
     ("preload", "kN", |d| d.preload_n / 1e3),
     ("frequency", "Hz", |d| d.frequency_hz),
     ("force amplitude", "kN", |d| d.amplitude_n / 1e3),
