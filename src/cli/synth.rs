@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use anyhow::{bail, Context};
 use clap::Args;
 
-use crate::ident::synth::{write_synthetic_campaign, HIDDEN_CHOICES};
+use crate::ident::synth::{hidden_choices, write_synthetic_campaign};
 
 #[derive(Args)]
 pub struct SynthArgs {
@@ -25,11 +25,12 @@ pub struct SynthArgs {
 }
 
 pub fn run(args: SynthArgs) -> anyhow::Result<ExitCode> {
-    if !HIDDEN_CHOICES.contains(&args.hidden.as_str()) {
+    let choices = hidden_choices();
+    if !choices.contains(&args.hidden.as_str()) {
         bail!(
             "--hidden {}: expected one of {}",
             args.hidden,
-            HIDDEN_CHOICES.join(", ")
+            choices.join(", ")
         );
     }
     let n = write_synthetic_campaign(&args.out, &args.hidden, args.seed)

@@ -17,22 +17,28 @@ use std::f64::consts::PI;
 use std::fmt::Write as _;
 use std::path::Path;
 
-use crate::model::effects::{AugmentedModel, Effect, FrictionLaw, ModelStepper, StepperMode};
+use crate::model::effects::{
+    AugmentedModel, Effect, FrictionLaw, ModelStepper, StepperMode, EFFECT_NAMES,
+};
 use crate::model::params::{ElementModel, ZenerParams};
 
-/// What a synthetic campaign hides.
-pub const HIDDEN_CHOICES: [&str; 10] = [
+/// What a synthetic campaign can hide besides the library's effects (`EFFECT_NAMES`).
+pub const OTHER_HIDDEN: [&str; 4] = [
     "none",
-    "preload-stiffening",
-    "amplitude-friction",
-    "fractional-damping",
-    "temperature-shift",
-    "channel-delay",
-    "moving-mass",
     "load-path-resonance",
     "softening-specimen",
     "friction-passages-only",
 ];
+
+/// Every value `--hidden` takes.
+pub fn hidden_choices() -> Vec<&'static str> {
+    OTHER_HIDDEN[..1]
+        .iter()
+        .chain(EFFECT_NAMES.iter())
+        .chain(OTHER_HIDDEN[1..].iter())
+        .copied()
+        .collect()
+}
 
 const LENGTH_M: f64 = 0.75;
 const SUBSTEPS: usize = 8;
@@ -214,7 +220,7 @@ fn record(
 
 /// Writes the campaign; returns the number of tests.
 pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io::Result<usize> {
-    assert!(HIDDEN_CHOICES.contains(&hidden), "unknown hidden effect");
+    assert!(hidden_choices().contains(&hidden), "unknown hidden effect");
     std::fs::create_dir_all(dir)?;
     let truth = truth_model(hidden);
     let resonance = hidden == "load-path-resonance";

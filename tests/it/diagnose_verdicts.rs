@@ -125,36 +125,23 @@ fn without_passages_the_same_friction_is_not_identifiable() {
         friction: Some((20e6, 1.0e3)),
         ..Truth::paper_like()
     };
-    let dir = scratch_dir("no-passages");
-    write_campaign_full(
-        &dir,
-        &truth,
-        &paper_design(),
-        &[],
-        &Noise::typical(),
-        21,
-        &Acquisition::typical(),
-    );
-    let data = test_data(&load_campaign(&dir).unwrap()).unwrap();
-    let _ = std::fs::remove_dir_all(&dir);
-    assert!(
-        fastemu::ident::diagnose::identifiability(EffectKind::AmplitudeFriction, &data).is_err()
-    );
-    let dir = scratch_dir("with-passages");
-    write_campaign_full(
-        &dir,
-        &truth,
-        &paper_design(),
-        &Passage::rising(1),
-        &Noise::typical(),
-        21,
-        &Acquisition::typical(),
-    );
-    let data = test_data(&load_campaign(&dir).unwrap()).unwrap();
-    let _ = std::fs::remove_dir_all(&dir);
-    assert!(
+    let friction_identifiable = |name: &str, passages: &[Passage]| {
+        let dir = scratch_dir(name);
+        write_campaign_full(
+            &dir,
+            &truth,
+            &paper_design(),
+            passages,
+            &Noise::typical(),
+            21,
+            &Acquisition::typical(),
+        );
+        let data = test_data(&load_campaign(&dir).unwrap()).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
         fastemu::ident::diagnose::identifiability(EffectKind::AmplitudeFriction, &data).is_ok()
-    );
+    };
+    assert!(!friction_identifiable("no-passages", &[]));
+    assert!(friction_identifiable("with-passages", &Passage::rising(1)));
 }
 
 #[test]

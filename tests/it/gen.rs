@@ -221,6 +221,55 @@ pub fn standard_design() -> Vec<TestPoint> {
     out
 }
 
+/// Rates of the consistent-form element's elastic force `Fs` and Maxwell force `Fm`, and
+/// of a Bouc-Wen friction force (beta = gamma = 1/2: it saturates at the slip force).
+struct ElementRates {
+    k1: f64,
+    k2: f64,
+    c2: f64,
+    chi: f64,
+    p0: f64,
+    /// Friction stiffness (0: no friction) and slip force.
+    kf: f64,
+    ff_slip: f64,
+    exponent: f64,
+    /// Whether the Maxwell branch is there (a fractional branch replaces it).
+    maxwell: bool,
+}
+
+impl ElementRates {
+    fn at(&self, v: f64, s: &[f64; 3]) -> [f64; 3] {
+        let gg = (1.0 + s[0] / self.p0).max(1e-6).powf(self.chi);
+        let dfm = if self.maxwell {
+            self.k2 * gg * v - (self.k2 / self.c2) * s[1]
+        } else {
+            0.0
+        };
+        let wn = s[2] / self.ff_slip;
+        let dff = if self.kf > 0.0 {
+            let pow = wn.abs().powf(self.exponent - 1.0);
+            self.kf * (v - 0.5 * v.abs() * pow * wn - 0.5 * v * pow * wn.abs())
+        } else {
+            0.0
+        };
+        [self.k1 * gg * v, dfm, dff]
+    }
+}
+
+/// One classical RK4 step of `state` from `t` over `h`.
+fn rk4_step(deriv: &dyn Fn(f64, &[f64; 3]) -> [f64; 3], t: f64, h: f64, state: &mut [f64; 3]) {
+    let k_1 = deriv(t, state);
+    let s2 = std::array::from_fn(|i| state[i] + 0.5 * h * k_1[i]);
+    let k_2 = deriv(t + 0.5 * h, &s2);
+    let s3 = std::array::from_fn(|i| state[i] + 0.5 * h * k_2[i]);
+    let k_3 = deriv(t + 0.5 * h, &s3);
+    let s4 = std::array::from_fn(|i| state[i] + h * k_3[i]);
+    let k_4 = deriv(t + h, &s4);
+    for i in 0..3 {
+        state[i] += h / 6.0 * (k_1[i] + 2.0 * k_2[i] + 2.0 * k_3[i] + k_4[i]);
+    }
+}
+
 /// Static displacement of the consistent form under force `p` (per element params).
 fn static_displacement(k1: f64, chi: f64, p0: f64, p: f64) -> f64 {
     ((1.0 + p / p0).powf(1.0 - chi) - 1.0) * p0 / ((1.0 - chi) * k1)
@@ -287,41 +336,25 @@ pub fn simulate_test(
     let fs0 = p0 * ((1.0 + (1.0 - chi) * k1 * (z0 - 0.0) / p0).powf(1.0 / (1.0 - chi)) - 1.0);
     let mut state = [fs0, 0.0, 0.0];
     let (kf, ff_slip) = truth.friction.map_or((0.0, 1.0), |(k, f)| (k * l, f * l));
-    let deriv = |t: f64, s: &[f64; 3]| -> [f64; 3] {
-        let v = v_of(t);
-        let gg = (1.0 + s[0] / p0).max(1e-6).powf(chi);
-        let dfs = k1 * gg * v;
-        let dfm = if truth.fractional_maxwell_order.is_some() {
-            0.0
-        } else {
-            k2 * gg * v - (k2 / c2) * s[1]
-        };
-        // Bouc-Wen, exponent n, beta = gamma = 1/2: saturates at the slip force.
-        let wn = s[2] / ff_slip;
-        let dff = if kf > 0.0 {
-            let pow = wn.abs().powf(truth.friction_exponent - 1.0);
-            kf * (v - 0.5 * v.abs() * pow * wn - 0.5 * v * pow * wn.abs())
-        } else {
-            0.0
-        };
-        [dfs, dfm, dff]
+    let rates = ElementRates {
+        k1,
+        k2,
+        c2,
+        chi,
+        p0,
+        kf,
+        ff_slip,
+        exponent: truth.friction_exponent,
+        maxwell: truth.fractional_maxwell_order.is_none(),
     };
+    let deriv = |t: f64, s: &[f64; 3]| rates.at(v_of(t), s);
     let total = settle + n;
     // Fine grid of the nonlinear force (elastic + Maxwell + friction).
     let mut fine = Vec::with_capacity(total * sub + 1);
     let mut t = t0;
     fine.push(state[0] + state[1] + state[2]);
     for _ in 0..total * sub {
-        let k_1 = deriv(t, &state);
-        let s2 = std::array::from_fn(|i| state[i] + 0.5 * h * k_1[i]);
-        let k_2 = deriv(t + 0.5 * h, &s2);
-        let s3 = std::array::from_fn(|i| state[i] + 0.5 * h * k_2[i]);
-        let k_3 = deriv(t + 0.5 * h, &s3);
-        let s4 = std::array::from_fn(|i| state[i] + h * k_3[i]);
-        let k_4 = deriv(t + h, &s4);
-        for i in 0..3 {
-            state[i] += h / 6.0 * (k_1[i] + 2.0 * k_2[i] + 2.0 * k_3[i] + k_4[i]);
-        }
+        rk4_step(&deriv, t, h, &mut state);
         t += h;
         fine.push(state[0] + state[1] + state[2]);
     }
@@ -470,32 +503,23 @@ pub fn simulate_passage(truth: &Truth, passage: &Passage) -> (Vec<f64>, Vec<f64>
     let fs0 = passage.preload_n;
     let mut state = [fs0, 0.0, 0.0];
     let (kf, ff_slip) = truth.friction.map_or((0.0, 1.0), |(k, f)| (k * l, f * l));
-    let deriv = |t: f64, st: &[f64; 3]| -> [f64; 3] {
-        let v = pulse(t, 1);
-        let gg = (1.0 + st[0] / p0).max(1e-6).powf(chi);
-        let wn = st[2] / ff_slip;
-        let dff = if kf > 0.0 {
-            let pow = wn.abs().powf(truth.friction_exponent - 1.0);
-            kf * (v - 0.5 * v.abs() * pow * wn - 0.5 * v * pow * wn.abs())
-        } else {
-            0.0
-        };
-        [k1 * gg * v, k2 * gg * v - (k2 / c2) * st[1], dff]
+    let rates = ElementRates {
+        k1,
+        k2,
+        c2,
+        chi,
+        p0,
+        kf,
+        ff_slip,
+        exponent: truth.friction_exponent,
+        maxwell: true,
     };
+    let deriv = |t: f64, st: &[f64; 3]| rates.at(pulse(t, 1), st);
     let mut fine = Vec::with_capacity(n * sub + 1);
     let mut t = 0.0;
     fine.push(state[0] + state[1] + state[2]);
     for _ in 0..n * sub {
-        let k_1 = deriv(t, &state);
-        let s2 = std::array::from_fn(|i| state[i] + 0.5 * h * k_1[i]);
-        let k_2 = deriv(t + 0.5 * h, &s2);
-        let s3 = std::array::from_fn(|i| state[i] + 0.5 * h * k_2[i]);
-        let k_3 = deriv(t + 0.5 * h, &s3);
-        let s4 = std::array::from_fn(|i| state[i] + h * k_3[i]);
-        let k_4 = deriv(t + h, &s4);
-        for i in 0..3 {
-            state[i] += h / 6.0 * (k_1[i] + 2.0 * k_2[i] + 2.0 * k_3[i] + k_4[i]);
-        }
+        rk4_step(&deriv, t, h, &mut state);
         t += h;
         fine.push(state[0] + state[1] + state[2] + truth.mass_kg * pulse(t, 2));
     }

@@ -20,3 +20,4 @@ mod model_determinism;
 mod model_modulus;
 mod model_tension;
 mod paper;
+mod synth_cli;

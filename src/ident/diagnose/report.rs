@@ -50,11 +50,7 @@ pub fn json_summary(d: &Diagnosis, model_path: &std::path::Path) -> serde_json::
     let candidates: Vec<serde_json::Value> = latest_candidates(d)
         .iter()
         .map(|r| {
-            let params: serde_json::Map<String, serde_json::Value> =
-                effect_params(&r.model, r.kind)
-                    .into_iter()
-                    .map(|(k, v)| (k.to_string(), json!(v)))
-                    .collect();
+            let params = params_json(&r.model, r.kind);
             json!({
                 "effect": r.kind.name(),
                 "score": r.score,
@@ -68,10 +64,7 @@ pub fn json_summary(d: &Diagnosis, model_path: &std::path::Path) -> serde_json::
                 "history_evidence": r.history_evidence,
                 "named": d.named.contains(&r.kind),
                 "would_qualify_but_for_range": r.would_qualify && r.out_of_range.is_some(),
-                "out_of_range": r.out_of_range.map(|o| json!({
-                    "param": o.param, "value": o.value, "range": [o.range.0, o.range.1],
-                    "text": o.to_string(), "suggests": o.suggestion(),
-                })),
+                "out_of_range": r.out_of_range.map(|o| out_of_range_json(&o)),
             })
         })
         .collect();
@@ -469,11 +462,7 @@ fn render_report(
     );
     let _ = writeln!(r, "| round | effect | raw held-out residual | gap ratio | score | Wilcoxon z | folds better | qualifies | parameters |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- |");
     for c in d.rounds.iter().flatten() {
-        let params = effect_params(&c.model, c.kind)
-            .iter()
-            .map(|(k, v)| format!("{k} = {v:.4e}"))
-            .collect::<Vec<_>>()
-            .join(", ");
+        let params = params_text(&c.model, c.kind);
         let _ = writeln!(
             r,
             "| {} | {} | {:.4e} | {:.3} | {:.3} | {:.2} | {}/{} | {} | {params} |",
@@ -779,11 +768,7 @@ pub fn write_run_outputs(
     let _ = writeln!(r, "- Run time {elapsed_s:.2} s\n");
     let _ = writeln!(r, "| round | artefact | relative residual | parameters | qualifies |\n| --- | --- | --- | --- | --- |");
     for c in &d.candidates {
-        let params = effect_params(&c.model, c.kind)
-            .iter()
-            .map(|(k, v)| format!("{k} = {v:.4e}"))
-            .collect::<Vec<_>>()
-            .join(", ");
+        let params = params_text(&c.model, c.kind);
         let _ = writeln!(
             r,
             "| {} | {} | {:.4e} | {params} | {} |",
@@ -815,21 +800,14 @@ pub fn write_run_outputs(
         .candidates
         .iter()
         .map(|c| {
-            let params: serde_json::Map<String, serde_json::Value> =
-                effect_params(&c.model, c.kind)
-                    .into_iter()
-                    .map(|(k, v)| (k.to_string(), json!(v)))
-                    .collect();
+            let params = params_json(&c.model, c.kind);
             json!({
                 "effect": c.kind.name(),
                 "score": c.gap / d.gap_before.max(1e-300),
                 "params": params,
                 "round": c.round,
                 "named": d.named.contains(&c.kind) && c.qualifies,
-                "out_of_range": c.out_of_range.map(|o| json!({
-                    "param": o.param, "value": o.value, "range": [o.range.0, o.range.1],
-                    "text": o.to_string(), "suggests": o.suggestion(),
-                })),
+                "out_of_range": c.out_of_range.map(|o| out_of_range_json(&o)),
             })
         })
         .collect();
@@ -875,4 +853,29 @@ fn run_advice(d: &super::run::RunDiagnosis, config: &crate::hil::config::HilConf
         );
     }
     out
+}
+
+/// An effect's parameters as `name = value, ...` (file units).
+fn params_text(model: &AugmentedModel, kind: EffectKind) -> String {
+    effect_params(model, kind)
+        .iter()
+        .map(|(k, v)| format!("{k} = {v:.4e}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// An effect's parameters as a JSON object (file units).
+fn params_json(model: &AugmentedModel, kind: EffectKind) -> serde_json::Value {
+    effect_params(model, kind)
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), json!(v)))
+        .collect::<serde_json::Map<String, serde_json::Value>>()
+        .into()
+}
+
+fn out_of_range_json(o: &crate::ident::fit::OutOfRange) -> serde_json::Value {
+    json!({
+        "param": o.param, "value": o.value, "range": [o.range.0, o.range.1],
+        "text": o.to_string(), "suggests": o.suggestion(),
+    })
 }
