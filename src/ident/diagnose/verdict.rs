@@ -428,7 +428,8 @@ fn where_it_concentrates(
                     found.push((
                         ratio,
                         format!(
-                            "{name} {level:.4} {unit} ({ratio:.1}x the mean excess per harmonic test, {count} tests)"
+                            "{name} {} {unit} ({ratio:.1}x the mean excess per harmonic test, {count} tests)",
+                            (level * 1e4).round() / 1e4
                         ),
                     ));
                 }
