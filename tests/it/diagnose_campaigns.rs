@@ -73,6 +73,7 @@ fn run_case_with_design(
     design: &[TestPoint],
     acquisition: &Acquisition,
 ) -> Outcome {
+    let _heavy = crate::common::cpu_heavy();
     let dir = scratch_dir(name);
     write_campaign_with(&dir, truth, design, noise, seed, acquisition);
     let campaign = load_campaign(&dir).expect("campaign loads");

@@ -79,8 +79,30 @@ fn a_compensation_delay_set_120_us_too_long_is_found_in_the_run_records() {
         default.replace(knob, "compensation_delay_us = 372.0"),
     )
     .unwrap();
-    let run_dir = dir.path.join("run");
-    run_hil(&config, &run_dir, 6.0);
+    // The loop's realised delay is what the records show: a run whose commands arrived
+    // late (a loaded machine: held commands, stale samples) has a longer delay than the
+    // one the compensation was tuned for, and diagnose rightly says so. The assertion on
+    // the mis-set knob needs a run that kept its timing; up to three runs are made.
+    let _heavy = crate::common::cpu_heavy();
+    let mut quiet_run = None;
+    for attempt in 0..3 {
+        let run_dir = dir.path.join(format!("run-{attempt}"));
+        run_hil(&config, &run_dir, 6.0);
+        let summary = |file: &str, key: &str| -> u64 {
+            let text = std::fs::read_to_string(run_dir.join(file)).unwrap();
+            let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+            json[key].as_u64().unwrap()
+        };
+        let held = summary("rig-summary.json", "held_commands");
+        let stale = summary("emulator-summary.json", "stale_samples");
+        eprintln!("run {attempt}: {held} held commands, {stale} stale samples");
+        if held < 250 && stale < 250 {
+            quiet_run = Some(run_dir);
+            break;
+        }
+    }
+    let run_dir =
+        quiet_run.expect("no run kept its timing (below 1 % held commands) in three tries");
     let json = diagnose_run(&run_dir, &dir.path.join("diagnosis"));
     eprintln!("{json:#}");
     let effects: Vec<&str> = json["effects"]

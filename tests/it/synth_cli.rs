@@ -8,6 +8,7 @@ const FASTEMU: &str = env!("CARGO_BIN_EXE_fastemu");
 
 #[test]
 fn a_synthetic_campaign_is_diagnosed_and_its_truth_kept_apart() {
+    let _heavy = crate::common::cpu_heavy();
     let dir = TempDir::new("synth");
     let campaign = dir.path.join("demo");
     let status = Command::new(FASTEMU)

@@ -5,6 +5,15 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Mutex, MutexGuard};
+
+/// Held by the CPU-heavy diagnosis tests and by the test that runs `fastemu hil` for
+/// diagnosis, so that the real-time loop of that run does not share two cores with them.
+static CPU_HEAVY: Mutex<()> = Mutex::new(());
+
+pub fn cpu_heavy() -> MutexGuard<'static, ()> {
+    CPU_HEAVY.lock().unwrap_or_else(|e| e.into_inner())
+}
 
 use fastemu::model::ZenerParams;
 use nalgebra::Complex;
