@@ -13,8 +13,13 @@
 //! Standard errors come from `sigma^2 (J^T J)^-1` in the fitted log/logit parameters and
 //! are mapped to the physical ones (95 % intervals are transformed, hence asymmetric).
 
+use std::path::{Path, PathBuf};
+
+use serde_json::json;
+
 use super::campaign::Campaign;
 use super::fit::{fit_template, levenberg_marquardt, CycleData, LmFit, Template};
+use super::fit::{relative_error, rms_gap};
 use crate::model::effects::{AugmentedModel, DEFAULT_TEMPERATURE_C};
 use crate::model::equiv::zener_eq2;
 use crate::model::params::{ElementModel, Form, ZenerParams};
@@ -217,4 +222,152 @@ pub fn identify_force(
         ],
         fit,
     }
+}
+
+/// What `identify` was asked to write.
+pub struct IdentifyRequest {
+    pub campaign: PathBuf,
+    pub p0_n: f64,
+    pub out: Option<PathBuf>,
+    pub plot_dir: Option<PathBuf>,
+}
+
+/// Prints the estimates, writes the model file and plots asked for; returns the `--json`
+/// summary.
+pub fn write_identification(
+    request: &IdentifyRequest,
+    campaign: &Campaign,
+    data: &[CycleData],
+    identification: &Identification,
+    form: Form,
+    objective: &str,
+) -> anyhow::Result<serde_json::Value> {
+    use anyhow::Context;
+    let length = campaign.sample_length_m;
+    let p = identification.params_per_m;
+    let element_params = ZenerParams {
+        k1_0_n_per_m: p.k1_0_n_per_m * length,
+        k2_0_n_per_m: p.k2_0_n_per_m * length,
+        c2_0_ns_per_m: p.c2_0_ns_per_m * length,
+        ..p
+    };
+    let element = match form {
+        Form::Paper => ElementModel::Paper(element_params),
+        _ => ElementModel::Consistent(element_params),
+    };
+    let model = AugmentedModel {
+        element,
+        length_m: length,
+        effects: Vec::new(),
+    };
+    let errors: Vec<f64> = data.iter().map(|d| relative_error(&model, d)).collect();
+    let residual = rms_gap(&errors);
+    for (name, e) in &identification.estimates {
+        let se = e
+            .standard_error
+            .map_or("n/a".to_string(), |s| format!("{s:.4e}"));
+        let ci = e.ci95.map_or("n/a".to_string(), |(lo, hi)| {
+            format!("[{lo:.4e}, {hi:.4e}]")
+        });
+        eprintln!(
+            "identify: {name} = {:.6e} (standard error {se}, 95 % interval {ci})",
+            e.value
+        );
+    }
+    eprintln!("identify: in-sample relative RMS force residual {residual:.4e}");
+
+    if let Some(out) = &request.out {
+        if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::create_dir_all(parent)
+                .with_context(|| format!("cannot create directory {}", parent.display()))?;
+        }
+        let header = format!(
+            "Identified by `fastemu identify` from {} ({} harmonic tests), objective {objective}.\nStandard errors: {}",
+            request.campaign.display(),
+            data.len(),
+            identification
+                .estimates
+                .iter()
+                .map(|(n, e)| format!("{n} {}", e.standard_error.map_or("n/a".into(), |s| format!("{s:.3e}"))))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        std::fs::write(out, model.render_toml(&header))
+            .with_context(|| format!("cannot write {}", out.display()))?;
+    }
+    let plot_dir: Option<PathBuf> = request.plot_dir.clone().or_else(|| {
+        request
+            .out
+            .as_ref()
+            .map(|o| o.parent().map_or(PathBuf::from("."), Path::to_path_buf))
+    });
+    let mut plots = Vec::new();
+    if let Some(dir) = plot_dir {
+        std::fs::create_dir_all(&dir)
+            .with_context(|| format!("cannot create {}", dir.display()))?;
+        let eq_path = dir.join("identify_keq_ceq.png");
+        let label = format!("{form} ({objective})");
+        crate::ident::plots::plot_equivalents(
+            &eq_path,
+            &data,
+            length,
+            &[(&label, &model)],
+            DEFAULT_TEMPERATURE_C,
+        )?;
+        let loop_path = dir.join("identify_loops.png");
+        crate::ident::plots::plot_loops(
+            &loop_path,
+            &data,
+            &crate::ident::plots::loop_tests(&data),
+            &[(&label, &model)],
+        )?;
+        plots.push(eq_path.display().to_string());
+        plots.push(loop_path.display().to_string());
+    }
+    let params: serde_json::Map<String, serde_json::Value> = identification
+        .estimates
+        .iter()
+        .map(|(name, e)| {
+            (
+                name.to_string(),
+                json!({"value": e.value, "standard_error": e.standard_error, "ci95": e.ci95.map(|c| [c.0, c.1])}),
+            )
+        })
+        .collect();
+    let tests: Vec<serde_json::Value> = data
+        .iter()
+        .zip(&errors)
+        .map(|(d, e)| {
+            let (k, c) = crate::ident::plots::equivalent_mn(
+                d.force_harmonics_n[0],
+                d.displacement_harmonics_m[0],
+                d.frequency_hz,
+                length,
+            );
+            let predicted = super::fit::predict_cycle(&model, d);
+            let (km, cm) = crate::ident::plots::equivalent_mn(
+                predicted[0],
+                d.displacement_harmonics_m[0],
+                d.frequency_hz,
+                length,
+            );
+            json!({"id": d.id, "preload_n": d.preload_n, "frequency_hz": d.frequency_hz,
+                "k_eq_mn_per_m2": k, "c_eq_mns_per_m2": c,
+                "k_eq_model_mn_per_m2": km, "c_eq_model_mns_per_m2": cm,
+                "relative_force_residual": e.sqrt()})
+        })
+        .collect();
+    let summary = json!({
+        "form": form.name(),
+        "objective": objective,
+        "p0_n": request.p0_n,
+        "sample_length_m": length,
+        "params": params,
+        "relative_force_residual_rms": residual,
+        "objective_sse": identification.fit.sse,
+        "tests": tests,
+        "model_out": request.out.as_ref().map(|o| o.display().to_string()),
+        "plots": plots,
+    });
+    Ok(summary)
 }

@@ -19,7 +19,8 @@ impl Drop for Guard {
     }
 }
 
-fn run_hil(config: &Path, out: &Path, duration_s: f64) {
+/// Runs `fastemu hil`; `Err` with its stderr when the run failed (a loop that tripped).
+fn run_hil(config: &Path, out: &Path, duration_s: f64) -> Result<(), String> {
     let child = Command::new(FASTEMU)
         .args(["hil", "--config"])
         .arg(config)
@@ -48,7 +49,11 @@ fn run_hil(config: &Path, out: &Path, duration_s: f64) {
         use std::io::Read;
         let _ = pipe.read_to_string(&mut stderr);
     }
-    assert!(status.success(), "hil failed: {status:?}\n{stderr}");
+    if status.success() {
+        Ok(())
+    } else {
+        Err(format!("hil failed: {status:?}\n{stderr}"))
+    }
 }
 
 fn diagnose_run(run_dir: &Path, out: &Path) -> serde_json::Value {
@@ -87,7 +92,12 @@ fn a_compensation_delay_set_120_us_too_long_is_found_in_the_run_records() {
     let mut quiet_run = None;
     for attempt in 0..3 {
         let run_dir = dir.path.join(format!("run-{attempt}"));
-        run_hil(&config, &run_dir, 6.0);
+        if let Err(e) = run_hil(&config, &run_dir, 6.0) {
+            // A loop 120 us over-compensated on a loaded machine can trip; the trip is
+            // the loop's business (hil_processes tests it), not the diagnosis'.
+            eprintln!("run {attempt}: {e}");
+            continue;
+        }
         let summary = |file: &str, key: &str| -> u64 {
             let text = std::fs::read_to_string(run_dir.join(file)).unwrap();
             let json: serde_json::Value = serde_json::from_str(&text).unwrap();
