@@ -309,7 +309,7 @@ pub fn write_identification(
         let label = format!("{form} ({objective})");
         crate::ident::plots::plot_equivalents(
             &eq_path,
-            &data,
+            data,
             length,
             &[(&label, &model)],
             DEFAULT_TEMPERATURE_C,
@@ -317,8 +317,8 @@ pub fn write_identification(
         let loop_path = dir.join("identify_loops.png");
         crate::ident::plots::plot_loops(
             &loop_path,
-            &data,
-            &crate::ident::plots::loop_tests(&data),
+            data,
+            &crate::ident::plots::loop_tests(data),
             &[(&label, &model)],
         )?;
         plots.push(eq_path.display().to_string());
