@@ -759,7 +759,7 @@ fn dft_bin(x: &[f64], dt_s: f64, bin_hz: f64) -> Complex {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     #[test]
@@ -781,7 +781,7 @@ mod tests {
     }
 
     /// Deterministic normal variates (splitmix64 + Box-Muller) for the noise tests.
-    struct Normal(u64);
+    pub(crate) struct Normal(pub(crate) u64);
     impl Normal {
         fn uniform(&mut self) -> f64 {
             self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
@@ -790,7 +790,7 @@ mod tests {
             z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
             ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
         }
-        fn next(&mut self) -> f64 {
+        pub(crate) fn next(&mut self) -> f64 {
             let u = self.uniform().max(1e-300);
             (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * self.uniform()).cos()
         }

@@ -428,21 +428,7 @@ pub type SharedHistory = Arc<HistoryData>;
 mod tests {
     use super::*;
 
-    /// Deterministic normal variates (splitmix64 + Box-Muller).
-    struct Normal(u64);
-    impl Normal {
-        fn uniform(&mut self) -> f64 {
-            self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-            (((z ^ (z >> 31)) >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-        }
-        fn next(&mut self) -> f64 {
-            let u = self.uniform();
-            (-2.0 * u.ln()).sqrt() * (2.0 * PI * self.uniform()).cos()
-        }
-    }
+    use crate::ident::campaign::tests::Normal;
 
     /// Realised noise share in the band over the estimate, for a passage-like record
     /// whose force is exactly `K z` plus force noise (AR(1) correlation `phi`).

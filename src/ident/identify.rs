@@ -74,6 +74,24 @@ fn chi_estimate(theta: f64, se: Option<f64>, chi_max: f64) -> Estimate {
     }
 }
 
+/// The model of a sample of `length_m` for per-metre parameters, in the chosen form.
+fn sample_model(per_m: &ZenerParams, form: Form, length_m: f64) -> AugmentedModel {
+    let element_params = ZenerParams {
+        k1_0_n_per_m: per_m.k1_0_n_per_m * length_m,
+        k2_0_n_per_m: per_m.k2_0_n_per_m * length_m,
+        c2_0_ns_per_m: per_m.c2_0_ns_per_m * length_m,
+        ..*per_m
+    };
+    AugmentedModel {
+        element: match form {
+            Form::Paper => ElementModel::Paper(element_params),
+            _ => ElementModel::Consistent(element_params),
+        },
+        length_m,
+        effects: Vec::new(),
+    }
+}
+
 /// Start values from the measured k_eq/c_eq (per metre, SI).
 fn start_params(campaign: &Campaign, p0_n: f64) -> ZenerParams {
     let eqs: Vec<_> = campaign
@@ -169,22 +187,7 @@ pub fn identify_force(
     p0_n: f64,
 ) -> Identification {
     let length = campaign.sample_length_m;
-    let s = start_params(campaign, p0_n);
-    let element_params = ZenerParams {
-        k1_0_n_per_m: s.k1_0_n_per_m * length,
-        k2_0_n_per_m: s.k2_0_n_per_m * length,
-        c2_0_ns_per_m: s.c2_0_ns_per_m * length,
-        ..s
-    };
-    let element = match form {
-        Form::Paper => ElementModel::Paper(element_params),
-        _ => ElementModel::Consistent(element_params),
-    };
-    let baseline = AugmentedModel {
-        element,
-        length_m: length,
-        effects: Vec::new(),
-    };
+    let baseline = sample_model(&start_params(campaign, p0_n), form, length);
     let template = Template::new(baseline, DEFAULT_TEMPERATURE_C);
     let all: Vec<&CycleData> = data.iter().collect();
     let mut starts = template.starts(data);
@@ -244,22 +247,7 @@ pub fn write_identification(
 ) -> anyhow::Result<serde_json::Value> {
     use anyhow::Context;
     let length = campaign.sample_length_m;
-    let p = identification.params_per_m;
-    let element_params = ZenerParams {
-        k1_0_n_per_m: p.k1_0_n_per_m * length,
-        k2_0_n_per_m: p.k2_0_n_per_m * length,
-        c2_0_ns_per_m: p.c2_0_ns_per_m * length,
-        ..p
-    };
-    let element = match form {
-        Form::Paper => ElementModel::Paper(element_params),
-        _ => ElementModel::Consistent(element_params),
-    };
-    let model = AugmentedModel {
-        element,
-        length_m: length,
-        effects: Vec::new(),
-    };
+    let model = sample_model(&identification.params_per_m, form, length);
     let errors: Vec<f64> = data.iter().map(|d| relative_error(&model, d)).collect();
     let residual = rms_gap(&errors);
     for (name, e) in &identification.estimates {

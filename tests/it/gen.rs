@@ -609,27 +609,18 @@ pub fn write_campaign_full(
             acquisition.samples_per_cycle,
             acquisition.min_rate_hz,
         );
-        let z_amp = {
-            let lo = z.iter().copied().fold(f64::INFINITY, f64::min);
-            let hi = z.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            0.5 * (hi - lo)
-        };
-        let mut ar = 0.0;
         let drift_phase = rng.uniform() * 2.0 * PI;
-        let innovation = (1.0 - noise.coloured_rho * noise.coloured_rho).sqrt();
-        for i in 0..t.len() {
-            ar = noise.coloured_rho * ar + innovation * rng.normal();
-            f[i] += point.amplitude_n
-                * (noise.white_force * rng.normal()
-                    + noise.coloured_force * ar
-                    + noise.drift_force * (2.0 * PI * t[i] / 7.0 + drift_phase).sin());
-            z[i] += z_amp * noise.white_displacement * rng.normal();
-        }
-        let mut csv = String::from("t_s,displacement_m,force_n\n");
-        for i in 0..t.len() {
-            let _ = writeln!(csv, "{:?},{:?},{:?}", t[i], z[i], f[i]);
-        }
-        std::fs::write(dir.join(format!("{id}.csv")), csv).unwrap();
+        let drift = |t: f64| noise.drift_force * (2.0 * PI * t / 7.0 + drift_phase).sin();
+        add_noise(
+            &t,
+            &mut z,
+            &mut f,
+            point.amplitude_n,
+            noise,
+            &drift,
+            &mut rng,
+        );
+        write_record(dir, &id, &t, &z, &f);
         let _ = write!(
             toml,
             "\n[[test]]\nid = \"{id}\"\nfile = \"{id}.csv\"\nkind = \"harmonic\"\npreload_n = {:?}\namplitude_n = {:?}\nfrequency_hz = {:?}\ntemperature_c = {:?}\n",
@@ -639,24 +630,17 @@ pub fn write_campaign_full(
     for (k, passage) in passages.iter().enumerate() {
         let id = format!("H{k}-passage-{:.0}kN", passage.peak_n / 1e3);
         let (t, mut z, mut f) = simulate_passage(&truth_at(design.len() + k), passage);
-        let z_amp = {
-            let lo = z.iter().copied().fold(f64::INFINITY, f64::min);
-            let hi = z.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            0.5 * (hi - lo)
-        };
-        let mut ar = 0.0;
-        let innovation = (1.0 - noise.coloured_rho * noise.coloured_rho).sqrt();
-        let scale = 0.5 * passage.peak_n;
-        for i in 0..t.len() {
-            ar = noise.coloured_rho * ar + innovation * rng.normal();
-            f[i] += scale * (noise.white_force * rng.normal() + noise.coloured_force * ar);
-            z[i] += z_amp * noise.white_displacement * rng.normal();
-        }
-        let mut csv = String::from("t_s,displacement_m,force_n\n");
-        for i in 0..t.len() {
-            let _ = writeln!(csv, "{:?},{:?},{:?}", t[i], z[i], f[i]);
-        }
-        std::fs::write(dir.join(format!("{id}.csv")), csv).unwrap();
+        // Passages get no slow drift (their records are short).
+        add_noise(
+            &t,
+            &mut z,
+            &mut f,
+            0.5 * passage.peak_n,
+            noise,
+            &|_| 0.0,
+            &mut rng,
+        );
+        write_record(dir, &id, &t, &z, &f);
         let _ = write!(
             toml,
             "\n[[test]]\nid = \"{id}\"\nfile = \"{id}.csv\"\nkind = \"history\"\ntemperature_c = {:?}\n",
@@ -664,6 +648,41 @@ pub fn write_campaign_full(
         );
     }
     std::fs::write(dir.join("campaign.toml"), toml).unwrap();
+}
+
+/// Adds the campaign's noise to a record: white and AR(1) force noise and the slow
+/// `drift(t)` (relative to `force_scale_n`), white displacement noise relative to the
+/// displacement's half range.
+fn add_noise(
+    t: &[f64],
+    z: &mut [f64],
+    f: &mut [f64],
+    force_scale_n: f64,
+    noise: &Noise,
+    drift: &dyn Fn(f64) -> f64,
+    rng: &mut Rng,
+) {
+    let z_amp = {
+        let lo = z.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = z.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        0.5 * (hi - lo)
+    };
+    let mut ar = 0.0;
+    let innovation = (1.0 - noise.coloured_rho * noise.coloured_rho).sqrt();
+    for i in 0..t.len() {
+        ar = noise.coloured_rho * ar + innovation * rng.normal();
+        f[i] += force_scale_n
+            * (noise.white_force * rng.normal() + noise.coloured_force * ar + drift(t[i]));
+        z[i] += z_amp * noise.white_displacement * rng.normal();
+    }
+}
+
+fn write_record(dir: &Path, id: &str, t: &[f64], z: &[f64], f: &[f64]) {
+    let mut csv = String::from("t_s,displacement_m,force_n\n");
+    for i in 0..t.len() {
+        let _ = writeln!(csv, "{:?},{:?},{:?}", t[i], z[i], f[i]);
+    }
+    std::fs::write(dir.join(format!("{id}.csv")), csv).unwrap();
 }
 
 /// A baseline model file whose parameters are off (and chi as given).
