@@ -68,9 +68,14 @@ impl std::error::Error for RunRecordError {}
 pub fn load_run_history(run_dir: &Path) -> Result<RunHistory, RunRecordError> {
     let rig = run_dir.join("rig.csv");
     if !rig.is_file() {
+        let message = if run_dir.join("records.mcap").is_file() {
+            "no rig.csv: this reader does not read records.mcap yet; export the run's records as CSV first"
+        } else {
+            "no rig.csv: expected the report directory of a `fastemu hil` run"
+        };
         return Err(RunRecordError {
             path: run_dir.display().to_string(),
-            message: "no rig.csv: expected the report directory of a `fastemu hil` run".into(),
+            message: message.into(),
         });
     }
     let csv_err = |e: crate::csvio::CsvError| RunRecordError {
