@@ -18,7 +18,6 @@ use std::path::{Path, PathBuf};
 
 use crate::csvio::read_columns;
 use crate::hil::config::{parse_hil_config, HilConfig};
-use crate::hil::process::EmulatorMeta;
 
 /// What diagnosis needs from a run: the record as a history test, and the config it ran.
 #[derive(Debug, Clone)]
@@ -101,11 +100,24 @@ pub fn load_run_history(run_dir: &Path) -> Result<RunHistory, RunRecordError> {
             path: meta_path.display().to_string(),
             message: format!("cannot read: {e}"),
         })?;
-        let meta: EmulatorMeta = serde_json::from_str(&text).map_err(|e| RunRecordError {
+        // Read as plain JSON (the keys `replay` uses), not through the loop's own type, so
+        // that this reader does not move with the loop's record types.
+        let meta: serde_json::Value = serde_json::from_str(&text).map_err(|e| RunRecordError {
             path: meta_path.display().to_string(),
-            message: format!("not an emulator meta file: {e}"),
+            message: format!("not JSON: {e}"),
         })?;
-        (meta.config_text, meta.config_origin, meta.config_base_dir)
+        let config_text = meta["config_text"]
+            .as_str()
+            .ok_or_else(|| RunRecordError {
+                path: meta_path.display().to_string(),
+                message: "no `config_text` string".into(),
+            })?
+            .to_string();
+        let origin = meta["config_origin"]
+            .as_str()
+            .map_or_else(|| meta_path.display().to_string(), str::to_string);
+        let base_dir = meta["config_base_dir"].as_str().map(PathBuf::from);
+        (config_text, origin, base_dir)
     } else if config_path.is_file() {
         let text = std::fs::read_to_string(&config_path).map_err(|e| RunRecordError {
             path: config_path.display().to_string(),

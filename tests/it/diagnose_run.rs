@@ -1,5 +1,6 @@
 //! `fastemu diagnose --run`: a real `fastemu hil` run with the controller's delay
-//! compensation mis-set, diagnosed from its records against the run's own model.
+//! compensation mis-set (100 us too long), diagnosed from its records against the run's
+//! own model.
 
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
@@ -73,7 +74,7 @@ fn diagnose_run(run_dir: &Path, out: &Path) -> serde_json::Value {
 }
 
 #[test]
-fn a_compensation_delay_set_120_us_too_long_is_found_in_the_run_records() {
+fn a_compensation_delay_set_100_us_too_long_is_found_in_the_run_records() {
     let dir = TempDir::new("diagnose-run");
     let default = include_str!("../../configs/hil-default.toml");
     let knob = "compensation_delay_us = 252.0";
@@ -81,7 +82,7 @@ fn a_compensation_delay_set_120_us_too_long_is_found_in_the_run_records() {
     let config = dir.path.join("mis-set.toml");
     std::fs::write(
         &config,
-        default.replace(knob, "compensation_delay_us = 372.0"),
+        default.replace(knob, "compensation_delay_us = 352.0"),
     )
     .unwrap();
     // The loop's realised delay is what the records show: a run whose commands arrived
@@ -90,10 +91,14 @@ fn a_compensation_delay_set_120_us_too_long_is_found_in_the_run_records() {
     // the mis-set knob needs a run that kept its timing; up to three runs are made.
     let _heavy = crate::common::cpu_heavy();
     let mut quiet_run = None;
-    for attempt in 0..3 {
+    for attempt in 0..4 {
+        if attempt > 0 {
+            // Whatever loaded the machine may pass.
+            std::thread::sleep(Duration::from_secs(15));
+        }
         let run_dir = dir.path.join(format!("run-{attempt}"));
-        if let Err(e) = run_hil(&config, &run_dir, 6.0) {
-            // A loop 120 us over-compensated on a loaded machine can trip; the trip is
+        if let Err(e) = run_hil(&config, &run_dir, 5.0) {
+            // A loop 100 us over-compensated on a loaded machine can trip; the trip is
             // the loop's business (hil_processes tests it), not the diagnosis'.
             eprintln!("run {attempt}: {e}");
             continue;
@@ -106,7 +111,7 @@ fn a_compensation_delay_set_120_us_too_long_is_found_in_the_run_records() {
         let held = summary("rig-summary.json", "held_commands");
         let stale = summary("emulator-summary.json", "stale_samples");
         eprintln!("run {attempt}: {held} held commands, {stale} stale samples");
-        if held < 250 && stale < 250 {
+        if held < 200 && stale < 200 {
             quiet_run = Some(run_dir);
             break;
         }
@@ -124,7 +129,8 @@ fn a_compensation_delay_set_120_us_too_long_is_found_in_the_run_records() {
     assert!(effects.contains(&"channel-delay"), "{json}");
     let lag_s = json["force_lag_s"].as_f64().expect("a fitted lag");
     // On main the applied force leads by 85 us at +100 us and 135 us at +150 us.
-    assert!((-200e-6..-60e-6).contains(&lag_s), "lag {lag_s}");
+    // A loaded machine lengthens the loop and shortens the lead: the range is wide.
+    assert!((-200e-6..-30e-6).contains(&lag_s), "lag {lag_s}");
     let advice = json["advice"]
         .as_array()
         .unwrap()
@@ -134,7 +140,7 @@ fn a_compensation_delay_set_120_us_too_long_is_found_in_the_run_records() {
         .expect("advice on the delay knob");
     assert!(
         advice.starts_with("applied force leads the emulated force by")
-            && advice.contains("compensation_delay_us (372 us) is about")
+            && advice.contains("compensation_delay_us (352 us) is about")
             && advice.ends_with("too long"),
         "{advice}"
     );
