@@ -9,21 +9,42 @@
 //! by the lack-of-fit F test against what the residual itself leaves (not against the
 //! noise estimate: a loop's record holds broadband disturbances above the band, missed
 //! deadlines and the specimen's resonance, that make an extrapolated noise level
-//! unreliable): an artefact is named when `F = (e0 - e1) / (e1 / (dof - 1)) > MIN_F`,
-//! it explains a relative residual `sqrt(e0 - e1)` above the naming rule's 1e-3, and it
-//! fits inside its physical range. Gaps here are relative RMS residuals, noise included.
+//! unreliable): an artefact is named when `F = (e0 - e1) / (e1 / (dof - 1)) > MIN_F`, or,
+//! as a record's disturbances (a loop's missed deadlines) are sparse in time and inflate
+//! `e1` everywhere in the F test, when it lowers the residual in at least 7 of 8
+//! consecutive stretches of the record; it must also explain a relative residual
+//! `sqrt(e0 - e1)` above the naming rule's 1e-3 and fit inside its physical range. Gaps
+//! here are relative RMS residuals, noise included.
 //!
 //! Must not: do I/O.
 
 use super::verdict::{history_beyond_noise, Unexplained, MIN_GAP, MIN_RATIO};
 use crate::ident::fit::{
-    fit_template, relative_error, CycleData, EffectKind, OutOfRange, Template,
+    fit_template, relative_error, test_residuals, CycleData, EffectKind, OutOfRange, Template,
 };
 use crate::model::effects::{AugmentedModel, Effect, DEFAULT_TEMPERATURE_C};
 
 /// Lack-of-fit F (one parameter) an artefact must reach; far beyond p = 0.001 (~11), as
 /// neighbouring bins of a deterministic residual are not independent.
 pub const MIN_F: f64 = 25.0;
+
+/// Segments of the record compared one by one, and how many must improve when the F test
+/// does not pass (a one-sided sign test, p = 0.035).
+pub const N_SEGMENTS: usize = 8;
+pub const MIN_SEGMENTS_IMPROVED: usize = 7;
+
+/// In how many of `N_SEGMENTS` consecutive stretches of the record the candidate's
+/// squared residual `after` is below the current model's `before`.
+fn segments_improved(before: &[f64], after: &[f64]) -> usize {
+    let n = before.len().min(after.len());
+    (0..N_SEGMENTS)
+        .filter(|&k| {
+            let (a, b) = (k * n / N_SEGMENTS, (k + 1) * n / N_SEGMENTS);
+            let sum = |r: &[f64]| r[a..b].iter().map(|x| x * x).sum::<f64>();
+            sum(after) < sum(before)
+        })
+        .count()
+}
 
 /// The artefacts tried on a run.
 pub const RUN_ARTEFACTS: [EffectKind; 2] = [EffectKind::ChannelDelay, EffectKind::MovingMass];
@@ -130,7 +151,13 @@ pub fn diagnose_run(
             let gap = error.sqrt();
             let explained = (current_error - error).max(0.0).sqrt();
             let f_statistic = (current_error - error) / (error / (dof - 1.0).max(1.0)).max(1e-300);
-            let qualifies = out_of_range.is_none() && f_statistic > MIN_F && explained > MIN_GAP;
+            let segments = segments_improved(
+                &test_residuals(&current, &unit),
+                &test_residuals(&fitted, &unit),
+            );
+            let qualifies = out_of_range.is_none()
+                && explained > MIN_GAP
+                && (f_statistic > MIN_F || segments >= MIN_SEGMENTS_IMPROVED);
             progress(&format!(
                 "round {round}: {:<14} residual {:.4e}{}{}",
                 kind.name(),
