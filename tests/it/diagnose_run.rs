@@ -97,7 +97,9 @@ fn a_compensation_delay_set_100_us_too_long_is_found_in_the_run_records() {
             std::thread::sleep(Duration::from_secs(15));
         }
         let run_dir = dir.path.join(format!("run-{attempt}"));
-        if let Err(e) = run_hil(&config, &run_dir, 5.0) {
+        // 6 s holds the whole coach passage of the default scenario (a record cut in the
+        // middle of it compares badly at its ends).
+        if let Err(e) = run_hil(&config, &run_dir, 6.0) {
             // A loop 100 us over-compensated on a loaded machine can trip; the trip is
             // the loop's business (hil_processes tests it), not the diagnosis'.
             eprintln!("run {attempt}: {e}");
@@ -110,8 +112,18 @@ fn a_compensation_delay_set_100_us_too_long_is_found_in_the_run_records() {
         };
         let held = summary("rig-summary.json", "held_commands");
         let stale = summary("emulator-summary.json", "stale_samples");
-        eprintln!("run {attempt}: {held} held commands, {stale} stale samples");
-        if held < 200 && stale < 200 {
+        // The run's own fidelity (hil's summary): quiet runs here keep 0.3-1 %; runs that
+        // shared the cores with another test binary reached 1.5-1.7 % and their records
+        // were dominated by the disturbances (a 3-4 % residual that no delay explains).
+        let text = std::fs::read_to_string(run_dir.join("summary.json")).unwrap();
+        let run_summary: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let fidelity = run_summary["fidelity"]["displacement_rel_rms"]
+            .as_f64()
+            .unwrap_or(f64::INFINITY);
+        eprintln!(
+            "run {attempt}: {held} held commands, {stale} stale samples, displacement error {fidelity:.4}"
+        );
+        if held < 200 && stale < 200 && fidelity < 0.012 {
             quiet_run = Some(run_dir);
             break;
         }

@@ -848,9 +848,10 @@ fn run_advice(d: &super::run::RunDiagnosis, config: &crate::hil::config::HilConf
         }
     }
     if out.is_empty() && d.unexplained.is_none() {
-        out.push(
-            "the applied force follows the emulated force to noise: no loop artefact found".into(),
-        );
+        out.push(format!(
+            "no loop artefact found: neither a delay nor a mass lowers the residual of the applied force ({:.2e}) consistently",
+            d.gap_after
+        ));
     }
     out
 }

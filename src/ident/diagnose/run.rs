@@ -12,7 +12,8 @@
 //! unreliable): an artefact is named when `F = (e0 - e1) / (e1 / (dof - 1)) > MIN_F`, or,
 //! as a record's disturbances (a loop's missed deadlines) are sparse in time and inflate
 //! `e1` everywhere in the F test, when it lowers the residual in at least 7 of 8
-//! consecutive stretches of the record; it must also explain a relative residual
+//! consecutive stretches of the record and explains at least `MIN_EXPLAINED_SHARE` of the
+//! relative RMS residual; it must also explain a relative residual
 //! `sqrt(e0 - e1)` above the naming rule's 1e-3 and fit inside its physical range. Gaps
 //! here are relative RMS residuals, noise included.
 //!
@@ -32,6 +33,8 @@ pub const MIN_F: f64 = 25.0;
 /// does not pass (a one-sided sign test, p = 0.035).
 pub const N_SEGMENTS: usize = 8;
 pub const MIN_SEGMENTS_IMPROVED: usize = 7;
+/// Share of the relative RMS residual an artefact must explain on the stretch path.
+pub const MIN_EXPLAINED_SHARE: f64 = 0.3;
 
 /// In how many of `N_SEGMENTS` consecutive stretches of the record the candidate's
 /// squared residual `after` is below the current model's `before`.
@@ -155,9 +158,13 @@ pub fn diagnose_run(
                 &test_residuals(&current, &unit),
                 &test_residuals(&fitted, &unit),
             );
+            // The stretch-by-stretch path also asks for a material share of the residual:
+            // a consistent but tiny improvement is a fit to the disturbances' pattern.
             let qualifies = out_of_range.is_none()
                 && explained > MIN_GAP
-                && (f_statistic > MIN_F || segments >= MIN_SEGMENTS_IMPROVED);
+                && (f_statistic > MIN_F
+                    || (segments >= MIN_SEGMENTS_IMPROVED
+                        && explained > MIN_EXPLAINED_SHARE * current_error.sqrt()));
             progress(&format!(
                 "round {round}: {:<14} residual {:.4e}{}{}",
                 kind.name(),
