@@ -34,7 +34,7 @@ pub const MIN_F: f64 = 25.0;
 pub const N_SEGMENTS: usize = 8;
 pub const MIN_SEGMENTS_IMPROVED: usize = 7;
 /// Share of the relative RMS residual an artefact must explain on the stretch path.
-pub const MIN_EXPLAINED_SHARE: f64 = 0.3;
+pub const MIN_EXPLAINED_SHARE: f64 = 0.2;
 
 /// In how many of `N_SEGMENTS` consecutive stretches of the record the candidate's
 /// squared residual `after` is below the current model's `before`.
