@@ -119,8 +119,17 @@ def g_of(fs, chi, p0):
     return max(1.0 + fs / p0, 1e-9) ** chi
 
 
-def simulate_test(tr, preload, amp, freq, temp_c, fs_rate, sub, n_cycles, phase0, rng):
-    """Force-controlled harmonic test. Returns (t, z, F_loadcell) at fs_rate, noiseless."""
+def simulate_test(tr, preload, amp, freq, temp_c, fs_rate, sub, n_cycles, phase0, rng, passage=None):
+    """Force-controlled test. Returns (t, z, F_loadcell) at fs_rate, noiseless.
+
+    Harmonic by default; `passage` = dict(peaks=[N...], times=[s...], width_s, duration_s)
+    makes it a recorded passage (history test): axle pulses on the preload, from rest.
+    Out-of-library truths act here: `tr.resonance` (fr_hz, zeta): the load cell reads the
+    element force through a resonance of the load train, H = 1 / (1 - (f/fr)^2 + 2 i zeta
+    f/fr), so the element receives command / H (harmonic tests; passages: at each pulse's
+    dominant frequency the effect is small and is left out); `tr.sensor_cubic` c: the load
+    cell reads F - c F^3 / (100 kN)^2, so the element receives the inverse of the command.
+    """
     k1, k2, tau = tr.at_temperature(temp_c)
     chi, p0 = tr.chi, tr.p0
     w = 2 * math.pi * freq
@@ -129,13 +138,43 @@ def simulate_test(tr, preload, amp, freq, temp_c, fs_rate, sub, n_cycles, phase0
     t_warm = max(2.0 / freq, 0.6)
     n_warm = int(math.ceil(t_warm * fs_rate)) * sub
     n_rec = int(math.floor(n_cycles / freq * fs_rate)) + 1  # >= n_cycles whole cycles
+    if passage is not None:
+        n_warm = 0
+        n_rec = int(round(passage["duration_s"] * fs_rate))
     n_tot = n_warm + (n_rec - 1) * sub + 1
+    gain, lag = 1.0, 0.0
+    if getattr(tr, "resonance", None) is not None and passage is None:
+        fr, zeta = tr.resonance
+        x = freq / fr
+        hcx = complex(1.0 - x * x, 2.0 * zeta * x)  # 1 / H
+        gain, lag = abs(hcx), math.atan2(hcx.imag, hcx.real)
 
     def fcmd(t):
+        if passage is not None:
+            t_rel = t - n_warm * h
+            return preload + sum(
+                pk * math.exp(-(((t_rel - tc) / passage["width_s"]) ** 2))
+                for pk, tc in zip(passage["peaks"], passage["times"])
+            )
         r = 0.5 * (1.0 - math.cos(math.pi * t / t_ramp)) if t < t_ramp else 1.0
         return preload + amp * r * math.cos(w * t + phase0)
 
-    z0 = z_of_fs(preload, k1, chi, p0)
+    def ftarget(t):
+        """Force the element receives for the load cell to read fcmd(t)."""
+        if passage is None and gain != 1.0:
+            r = 0.5 * (1.0 - math.cos(math.pi * t / t_ramp)) if t < t_ramp else 1.0
+            f = preload + amp * r * gain * math.cos(w * t + phase0 + lag)
+        else:
+            f = fcmd(t)
+        c = getattr(tr, "sensor_cubic", 0.0)
+        if c:
+            g = f
+            for _ in range(4):  # g - c g^3 / 1e10 = f
+                g -= (g - c * g**3 / 1e10 - f) / (1.0 - 3.0 * c * g * g / 1e10)
+            f = g
+        return f
+
+    z0 = z_of_fs(ftarget(0.0) if passage is not None else preload, k1, chi, p0)
     zf = np.empty(n_tot)
     zf[0] = z0
     fm = 0.0
@@ -159,7 +198,7 @@ def simulate_test(tr, preload, amp, freq, temp_c, fs_rate, sub, n_cycles, phase0
     fs_n = preload
     g_n = g_of(fs_n, chi, p0)
     for n in range(n_tot - 1):
-        target = fcmd((n + 1) * h)
+        target = ftarget((n + 1) * h)
         hsum = 0.0
         if sp is not None:
             mm = min(n + 1, mem)
@@ -228,6 +267,9 @@ def simulate_test(tr, preload, amp, freq, temp_c, fs_rate, sub, n_cycles, phase0
     f_rec = np.array([fcmd(t - tr.delay) for t in t_abs])
     t_rec = np.arange(n_rec) / fs_rate
     return t_rec, z_rec, f_rec
+
+
+OUT_OF_LIBRARY = ["load-path-resonance", "softening-specimen", "load-cell-nonlinearity", "friction-passages"]
 
 
 # ----------------------------------------------------------------------------
@@ -352,8 +394,29 @@ def write_baseline(path, effects, rng, style):
 
 def generate(out, effects, seed, baseline_style="table3", fs_rate=None, noise_scale=1.0, coloured=True):
     rng = np.random.default_rng(seed)
-    tr, info = draw_truth(effects, rng)
+    library = [e for e in effects if e in EFFECTS]
+    if "friction-passages" in effects:
+        library.append("amplitude-friction")
+    tr, info = draw_truth(library, rng)
     tests = design(rng)
+    passages = []
+    if "friction-passages" in effects:
+        # The paper's 20-test design (one amplitude) plus three passages of rising size.
+        tests = [(p, 5.0, f, 23.0) for p in (6.0, 18.0, 37.0, 55.0) for f in (1.0, 3.0, 5.0, 10.0, 20.0)]
+        p_pre = float(rng.uniform(18.0, 24.0)) * 1e3
+        for k, peak in enumerate((8e3, 16e3, 26e3)):
+            times = [0.6 + 0.7 * a + rng.uniform(-0.05, 0.05) for a in range(4)]
+            passages.append(dict(preload=p_pre, peaks=[peak * rng.uniform(0.9, 1.1) for _ in times],
+                                 times=times, width_s=float(rng.uniform(0.04, 0.08)), duration_s=4.0))
+    if "load-path-resonance" in effects:
+        tr.resonance = (float(rng.uniform(60.0, 110.0)), float(rng.uniform(0.03, 0.08)))
+        info["resonance"] = tr.resonance
+    if "load-cell-nonlinearity" in effects:
+        tr.sensor_cubic = float(rng.uniform(0.1, 0.2))
+        info["sensor_cubic"] = tr.sensor_cubic
+    softening = float(rng.uniform(0.04, 0.08)) if "softening-specimen" in effects else 0.0
+    info["softening_over_campaign"] = softening
+    n_all = len(tests) + len(passages)
     fs_rate = fs_rate or float(rng.choice([1000.0, 2000.0, 2500.0]))
     sub = max(2, int(round(8000.0 / fs_rate)))
     # noise levels
@@ -368,7 +431,10 @@ def generate(out, effects, seed, baseline_style="table3", fs_rate=None, noise_sc
     os.makedirs(out)
     lines = [f"sample_length_m = {L_SAMPLE}", ""]
     seen = set()
-    for p_kn, a_kn, f, tc in tests:
+    base_k = (tr.k1, tr.k2, tr.c2)
+    for index, (p_kn, a_kn, f, tc) in enumerate(tests):
+        scale = 1.0 - softening * index / max(n_all - 1, 1)
+        tr.k1, tr.k2, tr.c2 = (x * scale for x in base_k)
         tid = f"P{p_kn:04.1f}-F{f:g}-A{a_kn:g}-T{tc:g}".replace(".", "p")
         k = 2
         base = tid
@@ -405,9 +471,22 @@ def generate(out, effects, seed, baseline_style="table3", fs_rate=None, noise_sc
             f"temperature_c = {tc}",
             "",
         ]
+    for k, ps in enumerate(passages):
+        index = len(tests) + k
+        scale = 1.0 - softening * index / max(n_all - 1, 1)
+        tr.k1, tr.k2, tr.c2 = (x * scale for x in base_k)
+        tid = f"passage-{k}"
+        t, z, fl = simulate_test(tr, ps["preload"], 0.0, 1.0, 23.0, fs_rate, sub, 0, 0.0, rng, passage=ps)
+        n = len(t)
+        z = z + rng.normal(0, zw, n) + (ar1(n, zphi, zc, rng) if coloured else 0.0)
+        fl = fl + rng.normal(0, fw, n) + (lowpass_noise(n, fcut, fs_rate, fc, rng) if coloured else 0.0)
+        np.savetxt(os.path.join(out, tid + ".csv"), np.column_stack([t, z, fl]), delimiter=",",
+                   header="t_s,displacement_m,force_n", comments="", fmt=["%.7f", "%.6e", "%.3f"])
+        lines += ["[[test]]", f'id = "{tid}"', f'file = "{tid}.csv"', 'kind = "history"', "temperature_c = 23.0", ""]
+    tr.k1, tr.k2, tr.c2 = base_k
     with open(os.path.join(out, "campaign.toml"), "w") as fh:
         fh.write("\n".join(lines))
-    write_baseline(os.path.join(out, "baseline.toml"), effects, rng, baseline_style)
+    write_baseline(os.path.join(out, "baseline.toml"), library, rng, baseline_style)
     info.update(
         effects=effects,
         seed=seed,
@@ -436,17 +515,26 @@ SUITE = [
     ("delay+fractional", ["channel-delay", "fractional-damping"]),
 ]
 
+# Truths outside the library (SPEC 5.1): the verdict must say what it cannot explain.
+SUITE_OUT = [
+    ("resonance", ["load-path-resonance"]),
+    ("softening", ["softening-specimen"]),
+    ("loadcell", ["load-cell-nonlinearity"]),
+    ("passages", ["friction-passages"]),
+]
+
 
 def cmd_suite(args):
     os.makedirs(args.root, exist_ok=True)
+    suite = SUITE_OUT if args.out_of_library else SUITE
     for seed in args.seeds:
-        for name, eff in SUITE:
+        for name, eff in suite:
             if args.only and name not in args.only:
                 continue
             d = os.path.join(args.root, f"{name}-s{seed}")
             t0 = time.time()
             style = "table3" if seed % 2 == 1 else "perturbed"
-            info = generate(d, eff, 1000 * seed + SUITE.index((name, eff)), style)
+            info = generate(d, eff, 1000 * seed + suite.index((name, eff)) + (500 if args.out_of_library else 0), style)
             print(f"{d}: {info['n_tests']} tests, fs {info['fs_hz']:g} Hz, {time.time() - t0:.1f} s", flush=True)
 
 
@@ -461,6 +549,7 @@ def cmd_run(args):
         cdir = os.path.join(args.root, d)
         truth = json.load(open(os.path.join(cdir, "truth.json")))
         hidden = sorted(truth["effects"])
+        out_of_library = [e for e in hidden if e in OUT_OF_LIBRARY]
         out = os.path.join(cdir, f"diag_out_{args.tag}")
         t0 = time.time()
         p = subprocess.run(
@@ -476,13 +565,23 @@ def cmd_run(args):
             ok_shape = check_shape(js)
             gb, ga = js.get("gap_before"), js.get("gap_after")
             ratio = gb / ga if (gb is not None and ga) else float("inf")
-            if hidden:
-                ok = sorted(named) == hidden and ratio >= 3.0
+            unexplained = js.get("unexplained")
+            if "friction-passages" in out_of_library:
+                # In the library, but only the passages show it.
+                ok = "amplitude-friction" in named and ratio >= 3.0
+            elif out_of_library:
+                # No library effect is the truth: say so, never with unphysical parameters.
+                ok = unexplained is not None
+                if "softening-specimen" in out_of_library:
+                    ok = ok and bool(js.get("specimen_changed"))
+            elif hidden:
+                ok = sorted(named) == hidden and ratio >= 3.0 and unexplained is None
             else:
-                ok = len(named) == 0
+                ok = len(named) == 0 and unexplained is None
             row.update(named=named, gap_before=gb, gap_after=ga, ratio=ratio, shape=ok_shape,
                        ok=ok and ok_shape, candidates=js.get("candidates"),
-                       not_identifiable=js.get("not_identifiable"), effect=js.get("effect"))
+                       not_identifiable=js.get("not_identifiable"), effect=js.get("effect"),
+                       unexplained=js.get("unexplained"))
         except Exception as e:  # noqa: BLE001
             row.update(named=None, ok=False, error=f"{e}: {p.stdout[-300:]} {p.stderr[-500:]}")
         with open(os.path.join(cdir, f"diag_{args.tag}.json"), "w") as fh:
@@ -501,6 +600,7 @@ def print_row(r):
     print(
         f"| {r['campaign']} | {','.join(r['hidden']) or '-'} | {','.join(r['named']) or '-'} | "
         f"{r['gap_before']:.4g} | {r['gap_after']:.4g} | {r['ratio']:.2f} | {r['runtime']:.1f} s | "
+        f"{'unexplained ' + format(r['unexplained']['gap'], '.3g') if r.get('unexplained') else '-'} | "
         f"{'PASS' if r['ok'] else 'FAIL'} |",
         flush=True,
     )
@@ -617,6 +717,8 @@ def main():
     s.add_argument("--root", required=True)
     s.add_argument("--seeds", type=int, nargs="+", default=[1])
     s.add_argument("--only", nargs="*")
+    s.add_argument("--out-of-library", action="store_true",
+                   help="truths outside the library: resonance, softening, load cell, passages")
     r = sp.add_parser("run")
     r.add_argument("--root", required=True)
     r.add_argument("--bin", default="target/release/fastemu")
@@ -629,7 +731,7 @@ def main():
     if a.cmd == "gen":
         eff = [x for x in a.effects.split(",") if x]
         for x in eff:
-            assert x in EFFECTS, x
+            assert x in EFFECTS or x in OUT_OF_LIBRARY, x
         info = generate(a.out, eff, a.seed, a.baseline, noise_scale=a.noise_scale, coloured=not a.white_only)
         print(f"{a.out}: {info['n_tests']} tests")
     elif a.cmd == "suite":

@@ -2,13 +2,11 @@
 //! Li et al. (Materials 2021), plus the offline tools around it. See ARCHITECTURE.md.
 
 pub mod bench;
-pub mod campaign;
 pub mod child;
 pub mod cli;
 pub mod csvio;
-pub mod diagnose;
-pub mod fit;
 pub mod hil;
+pub mod ident;
 pub mod ipc;
 pub mod live;
 pub mod model;

@@ -30,6 +30,9 @@ enum Command {
     Identify(cli::identify::IdentifyArgs),
     /// Find where model and campaign disagree, name the missing effect, show the gap shrink.
     Diagnose(cli::diagnose::DiagnoseArgs),
+    /// Write a seeded synthetic campaign (a hidden effect, none, or one outside the
+    /// library) to try `diagnose` on; the truth goes to a file diagnose never reads.
+    SynthCampaign(cli::synth::SynthArgs),
     /// Benchmarks (model step speed, transport latency).
     #[command(subcommand)]
     Bench(cli::bench::BenchCommand),
@@ -58,6 +61,7 @@ fn main() -> std::process::ExitCode {
         Command::Bench(cmd) => cli::bench::run(cmd),
         Command::Identify(args) => cli::identify::run(args),
         Command::Diagnose(args) => cli::diagnose::run(args),
+        Command::SynthCampaign(args) => cli::synth::run(args),
         Command::Hil(args) => cli::hil::run(args),
         Command::Emulator(args) => cli::loopproc::run_emulator_command(args),
         Command::Controller(args) => cli::loopproc::run_controller_command(args),

@@ -1,32 +1,35 @@
-//! `fastemu diagnose`: the discrepancy workflow of SPEC 5 (logic in `crate::diagnose`);
-//! this module loads inputs, prints progress, and writes the report, plots, augmented
-//! model file and the `--json` object.
+//! `fastemu diagnose`: argument handling; the workflow, its verdicts and writers live in
+//! `crate::ident::diagnose`, the run-directory reader in `crate::ident::runrec`.
 
-use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{bail, Context};
 use clap::Args;
-use serde_json::json;
 
-use crate::campaign::load_campaign;
-use crate::diagnose::{diagnose, effect_params, DiagnoseOptions, Diagnosis};
-use crate::fit::{cycle_data, predict_cycle, rms_gap, CycleData, EffectKind};
+use crate::ident::campaign::load_campaign;
+use crate::ident::diagnose::report::{write_outputs, write_run_outputs, ReportPaths};
+use crate::ident::diagnose::run::{diagnose_run, operating_temperature_c};
+use crate::ident::diagnose::{diagnose, DiagnoseOptions};
+use crate::ident::fit::{test_data, CycleData};
+use crate::ident::history::prepare_history;
+use crate::ident::runrec::load_run_history;
 use crate::model::effects::AugmentedModel;
-use crate::plot::{draw_png, Panel, Series};
-
-use super::fitplots::{distinct_levels, plot_equivalents, plot_loops, reconstruct};
 
 #[derive(Args)]
 pub struct DiagnoseArgs {
     /// Campaign directory: `campaign.toml` and one CSV per test (SPEC 4; see README).
+    #[arg(long, required_unless_present = "run", conflicts_with = "run")]
+    pub campaign: Option<PathBuf>,
+    /// Report directory of a `fastemu hil` run: its rig record is diagnosed as one history
+    /// test against the model the emulator ran (not recalibrated).
     #[arg(long)]
-    pub campaign: PathBuf,
-    /// Baseline model file (SPEC 2.3); its structure is kept, its parameters recalibrated.
+    pub run: Option<PathBuf>,
+    /// Baseline model file (SPEC 2.3). With --campaign (required) its structure is kept and
+    /// its parameters recalibrated; with --run it replaces the run's own model.
     #[arg(long)]
-    pub model: PathBuf,
+    pub model: Option<PathBuf>,
     /// Output directory: report.md, PNG plots, augmented_model.toml.
     #[arg(long)]
     pub out: PathBuf,
@@ -41,19 +44,80 @@ pub struct DiagnoseArgs {
     pub threads: usize,
 }
 
-/// What the gap measures, for `metric` in the JSON and the report.
-pub fn metric(n_folds: usize) -> String {
-    format!(
-        "held-out relative RMS residual of the force at the test frequency in excess of measurement noise: sqrt(mean_w |F_sim,1 - F_meas,1|^2 / |F_meas,1|^2 - mean_w nu_i) over the harmonic tests, mean_w a precision-weighted mean (weights 1 / max(nu~_i, median nu~ / 2), nu~_i the campaign's smoothed noise level), F_sim,1 from the steady-state force simulated from each test's measured displacement cycle by a model fitted without that test ({n_folds}-fold cross-validation), nu_i the noise share of that residual estimated from the DFT bins next to the test frequency (floored at a tenth of the noise RMS; raw_gap_* include the noise)"
-    )
+fn load_model(path: &std::path::Path) -> anyhow::Result<AugmentedModel> {
+    let spec = super::load_model(path)?;
+    Ok(AugmentedModel::from_spec(
+        &spec,
+        &path.display().to_string(),
+    )?)
 }
 
 pub fn run(args: DiagnoseArgs) -> anyhow::Result<ExitCode> {
     let started = Instant::now();
-    let campaign = load_campaign(&args.campaign)?;
-    let spec = super::load_model(&args.model)?;
-    let baseline = AugmentedModel::from_spec(&spec, &args.model.display().to_string())?;
-    let mut baseline = baseline;
+    // Fail on an unusable --out before the analysis, not after it.
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let summary = match (&args.campaign, &args.run) {
+        (_, Some(run_dir)) => run_command(&args, run_dir, started)?,
+        (Some(campaign), None) => campaign_command(&args, campaign, started)?,
+        (None, None) => bail!("give --campaign DIR or --run RUNDIR"),
+    };
+    if args.json {
+        println!("{summary}");
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn run_command(
+    args: &DiagnoseArgs,
+    run_dir: &std::path::Path,
+    started: Instant,
+) -> anyhow::Result<serde_json::Value> {
+    let record = load_run_history(run_dir)?;
+    let config = record.config()?;
+    let model = match &args.model {
+        Some(path) => load_model(path)?,
+        None => config.augmented.clone(),
+    };
+    let history = prepare_history(record.dt_s, &record.displacement_m, &record.applied_force_n)
+        .with_context(|| format!("{}: the rig record", run_dir.display()))?;
+    let unit = CycleData::from_history(
+        "the run's rig record",
+        history,
+        operating_temperature_c(&model),
+        0.0,
+    );
+    let diagnosis = diagnose_run(&model, unit, &mut |msg| eprintln!("diagnose: {msg}"));
+    let model_label = match &args.model {
+        Some(p) => p.display().to_string(),
+        None => format!("[model] of {}", record.config_origin),
+    };
+    write_run_outputs(
+        run_dir,
+        &model_label,
+        &record.used,
+        &args.out,
+        &diagnosis,
+        &config,
+        started,
+    )
+}
+
+fn campaign_command(
+    args: &DiagnoseArgs,
+    campaign_dir: &std::path::Path,
+    started: Instant,
+) -> anyhow::Result<serde_json::Value> {
+    let Some(model_path) = &args.model else {
+        bail!("--campaign needs --model MODEL.toml (the baseline to recalibrate)");
+    };
+    anyhow::ensure!(
+        args.folds >= 2,
+        "--folds {}: cross-validation needs at least 2 folds",
+        args.folds
+    );
+    let campaign = load_campaign(campaign_dir)?;
+    let mut baseline = load_model(model_path)?;
     if (baseline.length_m - campaign.sample_length_m).abs() > 1e-9 * campaign.sample_length_m {
         // Per-metre parameters are what the model file states: rescale to the sample.
         let scale = campaign.sample_length_m / baseline.length_m;
@@ -63,77 +127,35 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<ExitCode> {
         );
         baseline = rescale(&baseline, scale, campaign.sample_length_m);
     }
-    let data = cycle_data(&campaign);
+    let data = test_data(&campaign)?;
+    let n_history = data.iter().filter(|d| d.is_history()).count();
     if data.len() < 6 {
         bail!(
-            "{}: {} harmonic tests: diagnosis needs at least 6 (it holds tests out)",
-            args.campaign.display(),
+            "{}: {} tests: diagnosis needs at least 6 (it holds tests out)",
+            campaign_dir.display(),
             data.len()
         );
     }
-    let n_history = campaign.tests.len() - data.len();
     eprintln!(
-        "diagnose: {} harmonic tests{} from {}",
-        data.len(),
-        if n_history > 0 {
-            format!(" ({n_history} history tests not used)")
-        } else {
-            String::new()
-        },
-        args.campaign.display()
+        "diagnose: {} harmonic and {n_history} history tests from {}",
+        data.len() - n_history,
+        campaign_dir.display()
     );
-    anyhow::ensure!(
-        args.folds >= 2,
-        "--folds {}: cross-validation needs at least 2 folds",
-        args.folds
-    );
-    // Fail on an unusable --out before the analysis, not after it.
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create {}", args.out.display()))?;
     let options = DiagnoseOptions {
         n_folds: args.folds,
         n_threads: args.threads.max(1),
+        order_is_clock: campaign.has_start_times(),
         ..DiagnoseOptions::default()
     };
     let diagnosis = diagnose(&baseline, &data, &options, &mut |msg| {
         eprintln!("diagnose: {msg}")
     });
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create {}", args.out.display()))?;
-    let model_path = args.out.join("augmented_model.toml");
-    let header = format!(
-        "Augmented by `fastemu diagnose` from baseline {} and campaign {}.\nNamed effects: {}. Held-out gap {:.4e} -> {:.4e}.\nSet operating_temperature_c of temperature-shift to the rig temperature. channel-delay and moving-mass\nare rig artefacts: the emulator (StepperMode::Emulation) leaves them out.",
-        args.model.display(),
-        args.campaign.display(),
-        if diagnosis.named.is_empty() { "none".to_string() } else { diagnosis.named.iter().map(|k| k.name()).collect::<Vec<_>>().join(", ") },
-        diagnosis.gap_before,
-        diagnosis.gap_after
-    );
-    std::fs::write(&model_path, diagnosis.final_model.render_toml(&header))
-        .with_context(|| format!("cannot write {}", model_path.display()))?;
-    eprintln!("diagnose: writing plots");
-    let plots = write_plots(&args, &diagnosis, &data, campaign.sample_length_m)?;
-    let elapsed_s = started.elapsed().as_secs_f64();
-    let report = render_report(&args, &diagnosis, &data, &plots, &model_path, elapsed_s);
-    let report_path = args.out.join("report.md");
-    std::fs::write(&report_path, report)
-        .with_context(|| format!("cannot write {}", report_path.display()))?;
-    eprintln!(
-        "diagnose: named [{}], held-out gap {:.4e} -> {:.4e}; report {} ({elapsed_s:.1} s)",
-        diagnosis
-            .named
-            .iter()
-            .map(|k| k.name())
-            .collect::<Vec<_>>()
-            .join(", "),
-        diagnosis.gap_before,
-        diagnosis.gap_after,
-        report_path.display()
-    );
-    if args.json {
-        println!("{}", json_summary(&diagnosis, &model_path));
-    }
-    Ok(ExitCode::SUCCESS)
+    let paths = ReportPaths {
+        campaign: campaign_dir.to_path_buf(),
+        model: model_path.clone(),
+        out: args.out.clone(),
+    };
+    write_outputs(&paths, &diagnosis, &data, campaign.sample_length_m, started)
 }
 
 fn rescale(model: &AugmentedModel, scale: f64, length_m: f64) -> AugmentedModel {
@@ -152,404 +174,4 @@ fn rescale(model: &AugmentedModel, scale: f64, length_m: f64) -> AugmentedModel 
     }
     out.length_m = length_m;
     out
-}
-
-/// Latest evaluation of each candidate effect (the round it was named in, else its last).
-fn latest_candidates(d: &Diagnosis) -> Vec<&crate::diagnose::CandidateResult> {
-    let mut out: Vec<&crate::diagnose::CandidateResult> = Vec::new();
-    for kind in EffectKind::ALL {
-        let named_round = d
-            .rounds
-            .iter()
-            .flatten()
-            .find(|r| r.kind == kind && d.named.get(r.round - 1) == Some(&kind));
-        let last = d.rounds.iter().flatten().rfind(|r| r.kind == kind);
-        if let Some(r) = named_round.or(last) {
-            out.push(r);
-        }
-    }
-    out
-}
-
-pub fn json_summary(d: &Diagnosis, model_path: &std::path::Path) -> serde_json::Value {
-    let candidates: Vec<serde_json::Value> = latest_candidates(d)
-        .iter()
-        .map(|r| {
-            let params: serde_json::Map<String, serde_json::Value> =
-                effect_params(&r.model, r.kind)
-                    .into_iter()
-                    .map(|(k, v)| (k.to_string(), json!(v)))
-                    .collect();
-            json!({
-                "effect": r.kind.name(),
-                "score": r.score,
-                "params": params,
-                "round": r.round,
-                "raw_held_out_residual": r.raw_gap,
-                "gap_ratio": r.gap_ratio,
-                "raw_ratio": r.raw_ratio,
-                "wilcoxon_z": r.wilcoxon_z,
-                "folds_improved": r.folds_improved,
-                "named": d.named.contains(&r.kind),
-            })
-        })
-        .collect();
-    let named: Vec<&str> = d.named.iter().map(|k| k.name()).collect();
-    json!({
-        "effect": named.first(),
-        "effects": named,
-        "gap_before": d.gap_before,
-        "gap_after": d.gap_after,
-        "raw_gap_before": d.raw_gap_before,
-        "raw_gap_after": d.raw_gap_after,
-        "noise_floor": d.noise_floor,
-        "metric": metric(n_folds(d)),
-        "candidates": candidates,
-        "not_identifiable": d.not_tried.iter().filter(|n| n.not_identifiable).map(|n| n.kind.name()).collect::<Vec<_>>(),
-        "model_out": model_path.display().to_string(),
-    })
-}
-
-/// Folds actually used (`--folds` is capped at the number of tests).
-fn n_folds(d: &Diagnosis) -> usize {
-    d.folds.iter().max().map_or(0, |m| m + 1)
-}
-
-/// RMS gap per level of a design variable: (level, gap before, gap after, n tests).
-fn gap_by(
-    d: &Diagnosis,
-    data: &[CycleData],
-    key: impl Fn(&CycleData) -> f64,
-) -> Vec<(f64, f64, f64, usize)> {
-    distinct_levels(data.iter().map(&key))
-        .into_iter()
-        .map(|level| {
-            let idx: Vec<usize> = (0..data.len())
-                .filter(|&i| {
-                    (key(&data[i]) - level).abs()
-                        <= 0.01 * level.abs().max(key(&data[i]).abs()) + 1e-9
-                })
-                .collect();
-            let before: Vec<f64> = idx
-                .iter()
-                .map(|&i| d.baseline_cv.held_out_error[i])
-                .collect();
-            let after: Vec<f64> = idx.iter().map(|&i| d.final_cv.held_out_error[i]).collect();
-            (level, rms_gap(&before), rms_gap(&after), idx.len())
-        })
-        .collect()
-}
-
-/// Residual over the cycle phase (in-sample, full-data fits): RMS across tests of the
-/// force residual relative to each test's force scale, at `n` phase points.
-fn residual_over_cycle(model: &AugmentedModel, data: &[CycleData], n: usize) -> Vec<f64> {
-    let mut sum = vec![0.0; n + 1];
-    for d in data {
-        let predicted = predict_cycle(model, d);
-        let mut diff = [(0.0, 0.0); crate::campaign::N_HARMONICS];
-        for h in 0..diff.len() {
-            diff[h] = (
-                (predicted[h].0 - d.force_harmonics_n[h].0) / d.scale_n,
-                (predicted[h].1 - d.force_harmonics_n[h].1) / d.scale_n,
-            );
-        }
-        for (s, r) in sum.iter_mut().zip(reconstruct(&diff, n)) {
-            *s += r * r;
-        }
-    }
-    sum.iter()
-        .map(|s| (s / data.len().max(1) as f64).sqrt())
-        .collect()
-}
-
-struct Plots {
-    gap_map: PathBuf,
-    loops: PathBuf,
-    equivalents: PathBuf,
-}
-
-fn write_plots(
-    args: &DiagnoseArgs,
-    d: &Diagnosis,
-    data: &[CycleData],
-    length_m: f64,
-) -> anyhow::Result<Plots> {
-    let mut panels = Vec::new();
-    type Key = fn(&CycleData) -> f64;
-    let factors: [(&str, Key, bool); 4] = [
-        ("preload (kN)", |c| c.preload_n / 1e3, false),
-        ("frequency (Hz)", |c| c.frequency_hz, true),
-        ("force amplitude (kN)", |c| c.amplitude_n / 1e3, false),
-        ("temperature (degC)", |c| c.temperature_c, false),
-    ];
-    for (label, key, log_x) in factors {
-        let rows = gap_by(d, data, key);
-        let x: Vec<f64> = rows.iter().map(|r| r.0).collect();
-        let mut panel = Panel::new(
-            format!("held-out raw residual by {label}"),
-            label,
-            "relative RMS force residual (noise incl.)",
-        )
-        .log_y()
-        .with(Series::line(
-            "baseline (calibrated)",
-            x.clone(),
-            rows.iter().map(|r| r.1.max(1e-6)).collect(),
-            1,
-        ))
-        .with(Series::points(
-            "",
-            x.clone(),
-            rows.iter().map(|r| r.1.max(1e-6)).collect(),
-            1,
-        ))
-        .with(Series::line(
-            "augmented",
-            x.clone(),
-            rows.iter().map(|r| r.2.max(1e-6)).collect(),
-            2,
-        ))
-        .with(Series::points(
-            "",
-            x,
-            rows.iter().map(|r| r.2.max(1e-6)).collect(),
-            2,
-        ));
-        if log_x {
-            panel = panel.log_x();
-        }
-        panels.push(panel);
-    }
-    let n = 64;
-    let phase: Vec<f64> = (0..=n).map(|k| 360.0 * k as f64 / n as f64).collect();
-    panels.push(
-        Panel::new(
-            "gap within the cycle (in-sample)",
-            "phase of the fundamental (deg)",
-            "RMS relative residual",
-        )
-        .with(Series::line(
-            "baseline (calibrated)",
-            phase.clone(),
-            residual_over_cycle(&d.baseline_model, data, n),
-            1,
-        ))
-        .with(Series::line(
-            "augmented",
-            phase,
-            residual_over_cycle(&d.final_model, data, n),
-            2,
-        )),
-    );
-    let gap_map = args.out.join("gap_map.png");
-    draw_png(&gap_map, 1500, 900, 3, &panels)?;
-    let loops = args.out.join("loops.png");
-    // The four tests where the calibrated baseline misses most (held-out).
-    let mut worst: Vec<usize> = (0..data.len()).collect();
-    worst.sort_by(|&a, &b| {
-        d.baseline_cv.held_out_error[b].total_cmp(&d.baseline_cv.held_out_error[a])
-    });
-    worst.truncate(4);
-    plot_loops(
-        &loops,
-        data,
-        &worst,
-        &[
-            ("baseline (calibrated)", &d.baseline_model),
-            ("augmented", &d.final_model),
-        ],
-    )?;
-    let equivalents = args.out.join("keq_ceq.png");
-    plot_equivalents(
-        &equivalents,
-        data,
-        length_m,
-        &[
-            ("baseline (calibrated)", &d.baseline_model),
-            ("augmented", &d.final_model),
-        ],
-        d.reference_temperature_c,
-    )?;
-    Ok(Plots {
-        gap_map,
-        loops,
-        equivalents,
-    })
-}
-
-fn render_report(
-    args: &DiagnoseArgs,
-    d: &Diagnosis,
-    data: &[CycleData],
-    plots: &Plots,
-    model_path: &std::path::Path,
-    elapsed_s: f64,
-) -> String {
-    let mut r = String::new();
-    let named: Vec<&str> = d.named.iter().map(|k| k.name()).collect();
-    let _ = writeln!(r, "# Discrepancy report\n");
-    let _ = writeln!(
-        r,
-        "- Campaign: `{}` ({} harmonic tests)",
-        args.campaign.display(),
-        data.len()
-    );
-    let _ = writeln!(r, "- Baseline model: `{}`", args.model.display());
-    let _ = writeln!(
-        r,
-        "- **Named effects: {}**",
-        if named.is_empty() {
-            "none (nothing beats the calibrated baseline beyond noise)".to_string()
-        } else {
-            named.join(", ")
-        }
-    );
-    let _ = writeln!(
-        r,
-        "- Held-out gap: **{:.4e} -> {:.4e}** ({:.1}x smaller)",
-        d.gap_before,
-        d.gap_after,
-        d.gap_before / d.gap_after.max(1e-300)
-    );
-    let _ = writeln!(
-        r,
-        "- Raw held-out RMS residual (noise included): {:.4e} -> {:.4e}; estimated noise floor {:.4e}",
-        d.raw_gap_before, d.raw_gap_after, d.noise_floor
-    );
-    let _ = writeln!(r, "- Gap metric: {}.", metric(n_folds(d)));
-    let _ = writeln!(r, "- Augmented model: `{}`", model_path.display());
-    let _ = writeln!(
-        r,
-        "- Reference temperature: {} degC; run time {elapsed_s:.1} s\n",
-        d.reference_temperature_c
-    );
-
-    let _ = writeln!(r, "## Calibrated baseline (structure kept)\n");
-    let se = d.baseline_cv.full_fit.standard_errors();
-    let _ = writeln!(
-        r,
-        "| parameter (fitted scale) | value | standard error |\n| --- | --- | --- |"
-    );
-    for ((name, value), se) in d
-        .baseline_template
-        .param_names()
-        .iter()
-        .zip(&d.baseline_cv.full_fit.params)
-        .zip(&se)
-    {
-        let _ = writeln!(
-            r,
-            "| {name} | {value:.5} | {} |",
-            se.map_or("n/a".into(), |s| format!("{s:.2e}"))
-        );
-    }
-    let _ = writeln!(
-        r,
-        "\nBaseline model file after calibration:\n\n```toml\n{}```\n",
-        d.baseline_model.render_toml("")
-    );
-
-    let _ = writeln!(r, "## Candidates\n");
-    let _ = writeln!(
-        r,
-        "Each candidate is the current model plus one effect, fitted on the training folds and scored on the held-out fold. \
-         Score = held-out gap ratio (noise excluded) x (1 + 0.02 per extra parameter). Named only if score < {}, \
-         the penalised raw-residual ratio < {}, the paired Wilcoxon z (per-test held-out errors, noise-normalised) > {}, \
-         it is better in at least K-1 of K folds, and it explains a held-out gap above {:.0e}.\n",
-        DiagnoseOptions::default().max_score,
-        DiagnoseOptions::default().max_raw_ratio,
-        DiagnoseOptions::default().min_wilcoxon_z,
-        DiagnoseOptions::default().min_explained_gap
-    );
-    let _ = writeln!(r, "| round | effect | raw held-out residual | gap ratio | score | Wilcoxon z | folds better | qualifies | parameters |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- |");
-    for c in d.rounds.iter().flatten() {
-        let params = effect_params(&c.model, c.kind)
-            .iter()
-            .map(|(k, v)| format!("{k} = {v:.4e}"))
-            .collect::<Vec<_>>()
-            .join(", ");
-        let _ = writeln!(
-            r,
-            "| {} | {} | {:.4e} | {:.3} | {:.3} | {:.2} | {}/{} | {} | {params} |",
-            c.round,
-            c.kind.name(),
-            c.raw_gap,
-            c.gap_ratio,
-            c.score,
-            c.wilcoxon_z,
-            c.folds_improved,
-            d.folds.iter().max().map_or(0, |m| m + 1),
-            if c.qualifies { "yes" } else { "no" }
-        );
-    }
-    let _ = writeln!(r, "\n### Not tried\n");
-    if d.not_tried.is_empty() {
-        let _ = writeln!(r, "Every effect of the library was tried.");
-    }
-    for n in &d.not_tried {
-        let _ = writeln!(
-            r,
-            "- `{}`: {}{}",
-            n.kind.name(),
-            if n.not_identifiable {
-                "not identifiable: "
-            } else {
-                ""
-            },
-            n.reason
-        );
-    }
-
-    let _ = writeln!(r, "\n## Where the gap lives (raw held-out residual per level, noise included, before -> after)\n");
-    type Key = fn(&CycleData) -> f64;
-    let factors: [(&str, Key); 4] = [
-        ("preload (kN)", |c| c.preload_n / 1e3),
-        ("frequency (Hz)", |c| c.frequency_hz),
-        ("force amplitude (kN)", |c| c.amplitude_n / 1e3),
-        ("temperature (degC)", |c| c.temperature_c),
-    ];
-    for (label, key) in factors {
-        let _ = writeln!(
-            r,
-            "| {label} | tests | gap before | gap after |\n| --- | --- | --- | --- |"
-        );
-        for (level, before, after, n) in gap_by(d, data, key) {
-            let _ = writeln!(r, "| {level:.4} | {n} | {before:.4e} | {after:.4e} |");
-        }
-        let _ = writeln!(r);
-    }
-    let _ = writeln!(r, "Per test (held-out relative residual at the test frequency, noise included, and the estimated noise share):\n\n| test | preload (kN) | f (Hz) | amplitude (kN) | T (degC) | before | after | noise |\n| --- | --- | --- | --- | --- | --- | --- | --- |");
-    for (i, t) in data.iter().enumerate() {
-        let _ = writeln!(
-            r,
-            "| {} | {:.1} | {} | {:.2} | {:.1} | {:.3e} | {:.3e} | {:.3e} |",
-            t.id,
-            t.preload_n / 1e3,
-            t.frequency_hz,
-            t.amplitude_n / 1e3,
-            t.temperature_c,
-            d.baseline_cv.held_out_error[i].sqrt(),
-            d.final_cv.held_out_error[i].sqrt(),
-            t.noise_relative.sqrt()
-        );
-    }
-    let _ = writeln!(r, "\n## Plots\n");
-    for (title, path) in [
-        ("Gap map", &plots.gap_map),
-        ("Loops", &plots.loops),
-        ("k_eq and c_eq", &plots.equivalents),
-    ] {
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().to_string())
-            .unwrap_or_default();
-        let _ = writeln!(r, "![{title}]({name})\n");
-    }
-    let _ = writeln!(
-        r,
-        "k_eq/c_eq curves are drawn at the reference temperature and each preload's median displacement amplitude; \
-         points marked (at tests) are each model's prediction for the actual tests. Loops show the dynamic \
-         (mean-removed) steady-state cycle."
-    );
-    r
 }

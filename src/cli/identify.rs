@@ -1,33 +1,15 @@
-//! `fastemu identify`: Zener parameters from a campaign of harmonic tests (paper Sec. 3.1).
-//!
-//! Two objectives:
-//! - `eq2` (the paper's, default for `--form paper`): per-metre k_eq in MN/m^2 and c_eq in
-//!   MN s/m^2 from each test's single-bin DFT against paper Eq. 2, residuals
-//!   `k_num - k_exp` and `sqrt(10) (c_num - c_exp)` (weight 10 on the squared damping
-//!   error, as in the paper), P0 fixed.
-//! - `force` (default for `--form consistent`): time-domain force residual. The chosen form
-//!   is simulated over each test's measured steady-state displacement cycle and the
-//!   simulated force is compared with the measured force cycle (harmonics 1-3, relative to
-//!   each test's force amplitude, so every test weighs the same).
-//!
-//! Standard errors come from `sigma^2 (J^T J)^-1` in the fitted log/logit parameters and
-//! are mapped to the physical ones (95 % intervals are transformed, hence asymmetric).
+//! `fastemu identify`: argument handling and output (the fit is `crate::ident::identify`).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::{bail, Context};
+use anyhow::bail;
 use clap::Args;
-use serde_json::json;
 
-use crate::campaign::{load_campaign, Campaign};
-use crate::fit::{
-    cycle_data, fit_template, levenberg_marquardt, relative_error, rms_gap, CycleData, LmFit,
-    Template,
-};
-use crate::model::effects::{AugmentedModel, DEFAULT_TEMPERATURE_C};
-use crate::model::equiv::zener_eq2;
-use crate::model::params::{ElementModel, Form, ZenerParams};
+use crate::ident::campaign::load_campaign;
+use crate::ident::fit::cycle_data;
+use crate::ident::identify::{identify_eq2, identify_force, write_identification, IdentifyRequest};
+use crate::model::params::Form;
 
 #[derive(Args)]
 pub struct IdentifyArgs {
@@ -54,207 +36,6 @@ pub struct IdentifyArgs {
     #[arg(long)]
     pub json: bool,
 }
-
-/// One identified parameter: value, standard error and 95 % interval, in file units.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Estimate {
-    pub value: f64,
-    pub standard_error: Option<f64>,
-    pub ci95: Option<(f64, f64)>,
-}
-
-/// Result of an identification.
-#[derive(Debug, Clone)]
-pub struct Identification {
-    /// Per-metre parameters (k in N/m^2, c in N s/m^2).
-    pub params_per_m: ZenerParams,
-    pub estimates: Vec<(&'static str, Estimate)>,
-    pub fit: LmFit,
-}
-
-fn log_estimate(theta: f64, se: Option<f64>, unit_scale: f64) -> Estimate {
-    let value = theta.exp() * unit_scale;
-    Estimate {
-        value,
-        standard_error: se.map(|s| value * s),
-        ci95: se.map(|s| {
-            (
-                (theta - 1.96 * s).exp() * unit_scale,
-                (theta + 1.96 * s).exp() * unit_scale,
-            )
-        }),
-    }
-}
-
-fn logistic(x: f64) -> f64 {
-    1.0 / (1.0 + (-x).exp())
-}
-
-fn chi_estimate(theta: f64, se: Option<f64>, chi_max: f64) -> Estimate {
-    let value = chi_max * logistic(theta);
-    let slope = value * (1.0 - logistic(theta));
-    Estimate {
-        value,
-        standard_error: se.map(|s| slope * s),
-        ci95: se.map(|s| {
-            (
-                chi_max * logistic(theta - 1.96 * s),
-                chi_max * logistic(theta + 1.96 * s),
-            )
-        }),
-    }
-}
-
-/// Start values from the measured k_eq/c_eq (per metre, SI).
-fn start_params(campaign: &Campaign, p0_n: f64) -> ZenerParams {
-    let eqs: Vec<_> = campaign
-        .harmonic_tests()
-        .filter_map(|t| campaign.equivalent(t))
-        .collect();
-    let k_min = eqs
-        .iter()
-        .map(|e| e.k_eq_n_per_m2)
-        .fold(f64::INFINITY, f64::min)
-        .max(1e3);
-    let k_max = eqs.iter().map(|e| e.k_eq_n_per_m2).fold(0.0, f64::max);
-    let c_max = eqs.iter().map(|e| e.c_eq_ns_per_m2).fold(0.0, f64::max);
-    ZenerParams {
-        k1_0_n_per_m: 0.9 * k_min,
-        k2_0_n_per_m: (k_max - 0.9 * k_min).max(0.1 * k_min),
-        c2_0_ns_per_m: c_max.max(1e-3 * k_min),
-        chi: 0.2,
-        p0_n,
-    }
-}
-
-/// The paper's objective: Eq. 2 against per-metre k_eq (MN/m^2) and c_eq (MN s/m^2).
-pub fn identify_eq2(campaign: &Campaign, p0_n: f64) -> Identification {
-    const CHI_MAX: f64 = 0.95;
-    let points: Vec<(f64, f64, f64, f64)> = campaign
-        .harmonic_tests()
-        .filter_map(|t| {
-            let e = campaign.equivalent(t)?;
-            Some((
-                t.preload_n()?,
-                2.0 * std::f64::consts::PI * t.frequency_hz()?,
-                e.k_eq_n_per_m2 / 1e6,
-                e.c_eq_ns_per_m2 / 1e6,
-            ))
-        })
-        .collect();
-    let to_params = |theta: &[f64]| ZenerParams {
-        k1_0_n_per_m: theta[0].exp() * 1e6,
-        k2_0_n_per_m: theta[1].exp() * 1e6,
-        c2_0_ns_per_m: theta[2].exp() * 1e6,
-        chi: CHI_MAX * logistic(theta[3]),
-        p0_n,
-    };
-    let residuals = |theta: &[f64]| -> Vec<f64> {
-        let p = to_params(theta);
-        let weight = 10f64.sqrt();
-        points
-            .iter()
-            .flat_map(|&(preload, omega, k_exp, c_exp)| {
-                let eq = zener_eq2(&p, preload, omega);
-                [
-                    eq.k_eq_n_per_m / 1e6 - k_exp,
-                    weight * (eq.c_eq_ns_per_m / 1e6 - c_exp),
-                ]
-            })
-            .collect()
-    };
-    let s = start_params(campaign, p0_n);
-    let mut best: Option<LmFit> = None;
-    for chi in [0.05, 0.2, 0.5] {
-        let start = [
-            (s.k1_0_n_per_m / 1e6).ln(),
-            (s.k2_0_n_per_m / 1e6).ln(),
-            (s.c2_0_ns_per_m / 1e6).ln(),
-            (chi / (CHI_MAX - chi)).ln(),
-        ];
-        let fit = levenberg_marquardt(residuals, &start, 200);
-        if best.as_ref().is_none_or(|b| fit.sse < b.sse) {
-            best = Some(fit);
-        }
-    }
-    let fit = best.expect("three starts");
-    let se = fit.standard_errors();
-    let params_per_m = to_params(&fit.params);
-    Identification {
-        params_per_m,
-        estimates: vec![
-            ("k1_0_n_per_m2", log_estimate(fit.params[0], se[0], 1e6)),
-            ("k2_0_n_per_m2", log_estimate(fit.params[1], se[1], 1e6)),
-            ("c2_0_ns_per_m2", log_estimate(fit.params[2], se[2], 1e6)),
-            ("chi", chi_estimate(fit.params[3], se[3], CHI_MAX)),
-        ],
-        fit,
-    }
-}
-
-/// Time-domain force-residual fit of the chosen form (chi free, P0 fixed).
-pub fn identify_force(
-    campaign: &Campaign,
-    data: &[CycleData],
-    form: Form,
-    p0_n: f64,
-) -> Identification {
-    let length = campaign.sample_length_m;
-    let s = start_params(campaign, p0_n);
-    let element_params = ZenerParams {
-        k1_0_n_per_m: s.k1_0_n_per_m * length,
-        k2_0_n_per_m: s.k2_0_n_per_m * length,
-        c2_0_ns_per_m: s.c2_0_ns_per_m * length,
-        ..s
-    };
-    let element = match form {
-        Form::Paper => ElementModel::Paper(element_params),
-        _ => ElementModel::Consistent(element_params),
-    };
-    let baseline = AugmentedModel {
-        element,
-        length_m: length,
-        effects: Vec::new(),
-    };
-    let template = Template::new(baseline, DEFAULT_TEMPERATURE_C);
-    let all: Vec<&CycleData> = data.iter().collect();
-    let mut starts = template.starts(data);
-    for chi in [0.05f64, 0.5] {
-        let mut start = starts[0].clone();
-        start[3] = (chi / (0.95 - chi)).ln();
-        starts.push(start);
-    }
-    let fit = fit_template(&template, &all, &starts, 100);
-    let se = fit.standard_errors();
-    let model = template.model(&fit.params);
-    let p = *model.element.zener().expect("Zener template");
-    let params_per_m = ZenerParams {
-        k1_0_n_per_m: p.k1_0_n_per_m / length,
-        k2_0_n_per_m: p.k2_0_n_per_m / length,
-        c2_0_ns_per_m: p.c2_0_ns_per_m / length,
-        ..p
-    };
-    Identification {
-        params_per_m,
-        estimates: vec![
-            (
-                "k1_0_n_per_m2",
-                log_estimate(fit.params[0], se[0], 1.0 / length),
-            ),
-            (
-                "k2_0_n_per_m2",
-                log_estimate(fit.params[1], se[1], 1.0 / length),
-            ),
-            (
-                "c2_0_ns_per_m2",
-                log_estimate(fit.params[2], se[2], 1.0 / length),
-            ),
-            ("chi", chi_estimate(fit.params[3], se[3], 0.95)),
-        ],
-        fit,
-    }
-}
-
 pub fn run(args: IdentifyArgs) -> anyhow::Result<ExitCode> {
     let Some(form) = Form::from_name(&args.form).filter(|f| *f != Form::KelvinVoigt) else {
         bail!("--form {}: expected `consistent` or `paper`", args.form);
@@ -287,129 +68,21 @@ pub fn run(args: IdentifyArgs) -> anyhow::Result<ExitCode> {
     } else {
         identify_force(&campaign, &data, form, args.p0_n)
     };
-    let length = campaign.sample_length_m;
-    let p = identification.params_per_m;
-    let element_params = ZenerParams {
-        k1_0_n_per_m: p.k1_0_n_per_m * length,
-        k2_0_n_per_m: p.k2_0_n_per_m * length,
-        c2_0_ns_per_m: p.c2_0_ns_per_m * length,
-        ..p
+    let request = IdentifyRequest {
+        campaign: args.campaign.clone(),
+        p0_n: args.p0_n,
+        out: args.out.clone(),
+        plot_dir: args.plot_dir.clone(),
     };
-    let element = match form {
-        Form::Paper => ElementModel::Paper(element_params),
-        _ => ElementModel::Consistent(element_params),
-    };
-    let model = AugmentedModel {
-        element,
-        length_m: length,
-        effects: Vec::new(),
-    };
-    let errors: Vec<f64> = data.iter().map(|d| relative_error(&model, d)).collect();
-    let residual = rms_gap(&errors);
-    for (name, e) in &identification.estimates {
-        let se = e
-            .standard_error
-            .map_or("n/a".to_string(), |s| format!("{s:.4e}"));
-        let ci = e.ci95.map_or("n/a".to_string(), |(lo, hi)| {
-            format!("[{lo:.4e}, {hi:.4e}]")
-        });
-        eprintln!(
-            "identify: {name} = {:.6e} (standard error {se}, 95 % interval {ci})",
-            e.value
-        );
-    }
-    eprintln!("identify: in-sample relative RMS force residual {residual:.4e}");
-
-    if let Some(out) = &args.out {
-        super::ensure_parent_dir(out)?;
-        let header = format!(
-            "Identified by `fastemu identify` from {} ({} harmonic tests), objective {objective}.\nStandard errors: {}",
-            args.campaign.display(),
-            data.len(),
-            identification
-                .estimates
-                .iter()
-                .map(|(n, e)| format!("{n} {}", e.standard_error.map_or("n/a".into(), |s| format!("{s:.3e}"))))
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
-        std::fs::write(out, model.render_toml(&header))
-            .with_context(|| format!("cannot write {}", out.display()))?;
-    }
-    let plot_dir: Option<PathBuf> = args.plot_dir.clone().or_else(|| {
-        args.out
-            .as_ref()
-            .map(|o| o.parent().map_or(PathBuf::from("."), Path::to_path_buf))
-    });
-    let mut plots = Vec::new();
-    if let Some(dir) = plot_dir {
-        std::fs::create_dir_all(&dir)
-            .with_context(|| format!("cannot create {}", dir.display()))?;
-        let eq_path = dir.join("identify_keq_ceq.png");
-        let label = format!("{form} ({objective})");
-        super::fitplots::plot_equivalents(
-            &eq_path,
-            &data,
-            length,
-            &[(&label, &model)],
-            DEFAULT_TEMPERATURE_C,
-        )?;
-        let loop_path = dir.join("identify_loops.png");
-        super::fitplots::plot_loops(
-            &loop_path,
-            &data,
-            &super::fitplots::loop_tests(&data),
-            &[(&label, &model)],
-        )?;
-        plots.push(eq_path.display().to_string());
-        plots.push(loop_path.display().to_string());
-    }
+    let summary = write_identification(
+        &request,
+        &campaign,
+        &data,
+        &identification,
+        form,
+        &objective,
+    )?;
     if args.json {
-        let params: serde_json::Map<String, serde_json::Value> = identification
-            .estimates
-            .iter()
-            .map(|(name, e)| {
-                (
-                    name.to_string(),
-                    json!({"value": e.value, "standard_error": e.standard_error, "ci95": e.ci95.map(|c| [c.0, c.1])}),
-                )
-            })
-            .collect();
-        let tests: Vec<serde_json::Value> = data
-            .iter()
-            .zip(&errors)
-            .map(|(d, e)| {
-                let (k, c) = super::fitplots::equivalent_mn(
-                    d.force_harmonics_n[0],
-                    d.displacement_harmonics_m[0],
-                    d.frequency_hz,
-                    length,
-                );
-                let predicted = crate::fit::predict_cycle(&model, d);
-                let (km, cm) = super::fitplots::equivalent_mn(
-                    predicted[0],
-                    d.displacement_harmonics_m[0],
-                    d.frequency_hz,
-                    length,
-                );
-                json!({"id": d.id, "preload_n": d.preload_n, "frequency_hz": d.frequency_hz,
-                    "k_eq_mn_per_m2": k, "c_eq_mns_per_m2": c,
-                    "k_eq_model_mn_per_m2": km, "c_eq_model_mns_per_m2": cm,
-                    "relative_force_residual": e.sqrt()})
-            })
-            .collect();
-        let summary = json!({
-            "form": form.name(),
-            "objective": objective,
-            "p0_n": args.p0_n,
-            "sample_length_m": length,
-            "params": params,
-            "relative_force_residual_rms": residual,
-            "objective_sse": identification.fit.sse,
-            "tests": tests,
-            "model_out": args.out.as_ref().map(|o| o.display().to_string()),
-            "plots": plots,
-        });
         println!("{summary}");
     }
     Ok(ExitCode::SUCCESS)

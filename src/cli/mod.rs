@@ -6,13 +6,13 @@ pub mod ctl;
 pub mod diagnose;
 pub mod equiv;
 pub mod export;
-pub mod fitplots;
 pub mod hil;
 pub mod identify;
 pub mod loopproc;
 pub mod paper;
 pub mod replay;
 pub mod simulate;
+pub mod synth;
 
 use anyhow::Context;
 use std::path::Path;

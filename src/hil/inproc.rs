@@ -150,3 +150,58 @@ pub fn run_in_process(cfg: &HilConfig, script: &InProcessScript) -> InProcessRun
     }
     run
 }
+
+impl InProcessRun {
+    /// Writes the run's records as a `fastemu hil` run would (`parts/` of each process,
+    /// merged into `<report_dir>/records.mcap`), with `config_text` in every `/meta`, so
+    /// that the offline tools (`replay`, `export`, `diagnose --run`) read an in-process
+    /// run like a real one. Loop time 0 is Unix time 0.
+    pub fn write_records(
+        &self,
+        report_dir: &std::path::Path,
+        cfg: &HilConfig,
+        config_text: &str,
+    ) -> Result<crate::records::merge::MergeStats, crate::records::reader::RecordsError> {
+        use crate::records::{Record, RecorderBuilder};
+        fn write_all<R: Record>(
+            builder: &mut RecorderBuilder,
+            records: &[R],
+        ) -> crate::records::RecordSink<R> {
+            let sink = builder.sink::<R>(records.len());
+            for r in records {
+                sink.push(*r);
+            }
+            sink
+        }
+        let io_err = |e: std::io::Error| crate::records::reader::RecordsError {
+            path: report_dir.display().to_string(),
+            message: e.to_string(),
+        };
+        // Each process records its own events (labels as in `EventRecord::process_name`).
+        let labels = [
+            ("rig", "bench_rig"),
+            ("emulator", "emulator"),
+            ("controller", "controller"),
+        ];
+        for (process, label) in labels {
+            let mut builder = RecorderBuilder::new(report_dir, process);
+            let events: Vec<EventRecord> = self
+                .events
+                .iter()
+                .filter(|e| e.process_name() == label)
+                .copied()
+                .collect();
+            let _events = write_all(&mut builder, &events);
+            let (_rig, _emulator, _controller) = match process {
+                "rig" => (Some(write_all(&mut builder, &self.rig)), None, None),
+                "emulator" => (None, Some(write_all(&mut builder, &self.emulator)), None),
+                _ => (None, None, Some(write_all(&mut builder, &self.controller))),
+            };
+            let recorder = builder.spawn().map_err(io_err)?;
+            let meta = super::process::meta_json(cfg, process, "in-process", config_text, None, 0);
+            recorder.start(0, meta);
+            recorder.finish();
+        }
+        crate::records::merge::merge_parts(report_dir)
+    }
+}

@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use fastemu::campaign::load_campaign;
+use fastemu::ident::campaign::load_campaign;
 
 fn scratch(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("fastemu-campaign-{}-{name}", std::process::id()));
@@ -155,5 +155,44 @@ fn a_missing_campaign_directory_is_named() {
     assert!(
         err.contains("fastemu-no-such-campaign") && err.contains("cannot read"),
         "{err}"
+    );
+}
+
+#[test]
+fn started_at_orders_the_tests_when_every_test_states_it() {
+    let dir = scratch("started-at");
+    let entry = |id: &str, when: &str| {
+        format!(
+            "[[test]]\nid = \"{id}\"\nfile = \"a.csv\"\nkind = \"harmonic\"\npreload_n = 6000.0\namplitude_n = 5000.0\nfrequency_hz = 2.0\nstarted_at = {when}\n"
+        )
+    };
+    let toml = format!(
+        "{}{}",
+        entry("late", "\"2026-03-14T10:00:00Z\""),
+        // A TOML date-time (unquoted) is taken as well, with its offset.
+        entry("early", "2026-03-14T10:30:00+01:00")
+    );
+    write(&dir, &toml, &harmonic_csv(2000, 1e-3, 2.0));
+    let campaign = load_campaign(&dir).unwrap();
+    assert!(campaign.has_start_times());
+    let orders = campaign.test_orders();
+    assert_eq!(orders[0] - orders[1], 1800.0, "{orders:?}");
+    // Without started_at on every test, the order is the file's.
+    let partial = format!(
+        "{}{}",
+        entry("late", "\"2026-03-14T10:00:00Z\""),
+        TEST_ENTRY
+    );
+    write(&dir, &partial, &harmonic_csv(2000, 1e-3, 2.0));
+    let campaign = load_campaign(&dir).unwrap();
+    assert!(!campaign.has_start_times());
+    assert_eq!(campaign.test_orders(), vec![0.0, 1.0]);
+    let _ = std::fs::remove_dir_all(&dir);
+    check_error(
+        "started-at-bad",
+        &entry("a", "\"14/03/2026\""),
+        &harmonic_csv(2000, 1e-3, 2.0),
+        "campaign.toml",
+        "key `started_at` = \"14/03/2026\": expected an ISO 8601 date and time",
     );
 }

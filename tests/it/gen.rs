@@ -66,6 +66,15 @@ pub struct Truth {
     pub wlf: Option<(f64, f64, f64, f64)>,
     pub force_lag_s: f64,
     pub mass_kg: f64,
+    /// Out of the library: the force reaches the load cell through a resonance of the
+    /// load path (natural frequency Hz, damping ratio), `F_meas = H(s) F`,
+    /// `H = w^2 / (s^2 + 2 zeta w s + w^2)`.
+    pub load_path_resonance: Option<(f64, f64)>,
+    /// Out of the library: the specimen's moduli fall linearly over the campaign by this
+    /// fraction from the first test to the last (tests in campaign order).
+    pub softening_over_campaign: f64,
+    /// Out of the library: a cubic load-cell nonlinearity, `F_meas = F - c F^3 / (100 kN)^2`.
+    pub force_sensor_cubic: f64,
 }
 
 impl Truth {
@@ -84,7 +93,48 @@ impl Truth {
             wlf: None,
             force_lag_s: 0.0,
             mass_kg: 0.0,
+            load_path_resonance: None,
+            softening_over_campaign: 0.0,
+            force_sensor_cubic: 0.0,
         }
+    }
+
+    /// The truth with its moduli scaled by `factor` (a specimen that changed).
+    fn scaled(&self, factor: f64) -> Truth {
+        Truth {
+            k1_0_n_per_m2: self.k1_0_n_per_m2 * factor,
+            k2_0_n_per_m2: self.k2_0_n_per_m2 * factor,
+            c2_0_ns_per_m2: self.c2_0_ns_per_m2 * factor,
+            ..*self
+        }
+    }
+
+    /// What the load path and the load cell make of the force on the fine grid (step `h`).
+    fn measured_force(&self, fine: &[f64], h: f64) -> Vec<f64> {
+        let mut out = fine.to_vec();
+        if let Some((f_r, zeta)) = self.load_path_resonance {
+            // Bilinear (Tustin) discretisation of H(s), started at rest at the first value.
+            let w = 2.0 * PI * f_r;
+            let k = 2.0 / h;
+            let a0 = k * k + 2.0 * zeta * w * k + w * w;
+            let b = [w * w / a0, 2.0 * w * w / a0, w * w / a0];
+            let a = [
+                2.0 * (w * w - k * k) / a0,
+                (k * k - 2.0 * zeta * w * k + w * w) / a0,
+            ];
+            let (mut x1, mut x2, mut y1, mut y2) = (fine[0], fine[0], fine[0], fine[0]);
+            for (o, &x) in out.iter_mut().zip(fine) {
+                let y = b[0] * x + b[1] * x1 + b[2] * x2 - a[0] * y1 - a[1] * y2;
+                (x2, x1, y2, y1) = (x1, x, y1, y);
+                *o = y;
+            }
+        }
+        if self.force_sensor_cubic != 0.0 {
+            for o in out.iter_mut() {
+                *o -= self.force_sensor_cubic * o.powi(3) / 1e10;
+            }
+        }
+        out
     }
 
     /// Modulus factor and time factor at temperature `t_c`.
@@ -171,6 +221,55 @@ pub fn standard_design() -> Vec<TestPoint> {
     out
 }
 
+/// Rates of the consistent-form element's elastic force `Fs` and Maxwell force `Fm`, and
+/// of a Bouc-Wen friction force (beta = gamma = 1/2: it saturates at the slip force).
+struct ElementRates {
+    k1: f64,
+    k2: f64,
+    c2: f64,
+    chi: f64,
+    p0: f64,
+    /// Friction stiffness (0: no friction) and slip force.
+    kf: f64,
+    ff_slip: f64,
+    exponent: f64,
+    /// Whether the Maxwell branch is there (a fractional branch replaces it).
+    maxwell: bool,
+}
+
+impl ElementRates {
+    fn at(&self, v: f64, s: &[f64; 3]) -> [f64; 3] {
+        let gg = (1.0 + s[0] / self.p0).max(1e-6).powf(self.chi);
+        let dfm = if self.maxwell {
+            self.k2 * gg * v - (self.k2 / self.c2) * s[1]
+        } else {
+            0.0
+        };
+        let wn = s[2] / self.ff_slip;
+        let dff = if self.kf > 0.0 {
+            let pow = wn.abs().powf(self.exponent - 1.0);
+            self.kf * (v - 0.5 * v.abs() * pow * wn - 0.5 * v * pow * wn.abs())
+        } else {
+            0.0
+        };
+        [self.k1 * gg * v, dfm, dff]
+    }
+}
+
+/// One classical RK4 step of `state` from `t` over `h`.
+fn rk4_step(deriv: &dyn Fn(f64, &[f64; 3]) -> [f64; 3], t: f64, h: f64, state: &mut [f64; 3]) {
+    let k_1 = deriv(t, state);
+    let s2 = std::array::from_fn(|i| state[i] + 0.5 * h * k_1[i]);
+    let k_2 = deriv(t + 0.5 * h, &s2);
+    let s3 = std::array::from_fn(|i| state[i] + 0.5 * h * k_2[i]);
+    let k_3 = deriv(t + 0.5 * h, &s3);
+    let s4 = std::array::from_fn(|i| state[i] + h * k_3[i]);
+    let k_4 = deriv(t + h, &s4);
+    for i in 0..3 {
+        state[i] += h / 6.0 * (k_1[i] + 2.0 * k_2[i] + 2.0 * k_3[i] + k_4[i]);
+    }
+}
+
 /// Static displacement of the consistent form under force `p` (per element params).
 fn static_displacement(k1: f64, chi: f64, p0: f64, p: f64) -> f64 {
     ((1.0 + p / p0).powf(1.0 - chi) - 1.0) * p0 / ((1.0 - chi) * k1)
@@ -237,41 +336,25 @@ pub fn simulate_test(
     let fs0 = p0 * ((1.0 + (1.0 - chi) * k1 * (z0 - 0.0) / p0).powf(1.0 / (1.0 - chi)) - 1.0);
     let mut state = [fs0, 0.0, 0.0];
     let (kf, ff_slip) = truth.friction.map_or((0.0, 1.0), |(k, f)| (k * l, f * l));
-    let deriv = |t: f64, s: &[f64; 3]| -> [f64; 3] {
-        let v = v_of(t);
-        let gg = (1.0 + s[0] / p0).max(1e-6).powf(chi);
-        let dfs = k1 * gg * v;
-        let dfm = if truth.fractional_maxwell_order.is_some() {
-            0.0
-        } else {
-            k2 * gg * v - (k2 / c2) * s[1]
-        };
-        // Bouc-Wen, exponent n, beta = gamma = 1/2: saturates at the slip force.
-        let wn = s[2] / ff_slip;
-        let dff = if kf > 0.0 {
-            let pow = wn.abs().powf(truth.friction_exponent - 1.0);
-            kf * (v - 0.5 * v.abs() * pow * wn - 0.5 * v * pow * wn.abs())
-        } else {
-            0.0
-        };
-        [dfs, dfm, dff]
+    let rates = ElementRates {
+        k1,
+        k2,
+        c2,
+        chi,
+        p0,
+        kf,
+        ff_slip,
+        exponent: truth.friction_exponent,
+        maxwell: truth.fractional_maxwell_order.is_none(),
     };
+    let deriv = |t: f64, s: &[f64; 3]| rates.at(v_of(t), s);
     let total = settle + n;
     // Fine grid of the nonlinear force (elastic + Maxwell + friction).
     let mut fine = Vec::with_capacity(total * sub + 1);
     let mut t = t0;
     fine.push(state[0] + state[1] + state[2]);
     for _ in 0..total * sub {
-        let k_1 = deriv(t, &state);
-        let s2 = std::array::from_fn(|i| state[i] + 0.5 * h * k_1[i]);
-        let k_2 = deriv(t + 0.5 * h, &s2);
-        let s3 = std::array::from_fn(|i| state[i] + 0.5 * h * k_2[i]);
-        let k_3 = deriv(t + 0.5 * h, &s3);
-        let s4 = std::array::from_fn(|i| state[i] + h * k_3[i]);
-        let k_4 = deriv(t + h, &s4);
-        for i in 0..3 {
-            state[i] += h / 6.0 * (k_1[i] + 2.0 * k_2[i] + 2.0 * k_3[i] + k_4[i]);
-        }
+        rk4_step(&deriv, t, h, &mut state);
         t += h;
         fine.push(state[0] + state[1] + state[2]);
     }
@@ -315,6 +398,14 @@ pub fn simulate_test(
         }
         f + truth.mass_kg * acc_of(t)
     };
+    // Load path and load cell (out-of-library truths) act on the whole fine record.
+    let measured =
+        (truth.load_path_resonance.is_some() || truth.force_sensor_cubic != 0.0).then(|| {
+            let total: Vec<f64> = (0..fine.len())
+                .map(|j| force_at(t0 + j as f64 * h))
+                .collect();
+            truth.measured_force(&total, h)
+        });
     let mut ts = Vec::with_capacity(n);
     let mut zs = Vec::with_capacity(n);
     let mut fs = Vec::with_capacity(n);
@@ -322,8 +413,123 @@ pub fn simulate_test(
         let t = i as f64 * dt;
         ts.push(t);
         zs.push(z_of(t));
-        fs.push(force_at(t - truth.force_lag_s));
+        fs.push(match &measured {
+            Some(m) => interpolate(m, t0, h, t - truth.force_lag_s),
+            None => force_at(t - truth.force_lag_s),
+        });
     }
+    (ts, zs, fs)
+}
+
+/// Linear interpolation of a series on the grid `t0 + j h`.
+fn interpolate(series: &[f64], t0: f64, h: f64, t: f64) -> f64 {
+    let x = ((t - t0) / h).max(0.0);
+    let i = (x.floor() as usize).min(series.len() - 2);
+    let frac = x - i as f64;
+    series[i] * (1.0 - frac) + series[i + 1] * frac
+}
+
+/// A recorded passage (history test): a train of axle pulses on a preload.
+#[derive(Debug, Clone, Copy)]
+pub struct Passage {
+    pub preload_n: f64,
+    /// Peak force above the preload of each axle pulse, N.
+    pub peak_n: f64,
+    pub temperature_c: f64,
+    pub duration_s: f64,
+    pub rate_hz: f64,
+    /// Axle pulses: count, first at, spacing, width (s) of the Gaussian pulses.
+    pub n_axles: usize,
+    pub pulse_width_s: f64,
+}
+
+impl Passage {
+    /// Three passages of rising size on a 20 kN preload.
+    pub fn rising(n: usize) -> Vec<Passage> {
+        (0..n)
+            .map(|i| Passage {
+                preload_n: 20e3,
+                peak_n: 8e3 + 16e3 * i as f64 / (n.max(2) - 1) as f64,
+                temperature_c: 23.0,
+                duration_s: 4.0,
+                rate_hz: 1000.0,
+                n_axles: 4,
+                pulse_width_s: 0.06,
+            })
+            .collect()
+    }
+}
+
+/// Simulates a passage (friction, preload stiffening, mass, delay, load path and load
+/// cell as in harmonic tests; springpots and fractional branches are harmonic-only here).
+pub fn simulate_passage(truth: &Truth, passage: &Passage) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    assert!(
+        truth.springpot.is_none() && truth.fractional_maxwell_order.is_none(),
+        "passages simulate time-domain truths only"
+    );
+    let l = truth.length_m;
+    let (b, a) = truth.temperature_factors(passage.temperature_c);
+    let k1 = truth.k1_0_n_per_m2 * l * b;
+    let k2 = truth.k2_0_n_per_m2 * l * b;
+    let c2 = truth.c2_0_ns_per_m2 * l * b * a;
+    let (chi, p0) = (truth.chi, truth.p0_n);
+    let g = (1.0 + passage.preload_n / p0).powf(chi);
+    let k_fast = (k1 + 0.5 * k2) * g + truth.friction.map_or(0.0, |(kf, _)| 0.3 * kf * l);
+    let amp = passage.peak_n / k_fast;
+    let z_static = static_displacement(k1, chi, p0, passage.preload_n);
+    let spacing = (passage.duration_s - 1.0) / passage.n_axles as f64;
+    let centres: Vec<f64> = (0..passage.n_axles)
+        .map(|k| 0.6 + spacing * k as f64)
+        .collect();
+    let s = passage.pulse_width_s;
+    let pulse = |t: f64, order: u32| -> f64 {
+        centres
+            .iter()
+            .map(|&c| {
+                let u = (t - c) / s;
+                let e = (-u * u).exp();
+                match order {
+                    0 => amp * e,
+                    1 => amp * e * (-2.0 * u / s),
+                    _ => amp * e * (4.0 * u * u - 2.0) / (s * s),
+                }
+            })
+            .sum()
+    };
+    let dt = 1.0 / passage.rate_hz;
+    let n = (passage.duration_s * passage.rate_hz).round() as usize;
+    let sub = 8usize;
+    let h = dt / sub as f64;
+    let fs0 = passage.preload_n;
+    let mut state = [fs0, 0.0, 0.0];
+    let (kf, ff_slip) = truth.friction.map_or((0.0, 1.0), |(k, f)| (k * l, f * l));
+    let rates = ElementRates {
+        k1,
+        k2,
+        c2,
+        chi,
+        p0,
+        kf,
+        ff_slip,
+        exponent: truth.friction_exponent,
+        maxwell: true,
+    };
+    let deriv = |t: f64, st: &[f64; 3]| rates.at(pulse(t, 1), st);
+    let mut fine = Vec::with_capacity(n * sub + 1);
+    let mut t = 0.0;
+    fine.push(state[0] + state[1] + state[2]);
+    for _ in 0..n * sub {
+        rk4_step(&deriv, t, h, &mut state);
+        t += h;
+        fine.push(state[0] + state[1] + state[2] + truth.mass_kg * pulse(t, 2));
+    }
+    let measured = truth.measured_force(&fine, h);
+    let ts: Vec<f64> = (0..n).map(|i| i as f64 * dt).collect();
+    let zs: Vec<f64> = ts.iter().map(|&t| z_static + pulse(t, 0)).collect();
+    let fs: Vec<f64> = ts
+        .iter()
+        .map(|&t| interpolate(&measured, 0.0, h, t - truth.force_lag_s))
+        .collect();
     (ts, zs, fs)
 }
 
@@ -361,7 +567,26 @@ pub fn write_campaign_with(
     seed: u64,
     acquisition: &Acquisition,
 ) {
+    write_campaign_full(dir, truth, design, &[], noise, seed, acquisition);
+}
+
+/// A campaign of harmonic tests (`design`, in order) followed by recorded passages.
+pub fn write_campaign_full(
+    dir: &Path,
+    truth: &Truth,
+    design: &[TestPoint],
+    passages: &[Passage],
+    noise: &Noise,
+    seed: u64,
+    acquisition: &Acquisition,
+) {
     std::fs::create_dir_all(dir).unwrap();
+    let n_tests = design.len() + passages.len();
+    // A specimen that changes over the campaign: its moduli at test `index`.
+    let truth_at = |index: usize| -> Truth {
+        let fraction = index as f64 / (n_tests.max(2) - 1) as f64;
+        truth.scaled(1.0 - truth.softening_over_campaign * fraction)
+    };
     let mut rng = Rng::new(seed);
     let mut toml = format!("sample_length_m = {:?}\n", truth.length_m);
     for (idx, point) in design.iter().enumerate() {
@@ -378,40 +603,86 @@ pub fn write_campaign_with(
             acquisition.cycles_above_2_hz
         };
         let (t, mut z, mut f) = simulate_test(
-            truth,
+            &truth_at(idx),
             point,
             n_cycles,
             acquisition.samples_per_cycle,
             acquisition.min_rate_hz,
         );
-        let z_amp = {
-            let lo = z.iter().copied().fold(f64::INFINITY, f64::min);
-            let hi = z.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            0.5 * (hi - lo)
-        };
-        let mut ar = 0.0;
         let drift_phase = rng.uniform() * 2.0 * PI;
-        let innovation = (1.0 - noise.coloured_rho * noise.coloured_rho).sqrt();
-        for i in 0..t.len() {
-            ar = noise.coloured_rho * ar + innovation * rng.normal();
-            f[i] += point.amplitude_n
-                * (noise.white_force * rng.normal()
-                    + noise.coloured_force * ar
-                    + noise.drift_force * (2.0 * PI * t[i] / 7.0 + drift_phase).sin());
-            z[i] += z_amp * noise.white_displacement * rng.normal();
-        }
-        let mut csv = String::from("t_s,displacement_m,force_n\n");
-        for i in 0..t.len() {
-            let _ = writeln!(csv, "{:?},{:?},{:?}", t[i], z[i], f[i]);
-        }
-        std::fs::write(dir.join(format!("{id}.csv")), csv).unwrap();
+        let drift = |t: f64| noise.drift_force * (2.0 * PI * t / 7.0 + drift_phase).sin();
+        add_noise(
+            &t,
+            &mut z,
+            &mut f,
+            point.amplitude_n,
+            noise,
+            &drift,
+            &mut rng,
+        );
+        write_record(dir, &id, &t, &z, &f);
         let _ = write!(
             toml,
             "\n[[test]]\nid = \"{id}\"\nfile = \"{id}.csv\"\nkind = \"harmonic\"\npreload_n = {:?}\namplitude_n = {:?}\nfrequency_hz = {:?}\ntemperature_c = {:?}\n",
             point.preload_n, point.amplitude_n, point.frequency_hz, point.temperature_c
         );
     }
+    for (k, passage) in passages.iter().enumerate() {
+        let id = format!("H{k}-passage-{:.0}kN", passage.peak_n / 1e3);
+        let (t, mut z, mut f) = simulate_passage(&truth_at(design.len() + k), passage);
+        // Passages get no slow drift (their records are short).
+        add_noise(
+            &t,
+            &mut z,
+            &mut f,
+            0.5 * passage.peak_n,
+            noise,
+            &|_| 0.0,
+            &mut rng,
+        );
+        write_record(dir, &id, &t, &z, &f);
+        let _ = write!(
+            toml,
+            "\n[[test]]\nid = \"{id}\"\nfile = \"{id}.csv\"\nkind = \"history\"\ntemperature_c = {:?}\n",
+            passage.temperature_c
+        );
+    }
     std::fs::write(dir.join("campaign.toml"), toml).unwrap();
+}
+
+/// Adds the campaign's noise to a record: white and AR(1) force noise and the slow
+/// `drift(t)` (relative to `force_scale_n`), white displacement noise relative to the
+/// displacement's half range.
+fn add_noise(
+    t: &[f64],
+    z: &mut [f64],
+    f: &mut [f64],
+    force_scale_n: f64,
+    noise: &Noise,
+    drift: &dyn Fn(f64) -> f64,
+    rng: &mut Rng,
+) {
+    let z_amp = {
+        let lo = z.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = z.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        0.5 * (hi - lo)
+    };
+    let mut ar = 0.0;
+    let innovation = (1.0 - noise.coloured_rho * noise.coloured_rho).sqrt();
+    for i in 0..t.len() {
+        ar = noise.coloured_rho * ar + innovation * rng.normal();
+        f[i] += force_scale_n
+            * (noise.white_force * rng.normal() + noise.coloured_force * ar + drift(t[i]));
+        z[i] += z_amp * noise.white_displacement * rng.normal();
+    }
+}
+
+fn write_record(dir: &Path, id: &str, t: &[f64], z: &[f64], f: &[f64]) {
+    let mut csv = String::from("t_s,displacement_m,force_n\n");
+    for i in 0..t.len() {
+        let _ = writeln!(csv, "{:?},{:?},{:?}", t[i], z[i], f[i]);
+    }
+    std::fs::write(dir.join(format!("{id}.csv")), csv).unwrap();
 }
 
 /// A baseline model file whose parameters are off (and chi as given).

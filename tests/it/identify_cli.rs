@@ -6,8 +6,8 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use fastemu::campaign::load_campaign;
-use fastemu::cli::identify::identify_eq2;
+use fastemu::ident::campaign::load_campaign;
+use fastemu::ident::identify::identify_eq2;
 use fastemu::model::equiv::{zener_eq2, TABLE2_FREQUENCIES_HZ, TABLE2_PRELOADS_N};
 use fastemu::model::params::ZenerParams;
 
@@ -125,7 +125,7 @@ fn the_force_fit_recovers_consistent_form_parameters_from_noisy_tests() {
 #[test]
 fn diagnose_json_follows_spec_5_and_says_what_is_not_identifiable() {
     let dir = scratch("diagnose-json");
-    // The paper grid only: no amplitude and no temperature variation.
+    // The paper grid only: one amplitude and no temperature variation.
     let design: Vec<TestPoint> = standard_design().into_iter().take(20).collect();
     let truth = Truth {
         force_lag_s: 2e-4,
@@ -133,16 +133,16 @@ fn diagnose_json_follows_spec_5_and_says_what_is_not_identifiable() {
     };
     write_campaign(&dir.join("campaign"), &truth, &design, &Noise::typical(), 3);
     std::fs::write(dir.join("baseline.toml"), off_baseline_toml(0.3)).unwrap();
-    // A history test rides along: loaded and validated, not used by the harmonic workflow.
+    // A recorded passage rides along (a history test: SPEC 5.1 uses it in the gap).
+    let (t, z, f) = crate::gen::simulate_passage(&truth, &crate::gen::Passage::rising(1)[0]);
     let mut history = String::from("t_s,displacement_m,force_n,extra\n");
-    for i in 0..500 {
-        let t = i as f64 * 1e-3;
-        let _ = writeln!(history, "{t:?},{:?},{:?},0", 1e-3 * t, 6e4 * t);
+    for i in 0..t.len() {
+        let _ = writeln!(history, "{:?},{:?},{:?},0", t[i], z[i], f[i]);
     }
-    std::fs::write(dir.join("campaign").join("ramp.csv"), history).unwrap();
+    std::fs::write(dir.join("campaign").join("passage.csv"), history).unwrap();
     let toml_path = dir.join("campaign").join("campaign.toml");
     let mut toml = std::fs::read_to_string(&toml_path).unwrap();
-    toml.push_str("\n[[test]]\nid = \"ramp\"\nfile = \"ramp.csv\"\nkind = \"history\"\n");
+    toml.push_str("\n[[test]]\nid = \"passage\"\nfile = \"passage.csv\"\nkind = \"history\"\n");
     std::fs::write(&toml_path, toml).unwrap();
     let output = Command::new(env!("CARGO_BIN_EXE_fastemu"))
         .arg("diagnose")
@@ -170,9 +170,11 @@ fn diagnose_json_follows_spec_5_and_says_what_is_not_identifiable() {
         "candidates",
         "not_identifiable",
         "model_out",
+        "unexplained",
     ] {
         assert!(json.get(key).is_some(), "missing {key}");
     }
+    assert_eq!(json["history_tests"], serde_json::json!(["passage"]));
     assert_eq!(json["effect"], "channel-delay");
     assert_eq!(json["effects"], serde_json::json!(["channel-delay"]));
     let not_identifiable: Vec<&str> = json["not_identifiable"]
@@ -181,9 +183,11 @@ fn diagnose_json_follows_spec_5_and_says_what_is_not_identifiable() {
         .iter()
         .map(|v| v.as_str().unwrap())
         .collect();
+    // One harmonic amplitude, but the passage spans amplitudes (SPEC 5.1).
     assert!(
-        not_identifiable.contains(&"amplitude-friction")
-            && not_identifiable.contains(&"temperature-shift")
+        !not_identifiable.contains(&"amplitude-friction")
+            && not_identifiable.contains(&"temperature-shift"),
+        "{not_identifiable:?}"
     );
     for c in json["candidates"].as_array().unwrap() {
         assert!(c["effect"].is_string() && c["score"].is_f64() && c["params"].is_object());

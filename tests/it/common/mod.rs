@@ -5,6 +5,15 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Mutex, MutexGuard};
+
+/// Held by the CPU-heavy diagnosis tests (each uses both cores), so that they run one at a
+/// time on this two-core machine.
+static CPU_HEAVY: Mutex<()> = Mutex::new(());
+
+pub fn cpu_heavy() -> MutexGuard<'static, ()> {
+    CPU_HEAVY.lock().unwrap_or_else(|e| e.into_inner())
+}
 
 use fastemu::model::ZenerParams;
 use nalgebra::Complex;

@@ -37,13 +37,19 @@
 //! whose required variation is absent from the campaign are reported as not identifiable
 //! and not tried.
 //!
-//! Must not: do I/O (the CLI writes files and progress).
+//! Must not: do I/O (`report` writes files; progress goes through a callback).
 
-use crate::fit::{
-    assign_folds, cross_validate, run_parallel, CrossValidation, CycleData, EffectKind, Template,
+pub mod report;
+pub mod run;
+pub mod verdict;
+
+use crate::ident::fit::{
+    assign_folds, cross_validate, run_parallel, CrossValidation, CycleData, EffectKind, OutOfRange,
+    Template,
 };
 use crate::model::effects::{AugmentedModel, Effect};
 use crate::model::params::ElementModel;
+use verdict::{history_beyond_noise, verdict, Verdict};
 
 /// Tunables of the naming rule (defaults documented in the module docs).
 #[derive(Debug, Clone, Copy)]
@@ -57,6 +63,8 @@ pub struct DiagnoseOptions {
     pub min_wilcoxon_z: f64,
     /// Smallest held-out gap an effect must explain, `sqrt(gap_before^2 - gap_after^2)`.
     pub min_explained_gap: f64,
+    /// Test order is clock time (`started_at` on every test), else campaign order.
+    pub order_is_clock: bool,
 }
 
 impl Default for DiagnoseOptions {
@@ -70,6 +78,7 @@ impl Default for DiagnoseOptions {
             penalty_per_param: 0.02,
             min_wilcoxon_z: 2.3,
             min_explained_gap: 1e-3,
+            order_is_clock: false,
         }
     }
 }
@@ -90,7 +99,14 @@ pub struct CandidateResult {
     pub score: f64,
     pub wilcoxon_z: f64,
     pub folds_improved: usize,
+    /// Whether the history tests alone show the improvement (see `Scoring::compare`).
+    pub history_evidence: bool,
     pub qualifies: bool,
+    /// The fit on all tests leaves the effect's physical range: never named.
+    pub out_of_range: Option<OutOfRange>,
+    /// Whether it would qualify but for its physical range (a finding worth reporting:
+    /// the best fit of this effect is unphysical, so its cause is something else).
+    pub would_qualify: bool,
     /// The candidate fitted on all tests.
     pub model: AugmentedModel,
     /// The template it was fitted with (the friction law chosen, for `amplitude-friction`).
@@ -128,6 +144,10 @@ pub struct Diagnosis {
     pub raw_gap_before: f64,
     pub raw_gap_after: f64,
     pub noise_floor: f64,
+    /// What remains unexplained, the trend with test order, repeated tests.
+    pub verdict: Verdict,
+    /// Ids of the history tests used.
+    pub history_ids: Vec<String>,
 }
 
 /// Precision-weighted mean `sum w_i x_i / sum w_i` (weights `CycleData::weight`).
@@ -176,12 +196,36 @@ fn levels(values: impl Iterator<Item = f64>, tolerance: f64) -> Vec<f64> {
 }
 
 /// Whether the campaign varies what an effect needs; `Err(reason)` if not.
+///
+/// A history test counts with what it spans: its force range (preloads from its lowest
+/// to its highest force, amplitudes from nothing up to its half range) and its band
+/// (frequencies from one over its duration up to the band edge).
 pub fn identifiability(kind: EffectKind, data: &[CycleData]) -> Result<(), String> {
-    let freqs = levels(data.iter().map(|d| d.frequency_hz), 0.02);
+    let spans =
+        |f: &dyn Fn(&CycleData) -> Vec<f64>| -> Vec<f64> { data.iter().flat_map(f).collect() };
+    let freqs = levels(
+        spans(&|d| match &d.history {
+            Some(h) => vec![
+                (1.0 / h.duration_s).max(0.05 * h.band_hz),
+                h.frequency_centroid_hz,
+                h.band_hz,
+            ],
+            None => vec![d.frequency_hz],
+        })
+        .into_iter(),
+        0.02,
+    );
     let f_span = freqs.last().unwrap_or(&1.0) / freqs.first().unwrap_or(&1.0);
     match kind {
         EffectKind::PreloadStiffening => {
-            let preloads = levels(data.iter().map(|d| d.force_mean_n), 0.1);
+            let preloads = levels(
+                spans(&|d| match &d.history {
+                    Some(h) => vec![h.force_min_n, h.force_max_n],
+                    None => vec![d.force_mean_n],
+                })
+                .into_iter(),
+                0.1,
+            );
             if preloads.len() < 2 {
                 return Err("all tests at one preload".into());
             }
@@ -189,7 +233,14 @@ pub fn identifiability(kind: EffectKind, data: &[CycleData]) -> Result<(), Strin
         EffectKind::AmplitudeFriction => {
             // The force amplitude is what the rig varies; displacement amplitudes also vary
             // with stiffness (preload, frequency), which does not separate friction.
-            let force_amps = levels(data.iter().map(|d| d.amplitude_n), 0.05);
+            let force_amps = levels(
+                spans(&|d| match &d.history {
+                    Some(h) => vec![0.1 * h.swing_n(), h.swing_n()],
+                    None => vec![d.amplitude_n],
+                })
+                .into_iter(),
+                0.05,
+            );
             let span =
                 force_amps.last().unwrap_or(&1.0) / force_amps.first().unwrap_or(&1.0).max(1e-300);
             if force_amps.len() < 2 || span < 1.1 {
@@ -279,11 +330,15 @@ pub fn reference_temperature_c(data: &[CycleData]) -> f64 {
 
 /// A data-driven start for the baseline element (same structure, chi kept).
 fn data_driven_element(element: &ElementModel, data: &[CycleData]) -> ElementModel {
+    let data: Vec<&CycleData> = data.iter().filter(|d| !d.is_history()).collect();
+    if data.is_empty() {
+        return *element;
+    }
     let ks: Vec<(f64, f64)> = data
         .iter()
         .map(|d| {
             let (re, im) =
-                crate::campaign::cdiv(d.force_harmonics_n[0], d.displacement_harmonics_m[0]);
+                crate::ident::campaign::cdiv(d.force_harmonics_n[0], d.displacement_harmonics_m[0]);
             (re, im / (2.0 * std::f64::consts::PI * d.frequency_hz))
         })
         .collect();
@@ -334,6 +389,7 @@ struct Comparison {
     score: f64,
     z: f64,
     folds_improved: usize,
+    history_evidence: bool,
     qualifies: bool,
 }
 
@@ -377,17 +433,42 @@ impl Scoring<'_> {
         let explained = (reference.gap * reference.gap - candidate_gap * candidate_gap)
             .max(0.0)
             .sqrt();
+        // A history test is a long record with many independent bins: each one whose
+        // held-out residual is beyond its noise is evidence of its own. When every such
+        // test (at least two) loses most of its excess with the candidate and the harmonic
+        // tests do not get worse, the passages have shown the effect even where the
+        // harmonic design cannot (e.g. one force amplitude).
+        let history: Vec<usize> = (0..self.data.len())
+            .filter(|&i| self.data[i].is_history())
+            .collect();
+        let harmonic_differences: Vec<f64> = differences
+            .iter()
+            .zip(self.data)
+            .filter(|(_, d)| !d.is_history())
+            .map(|(x, _)| *x)
+            .collect();
+        let history_evidence = history.len() >= 2
+            && history.iter().all(|&i| {
+                let d = &self.data[i];
+                let dof = d.history.as_ref().map_or(1.0, |h| h.dof);
+                let before = reference.errors[i] - d.noise_relative;
+                let after = errors[i] - d.noise_relative;
+                history_beyond_noise(reference.errors[i], d.noise_relative, dof)
+                    && after < 0.6 * before
+            })
+            && (harmonic_differences.len() < 6 || wilcoxon_z(&harmonic_differences) > -1.0);
         let qualifies = score < options.max_score
             && explained > options.min_explained_gap
             && raw_ratio * penalty < options.max_raw_ratio
-            && z > options.min_wilcoxon_z
-            && folds_improved + 1 >= self.n_folds;
+            && ((z > options.min_wilcoxon_z && folds_improved + 1 >= self.n_folds)
+                || history_evidence);
         Comparison {
             gap_ratio,
             raw_ratio,
             score,
             z,
             folds_improved,
+            history_evidence,
             qualifies,
         }
     }
@@ -408,7 +489,9 @@ fn lookahead_pair(
     let (first_index, first) = results
         .iter()
         .enumerate()
-        .filter(|(_, r)| r.score < 1.0 && r.wilcoxon_z > options.min_wilcoxon_z)
+        .filter(|(_, r)| {
+            r.score < 1.0 && r.wilcoxon_z > options.min_wilcoxon_z && r.out_of_range.is_none()
+        })
         .min_by(|a, b| a.1.score.total_cmp(&b.1.score))?;
     let others: Vec<&CandidateResult> = results.iter().filter(|r| r.kind != first.kind).collect();
     if others.is_empty() {
@@ -459,6 +542,7 @@ fn lookahead_pair(
             &other_reference,
         );
         let model = pair_template.model(&cv.full_fit.params);
+        let out_of_range = out_of_range(&model, &[first.kind, other.kind]);
         let result = CandidateResult {
             kind: other.kind,
             round,
@@ -469,7 +553,13 @@ fn lookahead_pair(
             score: given_first.score,
             wilcoxon_z: given_first.z,
             folds_improved: given_first.folds_improved,
-            qualifies: joint.qualifies && given_first.qualifies && given_other.qualifies,
+            history_evidence: given_first.history_evidence,
+            qualifies: joint.qualifies
+                && given_first.qualifies
+                && given_other.qualifies
+                && out_of_range.is_none(),
+            would_qualify: joint.qualifies && given_first.qualifies && given_other.qualifies,
+            out_of_range,
             model,
             template: pair_template,
         };
@@ -494,23 +584,6 @@ fn lookahead_pair(
         .filter(|(r, _, _)| r.qualifies)
         .min_by(|a, b| a.1.total_cmp(&b.1))
         .map(|(r, _, _)| (first_index, r))
-}
-
-/// Fits each variant (`cv` of a template) and keeps the one with the smallest in-sample
-/// residual on all tests: the choice between friction laws with equally many parameters
-/// is made on the fit, never on held-out errors.
-fn best_variant(
-    variants: Vec<Template>,
-    cv: impl Fn(&Template) -> CrossValidation,
-) -> (Template, CrossValidation) {
-    variants
-        .into_iter()
-        .map(|t| {
-            let result = cv(&t);
-            (t, result)
-        })
-        .min_by(|a, b| a.1.full_fit.sse.total_cmp(&b.1.full_fit.sse))
-        .expect("at least one variant")
 }
 
 /// Runs the workflow. `progress` receives one-line messages.
@@ -577,7 +650,7 @@ pub fn diagnose(
         template.starts(data)[0].clone(),
         alternative.starts(data)[0].clone(),
     ];
-    let calibration = crate::fit::fit_template(&template, &all, &starts, 100);
+    let calibration = crate::ident::fit::fit_template(&template, &all, &starts, 100);
     template.baseline = template.model(&calibration.params);
     let baseline_template = template.clone();
     let baseline_cv = cross_validate(
@@ -626,45 +699,72 @@ pub fn diagnose(
             n_folds,
             options,
         };
-        let mut results = run_parallel(&remaining, options.n_threads, |&kind| {
-            let (candidate, cv) = best_variant(
-                current_template.variants_with_effect(kind, Some(&prefix)),
-                |t| {
-                    cross_validate(
-                        t,
-                        data,
-                        &folds,
-                        n_folds,
-                        options.max_iterations,
-                        options.n_threads,
-                    )
-                },
-            );
-            let m = scoring.compare(
-                &cv.held_out_error,
-                raw_gap(&cv.held_out_error, scoring.data),
-                kind.n_params(),
-                &reference,
-            );
-            let model = candidate.model(&cv.full_fit.params);
-            CandidateResult {
-                kind,
-                round,
-                raw_gap: raw_gap(&cv.held_out_error, scoring.data),
-                cv,
-                gap_ratio: m.gap_ratio,
-                raw_ratio: m.raw_ratio,
-                score: m.score,
-                wilcoxon_z: m.z,
-                folds_improved: m.folds_improved,
-                qualifies: m.qualifies,
-                model,
-                template: candidate,
-            }
+        // Every variant of every candidate is one work item, so the two friction laws run
+        // side by side rather than one after the other in one worker.
+        let items: Vec<(EffectKind, Template)> = remaining
+            .iter()
+            .flat_map(|&kind| {
+                current_template
+                    .variants_with_effect(kind, Some(&prefix))
+                    .into_iter()
+                    .map(move |t| (kind, t))
+            })
+            .collect();
+        let fitted = run_parallel(&items, options.n_threads, |(_, t)| {
+            cross_validate(
+                t,
+                data,
+                &folds,
+                n_folds,
+                options.max_iterations,
+                options.n_threads,
+            )
         });
+        let mut by_kind: Vec<(EffectKind, Template, CrossValidation)> = Vec::new();
+        for ((kind, template), cv) in items.into_iter().zip(fitted) {
+            match by_kind.iter_mut().find(|(k, _, _)| *k == kind) {
+                // The choice between laws with equally many parameters is made on the
+                // in-sample fit, never on held-out errors.
+                Some(entry) if cv.full_fit.sse < entry.2.full_fit.sse => {
+                    *entry = (kind, template, cv)
+                }
+                Some(_) => {}
+                None => by_kind.push((kind, template, cv)),
+            }
+        }
+        let mut results: Vec<CandidateResult> = by_kind
+            .into_iter()
+            .map(|(kind, candidate, cv)| {
+                let m = scoring.compare(
+                    &cv.held_out_error,
+                    raw_gap(&cv.held_out_error, scoring.data),
+                    kind.n_params(),
+                    &reference,
+                );
+                let model = candidate.model(&cv.full_fit.params);
+                let out_of_range = out_of_range(&model, &[kind]);
+                CandidateResult {
+                    kind,
+                    round,
+                    raw_gap: raw_gap(&cv.held_out_error, scoring.data),
+                    cv,
+                    gap_ratio: m.gap_ratio,
+                    raw_ratio: m.raw_ratio,
+                    score: m.score,
+                    wilcoxon_z: m.z,
+                    folds_improved: m.folds_improved,
+                    history_evidence: m.history_evidence,
+                    qualifies: m.qualifies && out_of_range.is_none(),
+                    would_qualify: m.qualifies,
+                    out_of_range,
+                    model,
+                    template: candidate,
+                }
+            })
+            .collect();
         for r in &results {
             progress(&format!(
-                "round {round}: {:<20} held-out gap {:.4e} (raw {:.4e}) ratio {:.3} raw ratio {:.3} score {:.3} z {:.2} folds {}/{}{}",
+                "round {round}: {:<20} held-out gap {:.4e} (raw {:.4e}) ratio {:.3} raw ratio {:.3} score {:.3} z {:.2} folds {}/{}{}{}{}",
                 r.kind.name(),
                 excess_gap(&r.cv.held_out_error, data),
                 raw_gap(&r.cv.held_out_error, data),
@@ -674,8 +774,26 @@ pub fn diagnose(
                 r.wilcoxon_z,
                 r.folds_improved,
                 n_folds,
+                if r.history_evidence { " (history evidence)" } else { "" },
+                r.out_of_range.map_or(String::new(), |o| format!(" {o}")),
                 if r.qualifies { " qualifies" } else { "" }
             ));
+        }
+        // When the candidate that describes the discrepancy best would qualify but fits
+        // only outside its physical range, the strongest pattern in the data is not any
+        // library effect: the physical candidates that still qualify are stand-ins for it
+        // (a delay and a springpot imitating a load-path resonance), so none is named.
+        let best_would = results
+            .iter()
+            .filter(|r| r.would_qualify)
+            .min_by(|a, b| a.score.total_cmp(&b.score));
+        if let Some(best) = best_would.filter(|b| b.out_of_range.is_some()) {
+            progress(&format!(
+                "round {round}: the best description, {}, is unphysical: nothing named",
+                best.kind.name()
+            ));
+            rounds.push(results);
+            break;
         }
         let winner = results
             .iter()
@@ -724,9 +842,24 @@ pub fn diagnose(
         }
     }
     let final_model = current_template.model(&current_cv.full_fit.params);
+    let gap_after = excess_gap(&current_cv.held_out_error, data);
+    let verdict = verdict(
+        &final_model,
+        data,
+        &current_cv.held_out_error,
+        gap_after,
+        noise_floor(data),
+        options.order_is_clock,
+    );
     Diagnosis {
+        verdict,
+        history_ids: data
+            .iter()
+            .filter(|d| d.is_history())
+            .map(|d| d.id.clone())
+            .collect(),
         gap_before: excess_gap(&baseline_cv.held_out_error, data),
-        gap_after: excess_gap(&current_cv.held_out_error, data),
+        gap_after,
         raw_gap_before: raw_gap(&baseline_cv.held_out_error, data),
         raw_gap_after: raw_gap(&current_cv.held_out_error, data),
         noise_floor: noise_floor(data),
@@ -742,6 +875,17 @@ pub fn diagnose(
         rounds,
         not_tried,
     }
+}
+
+/// The first of `kinds` whose fitted parameters in `model` leave their physical range.
+fn out_of_range(model: &AugmentedModel, kinds: &[EffectKind]) -> Option<OutOfRange> {
+    kinds.iter().find_map(|&kind| {
+        model
+            .effects
+            .iter()
+            .find(|e| e.name() == kind.name())
+            .and_then(|e| kind.out_of_range(e))
+    })
 }
 
 /// Physical parameters of an effect in a model, per metre as in the model file.

@@ -14,7 +14,10 @@ pub mod lm;
 
 use std::f64::consts::PI;
 
-use crate::campaign::{cabs, cmul, Campaign, Complex, N_HARMONICS};
+use super::campaign::{cabs, cmul, Campaign, CampaignError, Complex, N_HARMONICS};
+use super::history::{
+    history_residuals, predict_history, prepare_history, HistoryData, SharedHistory,
+};
 use crate::model::effects::{AugmentedModel, Effect, FrictionLaw, ModelStepper, StepperMode};
 use crate::model::params::ElementModel;
 
@@ -51,9 +54,45 @@ pub struct CycleData {
     /// scaled to mean 1, with `nu~_i` the campaign's smoothed noise level (`assign_noise_weights`);
     /// 1 until assigned.
     pub weight: f64,
+    /// Position in the campaign's time: `started_at` in seconds when every test states
+    /// it, else the test's index in `campaign.toml`.
+    pub order: f64,
+    /// A history test (its `frequency_hz`, `preload_n`, `amplitude_n` and `force_mean_n`
+    /// then stand for its force-weighted mean frequency, mean force and half force range;
+    /// its harmonics are zero and unused).
+    pub history: Option<SharedHistory>,
 }
 
 impl CycleData {
+    pub fn is_history(&self) -> bool {
+        self.history.is_some()
+    }
+
+    /// A history test as a unit of the workflow.
+    pub fn from_history(
+        id: &str,
+        history: HistoryData,
+        temperature_c: f64,
+        order: f64,
+    ) -> CycleData {
+        CycleData {
+            id: id.to_string(),
+            frequency_hz: history.frequency_centroid_hz,
+            preload_n: history.force_mean_n(),
+            amplitude_n: history.swing_n(),
+            temperature_c,
+            force_mean_n: history.force_mean_n(),
+            displacement_harmonics_m: [(0.0, 0.0); N_HARMONICS],
+            force_harmonics_n: [(0.0, 0.0); N_HARMONICS],
+            scale_n: history.force_scale_n,
+            noise_relative: history.noise_relative,
+            duration_s: history.duration_s,
+            weight: 1.0,
+            order,
+            history: Some(std::sync::Arc::new(history)),
+        }
+    }
+
     pub fn displacement_amplitude_m(&self) -> f64 {
         cabs(self.displacement_harmonics_m[0])
     }
@@ -61,9 +100,47 @@ impl CycleData {
 
 /// The harmonic tests of a campaign, reduced to their steady-state cycles.
 pub fn cycle_data(campaign: &Campaign) -> Vec<CycleData> {
-    let mut data: Vec<CycleData> = campaign
+    let mut data = harmonic_units(campaign);
+    assign_noise_weights(&mut data);
+    data
+}
+
+/// Every test of a campaign, harmonic and history, in campaign order, with weights.
+pub fn test_data(campaign: &Campaign) -> Result<Vec<CycleData>, CampaignError> {
+    let orders = campaign.test_orders();
+    let harmonic = harmonic_units(campaign);
+    let mut data = Vec::with_capacity(campaign.tests.len());
+    let mut harmonic_iter = harmonic.into_iter();
+    for (test, order) in campaign.tests.iter().zip(orders) {
+        if test.cycle.is_some() {
+            let mut d = harmonic_iter.next().expect("one unit per harmonic test");
+            d.order = order;
+            data.push(d);
+        } else {
+            let history =
+                prepare_history(test.dt_s, &test.displacement_m, &test.force_n).map_err(|e| {
+                    CampaignError {
+                        path: test.file.display().to_string(),
+                        message: format!("history test \"{}\": {e}", test.id),
+                    }
+                })?;
+            data.push(CycleData::from_history(
+                &test.id,
+                history,
+                test.temperature_c,
+                order,
+            ));
+        }
+    }
+    assign_noise_weights(&mut data);
+    Ok(data)
+}
+
+fn harmonic_units(campaign: &Campaign) -> Vec<CycleData> {
+    campaign
         .harmonic_tests()
-        .filter_map(|test| {
+        .enumerate()
+        .filter_map(|(index, test)| {
             let cycle = test.cycle.as_ref()?;
             let scale_n = cabs(cycle.force_harmonics_n[0]).max(1e-300);
             Some(CycleData {
@@ -79,11 +156,11 @@ pub fn cycle_data(campaign: &Campaign) -> Vec<CycleData> {
                 noise_relative: cycle.fundamental_noise_variance_n2 / (scale_n * scale_n),
                 duration_s: cycle.n_cycles as f64 / cycle.frequency_hz,
                 weight: 1.0,
+                order: index as f64,
+                history: None,
             })
         })
-        .collect();
-    assign_noise_weights(&mut data);
-    data
+        .collect()
 }
 
 /// Sets each test's precision weight from a smoothed noise level.
@@ -103,12 +180,12 @@ pub fn assign_noise_weights(data: &mut [CycleData]) {
     let features = |d: &CycleData| -> [f64; 4] {
         let x = d.frequency_hz.ln();
         let stiffness =
-            crate::campaign::cdiv(d.force_harmonics_n[0], d.displacement_harmonics_m[0]);
+            crate::ident::campaign::cdiv(d.force_harmonics_n[0], d.displacement_harmonics_m[0]);
         [1.0, x, x * x, cabs(stiffness).max(1e-300).ln()]
     };
     let rows: Vec<(f64, [f64; 4])> = data
         .iter()
-        .filter(|d| d.noise_relative > 0.0 && d.duration_s > 0.0)
+        .filter(|d| !d.is_history() && d.noise_relative > 0.0 && d.duration_s > 0.0)
         .map(|d| {
             let y = (d.noise_relative * d.scale_n * d.scale_n * d.duration_s).ln();
             (y, features(d))
@@ -135,15 +212,24 @@ pub fn assign_noise_weights(data: &mut [CycleData]) {
     let Some(coef) = ata.cholesky().map(|c| c.solve(&aty)) else {
         return;
     };
+    // A history test's noise estimate rests on many bins: its own value is its level.
     let smoothed: Vec<f64> = data
         .iter()
         .map(|d| {
+            if d.is_history() {
+                return d.noise_relative;
+            }
             let a = features(d);
             let density = (0..4).map(|i| coef[i] * a[i]).sum::<f64>().exp();
             density / (d.scale_n * d.scale_n * d.duration_s.max(1e-300))
         })
         .collect();
-    let mut sorted = smoothed.clone();
+    let mut sorted: Vec<f64> = smoothed
+        .iter()
+        .zip(data.iter())
+        .filter(|(_, d)| !d.is_history())
+        .map(|(s, _)| *s)
+        .collect();
     sorted.sort_by(f64::total_cmp);
     let median = sorted[sorted.len() / 2];
     if !(median.is_finite() && median > 0.0) {
@@ -247,10 +333,21 @@ fn artefacts(model: &AugmentedModel) -> (f64, f64) {
     (mass_kg, lag_s)
 }
 
-/// Relative squared residual of one test: `|F_sim,1 - F_1|^2 / |F_1|^2`.
+/// Relative squared residual of one test: `|F_sim,1 - F_1|^2 / |F_1|^2` (harmonic), the
+/// band's relative squared residual (history, see `history`).
 pub fn relative_error(model: &AugmentedModel, data: &CycleData) -> f64 {
-    let predicted = predict_cycle(model, data);
-    residual_terms(&predicted, data).iter().map(|r| r * r).sum()
+    test_residuals(model, data).iter().map(|r| r * r).sum()
+}
+
+/// Residual terms of one test; their squares sum to its relative squared residual.
+pub fn test_residuals(model: &AugmentedModel, data: &CycleData) -> Vec<f64> {
+    match &data.history {
+        Some(history) => history_residuals(
+            &predict_history(model, history, data.temperature_c),
+            history,
+        ),
+        None => residual_terms(&predict_cycle(model, data), data).to_vec(),
+    }
 }
 
 fn residual_terms(
@@ -296,6 +393,105 @@ impl EffectKind {
             EffectKind::AmplitudeFriction => 3,
             _ => 2,
         }
+    }
+
+    /// Where a fitted effect's parameters leave the range its physics allows, the first
+    /// such parameter. Parameters mapped through `exp` or a logistic (stiffnesses, slip
+    /// forces, exponents, chi) stay inside by construction; the linear ones are checked.
+    pub fn out_of_range(self, effect: &Effect) -> Option<OutOfRange> {
+        let check = |param: &'static str, value: f64, range: (f64, f64), unit: &'static str| {
+            (!(range.0..=range.1).contains(&value)).then_some(OutOfRange {
+                kind: self,
+                param,
+                value,
+                range,
+                unit,
+            })
+        };
+        match *effect {
+            Effect::MovingMass { mass_kg } => check("mass_kg", mass_kg, MOVING_MASS_RANGE_KG, "kg"),
+            Effect::ChannelDelay { force_lag_s } => {
+                check("force_lag_s", force_lag_s, CHANNEL_DELAY_RANGE_S, "s")
+            }
+            Effect::TemperatureShift {
+                log10_time_shift_per_c,
+                ln_modulus_shift_per_c,
+                ..
+            } => check(
+                "log10_time_shift_per_c",
+                log10_time_shift_per_c,
+                TIME_SHIFT_RANGE_PER_C,
+                "1/degC",
+            )
+            .or_else(|| {
+                check(
+                    "ln_modulus_shift_per_c",
+                    ln_modulus_shift_per_c,
+                    MODULUS_SHIFT_RANGE_PER_C,
+                    "1/degC",
+                )
+            }),
+            _ => None,
+        }
+    }
+}
+
+/// Admissible moving mass between load cell and sample: not negative; a tonne is far more
+/// than any loading head or fixture.
+pub const MOVING_MASS_RANGE_KG: (f64, f64) = (0.0, 1000.0);
+/// Admissible skew between force and displacement channels (either sign), s.
+pub const CHANNEL_DELAY_RANGE_S: (f64, f64) = (-5e-3, 5e-3);
+/// Time shift `s` in `log10 a_T = -s (T - T_ref)`: relaxation speeds up as the elastomer
+/// warms (s >= 0), at most a decade per 2 degC.
+pub const TIME_SHIFT_RANGE_PER_C: (f64, f64) = (0.0, 0.5);
+/// Modulus shift `m` in `ln b_T = -m (T - T_ref)`: elastomers soften as they warm; a
+/// slight entropic stiffening (m down to -0.02) is allowed, and the factor `exp(-m dT)`
+/// stays positive for any `m`.
+pub const MODULUS_SHIFT_RANGE_PER_C: (f64, f64) = (-0.02, 0.2);
+
+/// A fitted parameter outside its physical range.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OutOfRange {
+    pub kind: EffectKind,
+    pub param: &'static str,
+    pub value: f64,
+    pub range: (f64, f64),
+    pub unit: &'static str,
+}
+
+impl OutOfRange {
+    /// What a best fit outside the range suggests about the data.
+    pub fn suggestion(&self) -> &'static str {
+        match (self.kind, self.value < self.range.0) {
+            (EffectKind::MovingMass, true) => {
+                "a negative mass is no mass: the measured force grows with frequency squared in proportion to the force itself, which points at the load train's own dynamics (a resonance of fixture, load cell or frame above the test frequencies), not at a moving mass"
+            }
+            (EffectKind::MovingMass, false) => {
+                "a frequency-squared term too large for any moving part: a resonance of the load path close to the test frequencies"
+            }
+            (EffectKind::ChannelDelay, _) => {
+                "a phase error beyond any acquisition skew: a phase that grows with frequency, e.g. dynamics of the load path or the actuator"
+            }
+            (EffectKind::TemperatureShift, _) => {
+                "no thermorheological law explains the tests at other temperatures: they differ for another reason (were they run late in the campaign? see test order)"
+            }
+            _ => "the effect's physics does not explain this discrepancy",
+        }
+    }
+}
+
+impl std::fmt::Display for OutOfRange {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let bound = if self.value < self.range.0 {
+            format!(">= {}", self.range.0)
+        } else {
+            format!("<= {}", self.range.1)
+        };
+        write!(
+            f,
+            "fits only with {} = {:.4e}, outside its range ({bound} {})",
+            self.param, self.value, self.unit
+        )
     }
 }
 
@@ -456,7 +652,11 @@ impl Template {
                 p.k1_0_n_per_m
             }
         };
-        let mut amplitudes: Vec<f64> = data.iter().map(|d| d.displacement_amplitude_m()).collect();
+        let mut amplitudes: Vec<f64> = data
+            .iter()
+            .filter(|d| !d.is_history())
+            .map(|d| d.displacement_amplitude_m())
+            .collect();
         amplitudes.sort_by(f64::total_cmp);
         let z_amp = amplitudes
             .get(amplitudes.len() / 2)
@@ -625,7 +825,7 @@ impl Template {
         let model = self.model(theta);
         let mut out = Vec::with_capacity(data.len() * 2 * FIT_HARMONICS);
         for d in data {
-            out.extend_from_slice(&residual_terms(&predict_cycle(&model, d), d));
+            out.extend(test_residuals(&model, d));
         }
         out
     }

@@ -4,8 +4,9 @@
 use std::f64::consts::PI;
 use std::path::Path;
 
-use crate::campaign::{cdiv, N_HARMONICS};
-use crate::fit::{predict_cycle, predict_cycle_with_waveform, CycleData};
+use super::history::predict_history;
+use crate::ident::campaign::{cdiv, N_HARMONICS};
+use crate::ident::fit::{predict_cycle, predict_cycle_with_waveform, CycleData};
 use crate::model::effects::AugmentedModel;
 use crate::plot::{draw_png, Panel, Series};
 
@@ -142,6 +143,8 @@ pub fn plot_equivalents(
                         noise_relative: 0.0,
                         duration_s: 1.0 / freq,
                         weight: 1.0,
+                        order: 0.0,
+                        history: None,
                     };
                     let p = predict_cycle(model, &probe);
                     equivalent_mn(p[0], (z_amp, 0.0), freq, length_m)
@@ -272,4 +275,50 @@ pub fn plot_loops(
     let cols = panels.len().clamp(1, 2);
     let rows = panels.len().div_ceil(cols).max(1);
     draw_png(path, 560 * cols as u32, 420 * rows as u32, cols, &panels)
+}
+
+/// Measured force of each history test against the force each model predicts for its
+/// displacement (band-limited as compared, see `history`), one panel per test.
+pub fn plot_histories(
+    path: &Path,
+    data: &[CycleData],
+    models: &[(&str, &AugmentedModel)],
+) -> anyhow::Result<()> {
+    let mut panels = Vec::new();
+    for d in data {
+        let Some(history) = &d.history else { continue };
+        let t = history.time_s();
+        let to_kn = |v: &[f64]| v.iter().map(|f| f / 1e3).collect::<Vec<f64>>();
+        let mut panel = Panel::new(
+            format!("{} (history, band to {:.0} Hz)", d.id, history.band_hz),
+            "time (s)",
+            "force (kN)",
+        )
+        .with(Series::line(
+            "measured",
+            t.clone(),
+            to_kn(&history.force_n),
+            0,
+        ));
+        for (model_idx, (label, model)) in models.iter().enumerate() {
+            let predicted = predict_history(model, history, d.temperature_c);
+            // The comparison removes the mean difference; so does the plot.
+            let shift = (history.force_n.iter().sum::<f64>() - predicted.iter().sum::<f64>())
+                / predicted.len().max(1) as f64;
+            let shifted: Vec<f64> = predicted.iter().map(|f| f + shift).collect();
+            panel = panel.with(Series::line(
+                label.to_string(),
+                t.clone(),
+                to_kn(&shifted),
+                model_idx + 1,
+            ));
+        }
+        panels.push(panel);
+    }
+    if panels.is_empty() {
+        return Ok(());
+    }
+    let cols = panels.len().clamp(1, 2);
+    let rows = panels.len().div_ceil(cols).max(1);
+    draw_png(path, 700 * cols as u32, 420 * rows as u32, cols, &panels)
 }

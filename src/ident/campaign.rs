@@ -100,6 +100,8 @@ pub struct Test {
     pub force_n: Vec<f64>,
     /// Steady-state cycle (harmonic tests only).
     pub cycle: Option<HarmonicCycle>,
+    /// `started_at` (ISO 8601) as seconds since 1970-01-01 UTC, when given.
+    pub started_at_s: Option<f64>,
 }
 
 impl Test {
@@ -139,6 +141,24 @@ pub struct Campaign {
 }
 
 impl Campaign {
+    /// Each test's place in the campaign's time: `started_at` (s) when every test states
+    /// it, else its index in `campaign.toml` (the order a lab runs its list in).
+    pub fn test_orders(&self) -> Vec<f64> {
+        if self.tests.iter().all(|t| t.started_at_s.is_some()) {
+            self.tests
+                .iter()
+                .map(|t| t.started_at_s.unwrap_or(0.0))
+                .collect()
+        } else {
+            (0..self.tests.len()).map(|i| i as f64).collect()
+        }
+    }
+
+    /// Whether the order is clock time (`started_at` on every test).
+    pub fn has_start_times(&self) -> bool {
+        self.tests.iter().all(|t| t.started_at_s.is_some())
+    }
+
     /// The harmonic tests, in file order.
     pub fn harmonic_tests(&self) -> impl Iterator<Item = &Test> {
         self.tests.iter().filter(|t| t.cycle.is_some())
@@ -264,8 +284,9 @@ fn number(v: &toml::Value) -> Option<f64> {
     }
 }
 
-const TEST_KEYS: [&str; 8] = [
+const TEST_KEYS: [&str; 9] = [
     "id",
+    "started_at",
     "file",
     "kind",
     "preload_n",
@@ -350,6 +371,21 @@ fn load_test(
         }
     };
     let temperature_c = value("temperature_c", false)?.unwrap_or(23.0);
+    let started_at_s = match t.get("started_at") {
+        None => None,
+        Some(v) => {
+            let text = match v {
+                toml::Value::String(s) => s.clone(),
+                toml::Value::Datetime(d) => d.to_string(),
+                other => other.to_string(),
+            };
+            Some(parse_iso8601_s(&text).ok_or_else(|| {
+                err(format!(
+                    "key `started_at` = {v}: expected an ISO 8601 date and time such as \"2026-03-14T09:30:00Z\""
+                ))
+            })?)
+        }
+    };
     let file = dir.join(&file_name);
     let file_origin = file.display().to_string();
     if !file.is_file() {
@@ -411,7 +447,60 @@ fn load_test(
         displacement_m,
         force_n,
         cycle,
+        started_at_s,
     })
+}
+
+/// Seconds since 1970-01-01 UTC of an ISO 8601 date-time `YYYY-MM-DD[T ]HH:MM[:SS[.f]]`
+/// with an optional `Z` or `+-HH:MM` offset (none: taken as UTC), or a date alone.
+pub fn parse_iso8601_s(text: &str) -> Option<f64> {
+    let text = text.trim();
+    let (date, rest) = text.split_at(text.len().min(10));
+    let mut parts = date.split('-');
+    let year: i64 = parts.next()?.parse().ok()?;
+    let month: i64 = parts.next()?.parse().ok()?;
+    let day: i64 = parts.next()?.parse().ok()?;
+    if parts.next().is_some() || !(1..=12).contains(&month) || !(1..=31).contains(&day) {
+        return None;
+    }
+    // Days from civil (Howard Hinnant's algorithm).
+    let y = if month <= 2 { year - 1 } else { year };
+    let era = y.div_euclid(400);
+    let yoe = y - era * 400;
+    let mp = (month + 9) % 12;
+    let doy = (153 * mp + 2) / 5 + day - 1;
+    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
+    let days = era * 146097 + doe - 719468;
+    let mut seconds = days as f64 * 86400.0;
+    if rest.is_empty() {
+        return Some(seconds);
+    }
+    let rest = rest.strip_prefix(['T', 't', ' '])?;
+    let (clock, offset_s) = if let Some(c) = rest.strip_suffix(['Z', 'z']) {
+        (c, 0.0)
+    } else if let Some(pos) = rest.rfind(['+', '-']) {
+        let (c, off) = rest.split_at(pos);
+        let sign = if off.starts_with('-') { -1.0 } else { 1.0 };
+        let mut hm = off[1..].split(':');
+        let h: f64 = hm.next()?.parse().ok()?;
+        let m: f64 = hm.next().unwrap_or("0").parse().ok()?;
+        (c, sign * (h * 3600.0 + m * 60.0))
+    } else {
+        (rest, 0.0)
+    };
+    let mut hms = clock.split(':');
+    let h: f64 = hms.next()?.parse().ok()?;
+    let m: f64 = hms.next()?.parse().ok()?;
+    let s: f64 = hms.next().unwrap_or("0").parse().ok()?;
+    if hms.next().is_some()
+        || !(0.0..24.0).contains(&h)
+        || !(0.0..60.0).contains(&m)
+        || !(0.0..61.0).contains(&s)
+    {
+        return None;
+    }
+    seconds += h * 3600.0 + m * 60.0 + s - offset_s;
+    Some(seconds)
 }
 
 /// Harmonic analysis over the last whole cycles.
@@ -670,7 +759,7 @@ fn dft_bin(x: &[f64], dt_s: f64, bin_hz: f64) -> Complex {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     #[test]
@@ -692,7 +781,7 @@ mod tests {
     }
 
     /// Deterministic normal variates (splitmix64 + Box-Muller) for the noise tests.
-    struct Normal(u64);
+    pub(crate) struct Normal(pub(crate) u64);
     impl Normal {
         fn uniform(&mut self) -> f64 {
             self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
@@ -701,7 +790,7 @@ mod tests {
             z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
             ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
         }
-        fn next(&mut self) -> f64 {
+        pub(crate) fn next(&mut self) -> f64 {
             let u = self.uniform().max(1e-300);
             (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * self.uniform()).cos()
         }

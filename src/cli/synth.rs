@@ -1,0 +1,47 @@
+//! `fastemu synth-campaign`: argument handling (the generator is `crate::ident::synth`).
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{bail, Context};
+use clap::Args;
+
+use crate::ident::synth::{hidden_choices, write_synthetic_campaign};
+
+#[derive(Args)]
+pub struct SynthArgs {
+    /// Directory to write: campaign.toml, one CSV per test, baseline.toml, truth.toml.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// What the campaign hides: none, a library effect (preload-stiffening,
+    /// amplitude-friction, fractional-damping, temperature-shift, channel-delay,
+    /// moving-mass), friction-passages-only (one harmonic amplitude), or a truth outside
+    /// the library (load-path-resonance, softening-specimen).
+    #[arg(long, default_value = "amplitude-friction")]
+    pub hidden: String,
+    /// Seed of the noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
+pub fn run(args: SynthArgs) -> anyhow::Result<ExitCode> {
+    let choices = hidden_choices();
+    if !choices.contains(&args.hidden.as_str()) {
+        bail!(
+            "--hidden {}: expected one of {}",
+            args.hidden,
+            choices.join(", ")
+        );
+    }
+    let n = write_synthetic_campaign(&args.out, &args.hidden, args.seed)
+        .with_context(|| format!("cannot write the campaign to {}", args.out.display()))?;
+    eprintln!(
+        "synth-campaign: {n} tests (hidden: {}) in {}; try\n  fastemu diagnose --campaign {} --model {} --out diagnosis\nthe truth is in {} (diagnose does not read it)",
+        args.hidden,
+        args.out.display(),
+        args.out.display(),
+        args.out.join("baseline.toml").display(),
+        args.out.join("truth.toml").display()
+    );
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,317 @@
+//! The one reader of a `fastemu hil` run directory for diagnosis, and the sentence that
+//! names the loop's delay knob.
+//!
+//! Every read of a run goes through `load_run_history`, and every mention of the knob
+//! that sets the loop's delay compensation through `delay_knob_advice`, so a new record
+//! format or a new knob is one edit here.
+//!
+//! Reads the run's records (`records.mcap`, or the parts a run that did not finish left,
+//! through `crate::records::RecordSet`): the rig's `/rig` stream (`t_s`, `z_measured_m`:
+//! the displacement the emulator was given, `actuator_force_n`: the force applied to the
+//! specimen, `state`) and the config text from the rig's (else the emulator's) `/meta`.
+//! A directory written by `fastemu export` (`rig.csv` with `meta.json` or `config.toml`)
+//! is read the same way. Only the run's first stretch in force control (rig state
+//! RUNNING) is used: a hold restrains the specimen and says nothing about the element.
+//!
+//! Must not: write anything, or touch a running loop.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use crate::csvio::read_columns;
+use crate::hil::config::{parse_hil_config, CommandMode, HilConfig};
+use crate::ipc::messages::rig_state;
+use crate::records::RecordSet;
+use crate::rig::core::RigRecord;
+
+/// What diagnosis needs from a run: the record as a history test, and the config it ran.
+#[derive(Debug, Clone)]
+pub struct RunHistory {
+    pub dt_s: f64,
+    /// Displacement the emulator was given (the rig's measurement), m.
+    pub displacement_m: Vec<f64>,
+    /// Force the actuator applied to the specimen, N.
+    pub applied_force_n: Vec<f64>,
+    /// The HIL config text the run used, and where it came from.
+    pub config_text: String,
+    pub config_origin: String,
+    pub config_base_dir: Option<PathBuf>,
+    /// Which part of the record was used, in words (for the report).
+    pub used: String,
+}
+
+impl RunHistory {
+    /// The run's validated config (its `[model]` is what the emulator ran).
+    pub fn config(&self) -> Result<HilConfig, RunRecordError> {
+        parse_hil_config(
+            &self.config_text,
+            &self.config_origin,
+            self.config_base_dir.as_deref(),
+        )
+        .map_err(|e| RunRecordError {
+            path: self.config_origin.clone(),
+            message: e.to_string(),
+        })
+    }
+}
+
+/// A run directory that cannot be read: names the file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunRecordError {
+    pub path: String,
+    pub message: String,
+}
+
+impl fmt::Display for RunRecordError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}: {}", self.path, self.message)
+    }
+}
+
+impl std::error::Error for RunRecordError {}
+
+/// Reads the rig record and the config of the run in `run_dir` (a report directory, its
+/// `records.mcap`, or a directory written by `fastemu export`).
+pub fn load_run_history(run_dir: &Path) -> Result<RunHistory, RunRecordError> {
+    let rig_csv = run_dir.join("rig.csv");
+    let raw = if run_dir.is_dir() && rig_csv.is_file() {
+        read_exported(run_dir, &rig_csv)?
+    } else {
+        read_records(run_dir)?
+    };
+    let (first, last) = running_stretch(&raw.state).ok_or_else(|| RunRecordError {
+        path: raw.origin.clone(),
+        message: format!(
+            "{} rig periods, none in force control (rig state RUNNING): nothing to diagnose",
+            raw.time_s.len()
+        ),
+    })?;
+    let range = first..last + 1;
+    let (dt_s, displacement_m, applied_force_n) = uniform_series(
+        &raw.time_s[range.clone()],
+        &raw.z_m[range.clone()],
+        &raw.force_n[range.clone()],
+    )
+    .map_err(|message| RunRecordError {
+        path: raw.origin.clone(),
+        message,
+    })?;
+    let used = if first == 0 && last + 1 == raw.time_s.len() {
+        format!(
+            "all {} rig periods ({:.3} s to {:.3} s), in force control throughout",
+            raw.time_s.len(),
+            raw.time_s[first],
+            raw.time_s[last]
+        )
+    } else {
+        format!(
+            "rig periods {first} to {last} of {} ({:.3} s to {:.3} s): the run's first stretch in force control (a hold or the end follows)",
+            raw.time_s.len(),
+            raw.time_s[first],
+            raw.time_s[last]
+        )
+    };
+    Ok(RunHistory {
+        dt_s,
+        displacement_m,
+        applied_force_n,
+        config_text: raw.config_text,
+        config_origin: raw.config_origin,
+        config_base_dir: raw.config_base_dir,
+        used,
+    })
+}
+
+/// The rig's columns and the run's config, as read.
+struct RawRun {
+    origin: String,
+    time_s: Vec<f64>,
+    z_m: Vec<f64>,
+    force_n: Vec<f64>,
+    state: Vec<u32>,
+    config_text: String,
+    config_origin: String,
+    config_base_dir: Option<PathBuf>,
+}
+
+/// First and last index of the first run of RUNNING rows.
+fn running_stretch(state: &[u32]) -> Option<(usize, usize)> {
+    let first = state.iter().position(|&s| s == rig_state::RUNNING)?;
+    let len = state[first..]
+        .iter()
+        .take_while(|&&s| s == rig_state::RUNNING)
+        .count();
+    Some((first, first + len - 1))
+}
+
+fn read_records(run_dir: &Path) -> Result<RawRun, RunRecordError> {
+    let rec_err = |e: crate::records::reader::RecordsError| RunRecordError {
+        path: e.path,
+        message: e.message,
+    };
+    let set = RecordSet::open(run_dir).map_err(|e| RunRecordError {
+        path: run_dir.display().to_string(),
+        message: format!(
+            "{}; expected the report directory of a `fastemu hil` run, its records.mcap, or a directory written by `fastemu export`",
+            e.message
+        ),
+    })?;
+    let origin = set.files[0].display().to_string();
+    let (mut time_s, mut z_m, mut force_n, mut state) = (vec![], vec![], vec![], vec![]);
+    let stats = set
+        .for_each::<RigRecord>(|_, r| {
+            time_s.push(r.t_s);
+            z_m.push(r.z_measured_m);
+            force_n.push(r.actuator_force_n);
+            state.push(r.state);
+        })
+        .map_err(rec_err)?;
+    for (path, e) in &stats.truncated {
+        eprintln!(
+            "diagnose: {} ends early ({e}): read up to its last closed chunk",
+            path.display()
+        );
+    }
+    let metas = set.metas().map_err(rec_err)?;
+    let meta = metas
+        .iter()
+        .find(|m| m.process == "rig")
+        .or_else(|| metas.iter().find(|m| m.process == "emulator"))
+        .ok_or_else(|| RunRecordError {
+            path: origin.clone(),
+            message:
+                "no /meta message of the rig or the emulator: cannot tell which model the run used"
+                    .into(),
+        })?;
+    Ok(RawRun {
+        origin,
+        time_s,
+        z_m,
+        force_n,
+        state,
+        config_text: meta.config_text.clone(),
+        config_origin: meta.config_origin.clone(),
+        config_base_dir: meta.config_base_dir.clone(),
+    })
+}
+
+fn read_exported(dir: &Path, rig_csv: &Path) -> Result<RawRun, RunRecordError> {
+    let csv_err = |e: crate::csvio::CsvError| RunRecordError {
+        path: e.path.clone(),
+        message: e.message.clone(),
+    };
+    let cols = read_columns(
+        rig_csv,
+        &["t_s", "z_measured_m", "actuator_force_n", "state"],
+    )
+    .map_err(csv_err)?;
+    let mut columns = cols.data.into_iter();
+    let mut next = || columns.next().unwrap_or_default();
+    let (time_s, z_m, force_n) = (next(), next(), next());
+    let state = next().into_iter().map(|s| s as u32).collect();
+    let meta_path = dir.join("meta.json");
+    let config_path = dir.join("config.toml");
+    let read = |path: &Path| {
+        std::fs::read_to_string(path).map_err(|e| RunRecordError {
+            path: path.display().to_string(),
+            message: format!("cannot read: {e}"),
+        })
+    };
+    let (config_text, config_origin, config_base_dir) = if meta_path.is_file() {
+        let meta: crate::records::RunMeta =
+            serde_json::from_str(&read(&meta_path)?).map_err(|e| RunRecordError {
+                path: meta_path.display().to_string(),
+                message: format!("not the run's metadata as `fastemu export` writes it: {e}"),
+            })?;
+        (meta.config_text, meta.config_origin, meta.config_base_dir)
+    } else if config_path.is_file() {
+        (
+            read(&config_path)?,
+            config_path.display().to_string(),
+            Some(dir.to_path_buf()),
+        )
+    } else {
+        return Err(RunRecordError {
+            path: dir.display().to_string(),
+            message: "rig.csv but neither meta.json nor config.toml: cannot tell which model the run used".into(),
+        });
+    };
+    Ok(RawRun {
+        origin: rig_csv.display().to_string(),
+        time_s,
+        z_m,
+        force_n,
+        state,
+        config_text,
+        config_origin,
+        config_base_dir,
+    })
+}
+
+/// The record on a uniform grid at its nominal step (the median step). A loop that
+/// missed deadlines skips periods, so some steps are whole multiples of the nominal one;
+/// the gaps are filled by linear interpolation.
+fn uniform_series(
+    time_s: &[f64],
+    a: &[f64],
+    b: &[f64],
+) -> Result<(f64, Vec<f64>, Vec<f64>), String> {
+    if time_s.len() < 2 {
+        return Err(format!("{} samples: too short a record", time_s.len()));
+    }
+    let mut steps: Vec<f64> = time_s.windows(2).map(|w| w[1] - w[0]).collect();
+    steps.sort_by(f64::total_cmp);
+    let dt_s = steps[steps.len() / 2];
+    if dt_s.is_nan() || dt_s <= 0.0 {
+        return Err("`t_s` does not increase".into());
+    }
+    for (i, w) in time_s.windows(2).enumerate() {
+        let ratio = (w[1] - w[0]) / dt_s;
+        if ratio < 0.5 || (ratio - ratio.round()).abs() > 0.01 || ratio > 1000.0 {
+            return Err(format!(
+                "`t_s` step {} s at row {} is no whole multiple of the nominal step {dt_s} s",
+                w[1] - w[0],
+                i + 2
+            ));
+        }
+    }
+    let n = ((time_s[time_s.len() - 1] - time_s[0]) / dt_s).round() as usize + 1;
+    let (mut out_a, mut out_b) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    let mut j = 0;
+    for k in 0..n {
+        let t = time_s[0] + k as f64 * dt_s;
+        while j + 2 < time_s.len() && time_s[j + 1] <= t + 1e-9 * dt_s {
+            j += 1;
+        }
+        let span = (time_s[j + 1] - time_s[j]).max(1e-300);
+        let u = ((t - time_s[j]) / span).clamp(0.0, 1.0);
+        out_a.push(a[j] + u * (a[j + 1] - a[j]));
+        out_b.push(b[j] + u * (b[j + 1] - b[j]));
+    }
+    Ok((dt_s, out_a, out_b))
+}
+
+/// What a fitted channel delay between emulated and applied force means for the loop,
+/// in the words of the run's config. `force_lag_s` > 0: the applied force lags. The knob
+/// is the rig's law lead in law mode (`[rig] law_lead_us`, the default), the
+/// controller's compensation delay in force mode (`[controller] compensation_delay_us`).
+pub fn delay_knob_advice(config: &HilConfig, force_lag_s: f64) -> String {
+    let us = (force_lag_s * 1e6).abs();
+    let (knob, knob_s) = match config.controller.command_mode {
+        CommandMode::Law => ("[rig] law_lead_us", config.rig.law_lead_s),
+        CommandMode::Force => (
+            "[controller] compensation_delay_us",
+            config.controller.compensation_delay_s,
+        ),
+    };
+    let knob_us = knob_s * 1e6;
+    if force_lag_s < 0.0 {
+        format!(
+            "applied force leads the emulated force by {us:.0} us: {knob} ({knob_us:.0} us) is about {us:.0} us too long"
+        )
+    } else {
+        format!(
+            "applied force lags the emulated force by {us:.0} us: {knob} ({knob_us:.0} us) is about {us:.0} us too short (or the loop's delay grew)"
+        )
+    }
+}

@@ -1,0 +1,151 @@
+//! `fastemu diagnose --run`: a run of the deterministic in-process loop with the rig's
+//! law lead mis-set, written as a `fastemu hil` run writes its records and diagnosed from
+//! them against the run's own model; the same run with the lead right as the control.
+//! (In process, so that the loop's delay is the configured one: a real run on a loaded
+//! machine adds its own, which is the diagnosis' business to report but not this test's.)
+
+use std::path::Path;
+use std::process::Command;
+
+use fastemu::hil::config::parse_hil_config;
+use fastemu::hil::inproc::{run_in_process, InProcessScript};
+use fastemu::records::event::event_kind;
+
+use crate::common::TempDir;
+
+const FASTEMU: &str = env!("CARGO_BIN_EXE_fastemu");
+const DEFAULT: &str = include_str!("../../configs/hil-default.toml");
+const KNOB: &str = "law_lead_us = 252.0";
+
+/// Runs the default passage in process with `law_lead_us` and writes its records to
+/// `run_dir`.
+fn recorded_run(run_dir: &Path, law_lead_us: f64) {
+    assert!(DEFAULT.contains(KNOB), "default config lacks `{KNOB}`");
+    let text = DEFAULT.replace(KNOB, &format!("law_lead_us = {law_lead_us:.1}"));
+    let cfg = parse_hil_config(&text, "lead.toml", None).unwrap();
+    let script = InProcessScript {
+        // 6 s passage, then the end and the unload.
+        max_steps: (8.0 * cfg.loop_.rate_hz) as u64,
+        // The rig applies a command one period after it was sent: the 252 us the
+        // default lead compensates at 4096 Hz (244 us) plus the actuator's few us.
+        command_delay_periods: 1,
+        ..InProcessScript::default()
+    };
+    let run = run_in_process(&cfg, &script);
+    let faults: Vec<_> = run
+        .events
+        .iter()
+        .filter(|e| e.kind == event_kind::FAULT)
+        .collect();
+    assert!(faults.is_empty(), "{faults:?}");
+    run.write_records(run_dir, &cfg, &text).unwrap();
+}
+
+fn diagnose(run_dir: &Path, out: &Path) -> serde_json::Value {
+    let output = Command::new(FASTEMU)
+        .args(["diagnose", "--json", "--run"])
+        .arg(run_dir)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .expect("run fastemu diagnose");
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    serde_json::from_slice(&output.stdout).expect("one JSON object")
+}
+
+fn effects(json: &serde_json::Value) -> Vec<String> {
+    json["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|e| e.as_str().map(str::to_string))
+        .collect()
+}
+
+#[test]
+fn a_law_lead_set_125_us_too_long_is_named_from_the_run_records() {
+    let dir = TempDir::new("diagnose-run");
+    let run_dir = dir.path.join("run");
+    recorded_run(&run_dir, 377.0);
+    assert!(run_dir.join("records.mcap").is_file());
+    let json = diagnose(&run_dir, &dir.path.join("diagnosis"));
+    eprintln!("{json:#}");
+    assert!(effects(&json).contains(&"channel-delay".into()), "{json}");
+    let lag_s = json["force_lag_s"].as_f64().expect("a fitted lag");
+    // The applied force leads by the 125 us the lead is too long (the law's extrapolation
+    // is second order, so not exactly).
+    assert!((-160e-6..-90e-6).contains(&lag_s), "lag {lag_s}");
+    let advice = json["advice"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|a| a.as_str())
+        .find(|a| a.contains("law_lead_us"))
+        .expect("advice on the delay knob");
+    assert!(
+        advice.starts_with("applied force leads the emulated force by")
+            && advice.contains("[rig] law_lead_us (377 us) is about")
+            && advice.ends_with("too long"),
+        "{advice}"
+    );
+    assert!(
+        json["record_used"]
+            .as_str()
+            .unwrap()
+            .starts_with("all 24576 rig periods"),
+        "{json}"
+    );
+    assert!(dir.path.join("diagnosis/histories.png").is_file());
+
+    // The records exported as CSV (`fastemu export`) give the same diagnosis.
+    let export = Command::new(FASTEMU)
+        .args(["export", "--record"])
+        .arg(&run_dir)
+        .arg("--out")
+        .arg(dir.path.join("csv"))
+        .output()
+        .unwrap();
+    assert!(export.status.success());
+    let from_csv = diagnose(&dir.path.join("csv"), &dir.path.join("diagnosis-csv"));
+    assert_eq!(from_csv["effects"], json["effects"]);
+    let lag_csv = from_csv["force_lag_s"].as_f64().unwrap();
+    assert!((lag_csv - lag_s).abs() < 1e-6, "{lag_csv} vs {lag_s}");
+}
+
+#[test]
+fn a_law_lead_that_matches_the_loop_names_no_delay() {
+    let dir = TempDir::new("diagnose-run-control");
+    let run_dir = dir.path.join("run");
+    recorded_run(&run_dir, 252.0);
+    let json = diagnose(&run_dir, &dir.path.join("diagnosis"));
+    eprintln!("{json:#}");
+    assert!(!effects(&json).contains(&"channel-delay".into()), "{json}");
+    // The advice says nothing was found; it names no knob to turn.
+    let advice = json["advice"].as_array().unwrap();
+    assert_eq!(advice.len(), 1, "{json}");
+    let advice = advice[0].as_str().unwrap();
+    assert!(advice.starts_with("no loop artefact found"), "{advice}");
+    assert!(!advice.contains("law_lead_us") && !advice.contains("compensation_delay_us"));
+}
+
+#[test]
+fn a_directory_without_run_records_is_refused_with_its_name() {
+    let dir = TempDir::new("diagnose-run-empty");
+    let output = Command::new(FASTEMU)
+        .args(["diagnose", "--run"])
+        .arg(&dir.path)
+        .arg("--out")
+        .arg(dir.path.join("out"))
+        .output()
+        .unwrap();
+    assert!(!output.status.success());
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        stderr.contains(&dir.path.display().to_string()) && stderr.contains("no records"),
+        "{stderr}"
+    );
+}
