@@ -10,6 +10,7 @@ pub mod diagnose;
 pub mod fit;
 pub mod hil;
 pub mod ipc;
+pub mod link;
 pub mod model;
 pub mod paper;
 pub mod plot;

@@ -47,7 +47,10 @@ fn sample(seq: u64, z: f64) -> DisplacementSample {
         rig_time_ns: seq * 244_141,
         publish_time_ns: 0,
         displacement_m: z,
+        actuator_force_n: f64::NAN,
         status: sample_status::OK,
+        rig_state: 1,
+        rig_fault_code: 0,
         reserved: 0,
     }
 }
