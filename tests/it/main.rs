@@ -18,4 +18,5 @@ mod model_determinism;
 mod model_modulus;
 mod model_tension;
 mod paper;
+mod rig_header;
 mod safety_inproc;
