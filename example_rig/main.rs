@@ -502,7 +502,24 @@ fn lead_weights(order: usize, h: f64, lead: f64) -> ([f64; 4], [f64; 4]) {
     (value, slope)
 }
 
+/// A rig's loop is real-time: SCHED_FIFO 80 and locked memory where the OS permits (as
+/// root, or with CAP_SYS_NICE), else a warning: a rig that stalls for longer than
+/// fastemu's stale-sample limit (39 ms by default) trips the emulator.
+fn real_time() {
+    // SAFETY: plain system calls on this process with valid arguments.
+    unsafe {
+        let param = libc::sched_param { sched_priority: 80 };
+        if libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) != 0 {
+            eprintln!(
+                "example_rig: warning: no SCHED_FIFO (not permitted); running at normal priority"
+            );
+        }
+        libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE);
+    }
+}
+
 fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
+    real_time();
     let period_ns = (1e9 / o.rate_hz).round() as u64;
     let dt = 1.0 / o.rate_hz;
     // At rest in equilibrium with the load programme's first value, the actuator holding it.

@@ -558,9 +558,21 @@ pub fn run_processes(plan: &RunPlan, progress: bool) -> Result<RunOutcome, Proce
         if sup.finished.iter().all(|&f| f) {
             break;
         }
+        // The simulated rig behind a link that died holds on its own until at rest: it
+        // gets as long as a hold may take; the others 3 s.
+        let far_rig_holding = sup
+            .child_process
+            .iter()
+            .zip(&sup.finished)
+            .any(|(p, f)| p.is_none() && !f);
+        let grace = if far_rig_holding {
+            Duration::from_secs_f64(plan.hold_max_s + 3.0)
+        } else {
+            Duration::from_secs(3)
+        };
         if sup
             .stop_sent_at
-            .is_some_and(|s| now.duration_since(s) > Duration::from_secs(3))
+            .is_some_and(|s| now.duration_since(s) > grace)
         {
             break;
         }

@@ -12,6 +12,7 @@ mod hil_core;
 mod hil_processes;
 mod identify_cli;
 mod latency_bench;
+mod link_processes;
 mod model_alloc;
 mod model_closed_form;
 mod model_determinism;
