@@ -723,7 +723,7 @@ fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
         if !holding {
             programme_t += dt;
         }
-        if k % ((0.01 * o.rate_hz) as u64).max(1) == 0 {
+        if k.is_multiple_of(((0.01 * o.rate_hz) as u64).max(1)) {
             transport.heartbeat(state, fault);
         }
         k += 1;

@@ -22,7 +22,7 @@ use hdrhistogram::Histogram;
 use serde::Serialize;
 
 use super::protocol::{CommandDatagram, ControlDatagram, Datagram, Side};
-use super::socket::{open_link, LinkReceiver, Receive, ReceiveCounts};
+use super::socket::{open_link, LinkReceiver, LinkSender, Receive, ReceiveCounts};
 use crate::hil::config::HilConfig;
 use crate::hil::process::{
     install_termination_handler, poll_control, termination_requested, wait_for_start_within,
@@ -33,7 +33,8 @@ use crate::ipc::messages::{
     process_id, rig_state, run_command, sample_status, DisplacementSample, Heartbeat,
     HEARTBEAT_READY,
 };
-use crate::ipc::IpcNode;
+use crate::ipc::messages::{ActuatorCommand, RunControl};
+use crate::ipc::{In, IpcNode, IpcWaitSet, Out, WakeListener};
 use crate::rt::clock::monotonic_now_ns;
 use crate::rt::{apply_rt_setup, RtSetup};
 
@@ -44,6 +45,11 @@ pub const RIG_SILENCE: Duration = Duration::from_secs(2);
 const RECEIVE_TIMEOUT: Duration = Duration::from_millis(2);
 /// `START` is repeated this often until the first sample arrives.
 const START_REPEAT: Duration = Duration::from_millis(5);
+/// The rig is started this much ahead of the loop's grid: its sample k then leaves about
+/// this long before the grid instant k and, after the START's and the sample's trips
+/// through the network stack, arrives around the emulator's wake-up for cycle k, not
+/// just after the emulator stopped waiting for it (which costs a whole period).
+const START_LEAD_NS: u64 = 60_000;
 /// Every other run-control message is sent this many times (same control sequence).
 const CONTROL_REPEATS: usize = 3;
 
@@ -252,10 +258,12 @@ pub fn run_link(
         open_link(plan.bind, plan.peer, Side::Fastemu, Some(RECEIVE_TIMEOUT))
             .map_err(|e| ProcessError(e.to_string()))?;
     let node = IpcNode::new(&plan.run_id, "link")?;
-    let commands = node.command_in()?;
-    let listener = node.command_listener()?;
-    let heartbeat = node.heartbeat_out()?;
-    let control = node.control_in()?;
+    let ports = MainPorts {
+        commands: node.command_in()?,
+        listener: node.command_listener()?,
+        heartbeat: node.heartbeat_out()?,
+        control: node.control_in()?,
+    };
     let shared = Arc::new(Shared::default());
     let period_ns = cfg.loop_.period_ns;
     let loopback = plan.peer.ip().is_loopback();
@@ -293,17 +301,7 @@ pub fn run_link(
         rig_silent: false,
         error: None,
     };
-    let outcome = serve(
-        cfg,
-        plan,
-        &shared,
-        &mut sender,
-        &commands,
-        &listener,
-        &heartbeat,
-        &control,
-        &mut summary,
-    );
+    let outcome = serve(cfg, plan, &shared, &mut sender, &ports, &mut summary);
     shared.stop.store(true, Ordering::Relaxed);
     let received = receiving
         .join()
@@ -334,19 +332,24 @@ pub fn run_link(
     outcome.map(|()| summary)
 }
 
+/// The main thread's iceoryx2 ports.
+struct MainPorts {
+    commands: In<ActuatorCommand>,
+    listener: WakeListener,
+    heartbeat: Out<Heartbeat>,
+    control: In<RunControl>,
+}
+
 /// The main thread's work: handshake, commands, run control, heartbeats, the end.
-#[allow(clippy::too_many_arguments)]
 fn serve(
     cfg: &HilConfig,
     plan: &LinkPlan,
     shared: &Shared,
-    sender: &mut super::socket::LinkSender,
-    commands: &crate::ipc::In<crate::ipc::messages::ActuatorCommand>,
-    listener: &crate::ipc::WakeListener,
-    heartbeat: &crate::ipc::Out<Heartbeat>,
-    control: &crate::ipc::In<crate::ipc::messages::RunControl>,
+    sender: &mut LinkSender,
+    ports: &MainPorts,
     summary: &mut LinkSummary,
 ) -> Result<(), ProcessError> {
+    let control = &ports.control;
     let period_ns = cfg.loop_.period_ns;
     // 1. The rig announces itself with status datagrams.
     let waited_since = monotonic_now_ns();
@@ -371,27 +374,27 @@ fn serve(
     }
     // The waitset exists before the start: creating it after sending START would keep
     // this (higher-priority) thread busy just when the rig takes its time from START.
-    listener.with_waitset(|waitset| {
-        serve_started(
-            cfg, plan, shared, sender, commands, listener, waitset, heartbeat, control, summary,
-        )
-    })?
+    ports
+        .listener
+        .with_waitset(|waitset| serve_started(cfg, plan, shared, sender, ports, waitset, summary))?
 }
 
 /// After the rig is ready: the start, then commands, run control and heartbeats.
-#[allow(clippy::too_many_arguments)]
 fn serve_started(
     cfg: &HilConfig,
     plan: &LinkPlan,
     shared: &Shared,
-    sender: &mut super::socket::LinkSender,
-    commands: &crate::ipc::In<crate::ipc::messages::ActuatorCommand>,
-    listener: &crate::ipc::WakeListener,
-    waitset: &crate::ipc::IpcWaitSet,
-    heartbeat: &crate::ipc::Out<Heartbeat>,
-    control: &crate::ipc::In<crate::ipc::messages::RunControl>,
+    sender: &mut LinkSender,
+    ports: &MainPorts,
+    waitset: &IpcWaitSet,
     summary: &mut LinkSummary,
 ) -> Result<(), ProcessError> {
+    let MainPorts {
+        commands,
+        listener,
+        heartbeat,
+        control,
+    } = ports;
     let period_ns = cfg.loop_.period_ns;
     // 2. Ready as the rig; wait for the orchestrator's start.
     let start =
@@ -401,7 +404,7 @@ fn serve_started(
     let start_datagram = |now: u64| ControlDatagram {
         command: run_command::START,
         control_sequence: 1,
-        start_delay_ns: start.t0_ns.saturating_sub(now),
+        start_delay_ns: start.t0_ns.saturating_sub(now + START_LEAD_NS),
         period_ns,
     };
     summary.start_datagrams += 1;
@@ -411,7 +414,7 @@ fn serve_started(
     let mut next_heartbeat_ns = 0u64;
     let mut hb_seq = 0u64;
     let wait = Duration::from_nanos(cfg.controller.keepalive_ns.max(100_000));
-    let send_control = |sender: &mut super::socket::LinkSender, command: u32, seq: u64| {
+    let send_control = |sender: &mut LinkSender, command: u32, seq: u64| {
         for _ in 0..CONTROL_REPEATS {
             sender.send_control(&ControlDatagram {
                 command,
@@ -448,16 +451,20 @@ fn serve_started(
                 send_control(sender, run_command::HOLD, control_sequence);
                 return Err(ProcessError("terminated: the rig was asked to hold".into()));
             }
-            if shared.finished.load(Ordering::Relaxed) {
-                summary.rig_finished = true;
+            // The rig's state and fault, as the rig's heartbeat.
+            let beat = |state: u32, sequence: u64| {
                 heartbeat.publish(Heartbeat {
                     process: process_id::RIG,
-                    state: rig_state::FINISHED,
-                    sequence: hb_seq,
+                    state,
+                    sequence,
                     time_ns: now,
                     fault_code: shared.rig_fault_code.load(Ordering::Relaxed),
                     reserved: 0,
-                });
+                })
+            };
+            if shared.finished.load(Ordering::Relaxed) {
+                summary.rig_finished = true;
+                beat(rig_state::FINISHED, hb_seq);
                 return Ok(());
             }
             let last = shared
@@ -473,14 +480,7 @@ fn serve_started(
             }
             if now >= next_heartbeat_ns {
                 next_heartbeat_ns = now + HEARTBEAT_PERIOD_NS;
-                heartbeat.publish(Heartbeat {
-                    process: process_id::RIG,
-                    state: shared.rig_state.load(Ordering::Relaxed),
-                    sequence: hb_seq,
-                    time_ns: now,
-                    fault_code: shared.rig_fault_code.load(Ordering::Relaxed),
-                    reserved: 0,
-                });
+                beat(shared.rig_state.load(Ordering::Relaxed), hb_seq);
                 hb_seq += 1;
                 let requests = poll_control(control);
                 for (wanted, command) in [
