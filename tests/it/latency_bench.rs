@@ -308,7 +308,12 @@ fn tiny_run_reports_every_transport_and_writes_its_files() {
         }
     }
     assert!(report["ratio_udp_over_iceoryx2_p99"].is_number());
-    assert_eq!(report["message_bytes"], 40);
+    assert_eq!(report["message_bytes"], 56);
+    assert_eq!(
+        report["socket_datagram_bytes"],
+        serde_json::json!([88, 144])
+    );
+    assert!(report["loop"]["end_to_end_udp_link"]["note"].is_string());
     assert_eq!(report["out_dir"], out.to_str().unwrap());
 
     // One interval per round per transport and per scheduler configuration.
