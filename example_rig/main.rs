@@ -165,32 +165,32 @@ impl Ipc {
         // open_or_create with the header's settings: works whether hil or this rig
         // starts first.
         macro_rules! service {
-            ($t:ty, $name:literal, $history:expr, $buffer:expr, $pubs:expr) => {
+            ($t:ty, $name:literal, $history:expr, $buffer:expr, $pubs:expr, $subs:expr) => {
                 node.service_builder(&name($name)?)
                     .publish_subscribe::<$t>()
                     .history_size($history)
                     .subscriber_max_buffer_size($buffer)
                     .enable_safe_overflow(true)
                     .max_publishers($pubs)
-                    .max_subscribers(4)
+                    .max_subscribers($subs)
                     .max_nodes(8)
                     .open_or_create()
                     .map_err(|x| err($name, x))?
             };
         }
-        let samples = service!(Sample, "displacement", 0, 256, 1)
+        let samples = service!(Sample, "displacement", 0, 256, 1, 4)
             .publisher_builder()
             .create()
             .map_err(|x| err("displacement publisher", x))?;
-        let commands = service!(Command, "command", 0, 8, 1)
+        let commands = service!(Command, "command", 0, 8, 1, 4)
             .subscriber_builder()
             .create()
             .map_err(|x| err("command subscriber", x))?;
-        let heartbeats = service!(Heartbeat, "heartbeat", 0, 64, 4)
+        let heartbeats = service!(Heartbeat, "heartbeat", 0, 64, 4, 6)
             .publisher_builder()
             .create()
             .map_err(|x| err("heartbeat publisher", x))?;
-        let control = service!(RunControl, "control", 1, 8, 2)
+        let control = service!(RunControl, "control", 1, 8, 4, 4)
             .subscriber_builder()
             .create()
             .map_err(|x| err("control subscriber", x))?;

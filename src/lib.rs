@@ -11,6 +11,7 @@ pub mod fit;
 pub mod hil;
 pub mod ipc;
 pub mod link;
+pub mod live;
 pub mod model;
 pub mod paper;
 pub mod plot;

@@ -48,6 +48,8 @@ enum Command {
     Replay(cli::replay::ReplayArgs),
     /// Export a run's records (records.mcap) as CSV files.
     Export(cli::export::ExportArgs),
+    /// Operator control of a running `hil` from another terminal: hold, resume, stop, status.
+    Ctl(cli::ctl::CtlArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -64,6 +66,7 @@ fn main() -> std::process::ExitCode {
         Command::Controller(args) => cli::loopproc::run_controller_command(args),
         Command::Replay(args) => cli::replay::run(args),
         Command::Export(args) => cli::export::run(args),
+        Command::Ctl(args) => cli::ctl::run(args),
         Command::Rig(args) => cli::loopproc::run_rig_command(args),
         Command::Link(args) => cli::link::run(args),
     };

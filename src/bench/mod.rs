@@ -1,10 +1,12 @@
-//! Benchmarks: model step speed (`model`), offline rail simulation (`rail`), and the
-//! loop's latency and jitter (`latency`, with its child-process guard in `child`).
-//! Timing lives here and in reports, never in pass/fail tests.
+//! Benchmarks: model step speed (`model`), offline rail simulation (`rail`), the loop's
+//! latency and jitter (`latency`), and what stalls do to the specimen (`ride_through`,
+//! deterministic, on the in-process loop). Timing lives here and in reports, never in
+//! pass/fail tests.
 
 pub mod latency;
 pub mod model;
 pub mod rail;
+pub mod ride_through;
 
 /// Median of a slice (sorts a copy). Empty slices give NaN.
 pub fn median(values: &[f64]) -> f64 {

@@ -23,6 +23,9 @@ pub enum BenchCommand {
     /// Transport hop latency (iceoryx2, UDP, Unix socket, crossbeam), scheduler wake-up
     /// jitter and the loop's end-to-end latency, with hdrhistogram percentiles.
     Latency(LatencyArgs),
+    /// What a stall of the emulator or controller does to the specimen (deterministic,
+    /// in-process loop): largest transient per stall length, law vs force commands.
+    RideThrough(RideThroughArgs),
     /// Echo peer of `bench latency` (spawned by it; not for direct use).
     #[command(hide = true)]
     LatencyPeer(LatencyPeerArgs),
@@ -73,6 +76,29 @@ pub struct LatencyArgs {
     /// Do not run `hil` for the end-to-end latency.
     #[arg(long)]
     pub skip_hil: bool,
+}
+
+#[derive(Args)]
+pub struct RideThroughArgs {
+    /// HIL configuration (the embedded default when omitted).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Which process stalls.
+    #[arg(long, default_value = "emulator", value_parser = ["emulator", "controller"])]
+    pub process: String,
+    /// Stall lengths, ms (comma-separated).
+    #[arg(long, default_value = "2,5,10,15,20,24", value_delimiter = ',')]
+    pub lengths_ms: Vec<f64>,
+    /// Stall start times, s (default: around the default passage's first axle).
+    #[arg(
+        long,
+        default_value = "1.5,1.95,2.0,2.02,2.05,2.1,2.2,2.35",
+        value_delimiter = ','
+    )]
+    pub starts_s: Vec<f64>,
+    /// Print one JSON object instead of the table.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Args)]
@@ -139,6 +165,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<ExitCode> {
         BenchCommand::Model(args) => run_model(args),
         BenchCommand::Rail(args) => run_rail(args),
         BenchCommand::Latency(args) => run_latency(args),
+        BenchCommand::RideThrough(args) => run_ride_through(args),
         BenchCommand::LatencyPeer(args) => run_latency_peer(args),
     }
 }
@@ -299,6 +326,29 @@ fn run_model(args: ModelBenchArgs) -> anyhow::Result<ExitCode> {
                 t.form, t.median_ns_per_step, t.min_ns_per_step, t.max_ns_per_step
             );
         }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn run_ride_through(args: RideThroughArgs) -> anyhow::Result<ExitCode> {
+    let cfg = crate::hil::config::load_or_default(args.config.as_deref())?;
+    anyhow::ensure!(
+        args.lengths_ms
+            .iter()
+            .chain(&args.starts_s)
+            .all(|v| v.is_finite() && *v > 0.0),
+        "--lengths-ms and --starts-s: expected numbers > 0"
+    );
+    let study = crate::bench::ride_through::ride_through(
+        &cfg,
+        args.process == "emulator",
+        &args.starts_s,
+        &args.lengths_ms,
+    );
+    if args.json {
+        println!("{}", serde_json::to_string(&study)?);
+    } else {
+        print!("{}", study.table());
     }
     Ok(ExitCode::SUCCESS)
 }

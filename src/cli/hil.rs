@@ -36,6 +36,20 @@ pub struct HilArgs {
     /// `events.csv`) into the report directory (handy for short runs).
     #[arg(long)]
     pub csv: bool,
+    /// Serve the run live over the Foxglove WebSocket protocol (open it in the Foxglove
+    /// app with configs/foxglove-layout.json).
+    #[arg(long)]
+    pub live: bool,
+    /// Address of the live view (`--live`); 127.0.0.1 keeps it on this machine.
+    #[arg(long, default_value = "127.0.0.1:8765")]
+    pub live_addr: String,
+    /// Offer hold / resume / stop as services on the live view (whoever can reach it can
+    /// then act on the run).
+    #[arg(long)]
+    pub live_control: bool,
+    /// Messages per second of the live displacement and force channels.
+    #[arg(long, default_value_t = 512.0)]
+    pub live_rate_hz: f64,
     #[command(flatten)]
     pub rig: RigArgs,
 }
@@ -265,7 +279,7 @@ fn load_config(args: &HilArgs) -> anyhow::Result<HilConfig> {
             d > 0.0 && d.is_finite(),
             "--duration-s {d}: expected a number > 0"
         );
-        cfg.scenario.duration_s = d;
+        cfg.set_duration_s(d);
     }
     Ok(cfg)
 }
@@ -326,6 +340,49 @@ fn not_clean_because(
         ));
     }
     why
+}
+
+/// Starts the live view when asked (before the run, so a client can connect early).
+fn start_live(
+    args: &HilArgs,
+    cfg: &HilConfig,
+    out_dir: &std::path::Path,
+) -> anyhow::Result<Option<crate::live::LiveHandle>> {
+    if !args.live {
+        anyhow::ensure!(
+            !args.live_control,
+            "--live-control needs --live (the services are offered on the live view)"
+        );
+        return Ok(None);
+    }
+    anyhow::ensure!(
+        args.live_rate_hz.is_finite() && args.live_rate_hz > 0.0,
+        "--live-rate-hz {}: expected a number > 0",
+        args.live_rate_hz
+    );
+    let live = crate::live::start(
+        cfg,
+        out_dir,
+        &crate::live::LiveOptions {
+            addr: args.live_addr.clone(),
+            rate_hz: args.live_rate_hz,
+            control: args.live_control,
+        },
+    )?;
+    eprintln!(
+        "hil: live view on ws://{} (Foxglove: open a connection to it; layout configs/foxglove-layout.json){}",
+        live.addr,
+        if args.live_control { "; hold/resume/stop offered as services" } else { "" }
+    );
+    let host = live.addr.rsplit_once(':').map_or("", |(h, _)| h);
+    if !matches!(host, "127.0.0.1" | "localhost" | "::1" | "[::1]") {
+        eprintln!(
+            "hil: warning: the live view listens on {}: anyone who can reach this address can watch the run{}",
+            live.addr,
+            if args.live_control { " and hold, resume or stop it" } else { "" }
+        );
+    }
+    Ok(Some(live))
 }
 
 pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
@@ -399,7 +456,24 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
             effect_names.join(", ")
         );
     }
-    let mut outcome = run_processes(&plan, true)?;
+    let live = start_live(&args, &cfg, &out_dir)?;
+    let _registration = crate::hil::registry::register(&crate::hil::registry::RunEntry {
+        run_id: run_id.clone(),
+        pid: std::process::id(),
+        report_dir: out_dir.clone(),
+        config_origin: cfg.origin.clone(),
+        rate_hz: cfg.loop_.rate_hz,
+        started_unix_s: std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs()),
+        live_addr: live.as_ref().map(|l| l.addr.clone()),
+    })
+    .map_err(|e| eprintln!("hil: warning: run not registered for `fastemu ctl`: {e}"))
+    .ok();
+    let mut outcome = run_processes(&plan, true, live.as_ref())?;
+    if let Some(l) = live {
+        l.stop();
+    }
     // Process deaths first: they are the cause; the others' reactions follow from them.
     outcome.faults.sort_by_key(|f| !f.contains("process (pid"));
     let records = merge_records(&out_dir);
@@ -471,7 +545,8 @@ fn summarise(
         "clean": clean,
         "not_clean_because": why,
         "faults": outcome.faults,
-        "operator_stop": outcome.operator_stop,
+        "operator_stop": outcome.operator_stop
+            || analysis.is_some_and(|a| a.safety.operator_actions.iter().any(|x| x.ends_with("operator stop"))),
         "safety": value(analysis.map(|a| serde_json::to_value(&a.safety).unwrap_or_default())),
         "stalls": value(analysis.map(|a| json!({
             "count": a.stalls.count,
@@ -481,6 +556,7 @@ fn summarise(
                 "at_s": e.at_s, "length_ms": e.length_ms, "transient_um": e.transient_m * 1e6, "source": e.source,
             })).collect::<Vec<_>>(),
         }))),
+        "programme": value(analysis.map(|a| serde_json::to_value(&a.programme).unwrap_or_default())),
         "largest_transient_um": value(analysis.map(|a| json!(a.largest_transient_m * 1e6))),
         "max_transient_um": cfg.safety.max_transient_m * 1e6,
         "fidelity": value(analysis.map(|a| serde_json::to_value(&a.fidelity).unwrap_or_default())),

@@ -77,7 +77,7 @@ impl LoopProcessArgs {
                 d > 0.0 && d.is_finite(),
                 "--duration-s {d}: expected a number > 0"
             );
-            cfg.scenario.duration_s = d;
+            cfg.set_duration_s(d);
         }
         let (text, base_dir) = match &self.config {
             Some(p) => (

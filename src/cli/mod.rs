@@ -2,6 +2,7 @@
 //! Handlers may do I/O and allocate; they never run inside the real-time loop.
 
 pub mod bench;
+pub mod ctl;
 pub mod diagnose;
 pub mod equiv;
 pub mod export;

@@ -13,7 +13,7 @@ use super::controller::{ControllerCore, ControllerRecord};
 use super::fault::Fault;
 use super::process::{
     install_termination_handler, meta_json, poll_control, real_time_setup, termination_requested,
-    wait_for_start, write_summary, Injector, ProcessError, HEARTBEAT_PERIOD_NS,
+    wait_for_start, write_summary, Injector, ProcessError, HEARTBEAT_PERIOD_NS, IDLE_EXIT_S,
 };
 use crate::ipc::messages::{
     controller_state, emulator_state, process_id, ActuatorCommand, Heartbeat, HEARTBEAT_READY,
@@ -82,8 +82,9 @@ pub fn run_controller(
     );
     core.set_start_time_ns(start.t0_ns);
     let mut injector = Injector::new(cfg, LoopProcess::Controller, process_id::CONTROLLER);
-    let cap_ns =
-        start.t0_ns + ((cfg.scenario.duration_s + cfg.safety.hold_max_s + 30.0) * 1e9) as u64;
+    // Ends when the emulator stops, on STOP or SIGTERM; as a last resort, after a minute
+    // without any setpoint (the emulator and the orchestrator both gone).
+    let mut last_setpoint_ns = monotonic_now_ns();
     let mut next_heartbeat_ns = 0u64;
     let mut commands_sent = 0u64;
     let mut emulator_stopped = false;
@@ -110,6 +111,7 @@ pub fn run_controller(
             &events,
         );
         setpoints.receive_each(|sp| {
+            last_setpoint_ns = monotonic_now_ns();
             if sp.emulator_state == emulator_state::STOPPED {
                 emulator_stopped = true;
                 return;
@@ -141,7 +143,8 @@ pub fn run_controller(
             hb_seq += 1;
             stopped |= poll_control(&control).stop;
         }
-        if emulator_stopped || stopped || termination_requested() || now > cap_ns {
+        let idle = now.saturating_sub(last_setpoint_ns) > (IDLE_EXIT_S * 1e9) as u64;
+        if emulator_stopped || stopped || termination_requested() || idle {
             break;
         }
     })?;

@@ -11,7 +11,7 @@ use super::emulator::{CycleOutcome, EmulatorCore, EmulatorIo, EmulatorRecord};
 use super::fault::Fault;
 use super::process::{
     install_termination_handler, meta_json, poll_control, real_time_setup, termination_requested,
-    wait_for_start, write_summary, Injector, ProcessError, HEARTBEAT_PERIOD_NS,
+    wait_for_start, write_summary, Injector, ProcessError, HEARTBEAT_PERIOD_NS, IDLE_EXIT_S,
 };
 use crate::ipc::messages::{
     emulator_state, process_id, sample_status, DisplacementSample, ForceSetpoint, Heartbeat,
@@ -130,10 +130,11 @@ pub fn run_emulator(
         sample_wait_ns: cfg.loop_.sample_wait_ns,
     };
     let mut injector = Injector::new(cfg, LoopProcess::Emulator, process_id::EMULATOR);
-    // Hard cap: the scenario, the longest hold, plus 30 s, in case the rig and the
-    // orchestrator both vanish.
-    let max_cycles =
-        ((cfg.scenario.duration_s + cfg.safety.hold_max_s + 30.0) * cfg.loop_.rate_hz) as u64;
+    // Ends on the rig's end-of-run sample, STOP or SIGTERM; as a last resort, after a
+    // minute without any sample (the rig and the orchestrator both gone).
+    let idle_limit = (IDLE_EXIT_S * cfg.loop_.rate_hz) as u64;
+    let mut idle_cycles = 0u64;
+    let mut last_steps = 0u64;
     let heartbeat_every = (HEARTBEAT_PERIOD_NS / cfg.loop_.period_ns).max(1);
     let dt = cfg.loop_.dt_s();
     let mut push = |r: EmulatorRecord| records.push(r);
@@ -145,7 +146,13 @@ pub fn run_emulator(
         if let Some(event) = core.take_fault_event(now_idx) {
             events.push(event);
         }
-        if outcome == CycleOutcome::EndOfRun || stats.cycle_idx > max_cycles {
+        idle_cycles = if core.counts.model_steps == last_steps {
+            idle_cycles + 1
+        } else {
+            0
+        };
+        last_steps = core.counts.model_steps;
+        if outcome == CycleOutcome::EndOfRun || idle_cycles > idle_limit {
             break;
         }
         if stats.cycle_idx.is_multiple_of(heartbeat_every) {

@@ -30,6 +30,8 @@ pub struct InProcessScript {
     pub controller_dies_at: Option<u64>,
     /// Periods from a command being sent to the rig applying it (>= 1).
     pub command_delay_periods: u64,
+    /// Operator actions: (period, `event_kind::OPERATOR_HOLD` / `_RESUME` / `_STOP`).
+    pub operator: Vec<(u64, u32)>,
 }
 
 /// Records of an in-process run.
@@ -89,6 +91,11 @@ pub fn run_in_process(cfg: &HilConfig, script: &InProcessScript) -> InProcessRun
         let t_ns = k * period_ns;
         if let Some(s) = rig.measure(t_ns) {
             samples.push_back(s);
+        }
+        for &(at, kind) in &script.operator {
+            if at == k {
+                rig.operator(kind);
+            }
         }
         while commands.front().is_some_and(|&(at, _)| at <= k) {
             let (_, cmd) = commands.pop_front().expect("front checked");

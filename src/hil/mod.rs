@@ -14,4 +14,5 @@ pub mod fault;
 pub mod inproc;
 pub mod orchestrator;
 pub mod process;
+pub mod registry;
 pub mod report;

@@ -426,8 +426,13 @@ impl Supervisor {
     }
 }
 
-/// Spawns the three processes and runs the scenario until the rig ends it.
-pub fn run_processes(plan: &RunPlan, progress: bool) -> Result<RunOutcome, ProcessError> {
+/// Spawns the three processes and runs the scenario until the rig ends it; operator
+/// requests from the live view's services (`live`) are relayed to the rig.
+pub fn run_processes(
+    plan: &RunPlan,
+    progress: bool,
+    live: Option<&crate::live::LiveHandle>,
+) -> Result<RunOutcome, ProcessError> {
     let node = IpcNode::new(&plan.run_id, "hil")?;
     // With an external rig, the rig's services exist (with the loop's settings) before
     // it connects, and as long as the run.
@@ -465,8 +470,8 @@ pub fn run_processes(plan: &RunPlan, progress: bool) -> Result<RunOutcome, Proce
     }
     let start_wait = Instant::now();
     let mut last_progress = Instant::now();
-    // The scenario, the longest hold, and margin: past this the run is stopped.
-    let run_timeout = Duration::from_secs_f64(plan.duration_s + plan.hold_max_s + 20.0);
+    // No wall-clock limit on the run: an operator hold lasts as long as the operator
+    // wants; the rig ends the run, and a silent process is a fault (heartbeats).
     loop {
         std::thread::sleep(Duration::from_millis(5));
         let now = Instant::now();
@@ -529,10 +534,18 @@ pub fn run_processes(plan: &RunPlan, progress: bool) -> Result<RunOutcome, Proce
                         sup.stop_sent_at = Some(now);
                     }
                 }
-                if now.duration_since(t) > run_timeout && sup.stop_sent_at.is_none() {
-                    sup.push_fault("hil: run timed out".into());
-                    sup.send(&control, run_command::STOP, 0, 0);
-                    sup.stop_sent_at = Some(now);
+                if let Some(command) = live.and_then(|l| l.take_request()) {
+                    if progress {
+                        eprintln!(
+                            "hil: operator request from the live view: {}",
+                            match command {
+                                run_command::HOLD => "hold",
+                                run_command::RESUME => "resume",
+                                _ => "stop",
+                            }
+                        );
+                    }
+                    sup.send(&control, command, 0, 0);
                 }
                 // The rig ended the run (or died): the others stop now.
                 let rig_done = sup.process_finished(process_id::RIG);

@@ -47,6 +47,9 @@ impl From<std::io::Error> for ProcessError {
 pub const START_TIMEOUT: Duration = Duration::from_secs(30);
 /// Heartbeat period, ns.
 pub const HEARTBEAT_PERIOD_NS: u64 = 10_000_000;
+/// The emulator (controller) exits after this long without a sample (setpoint): its
+/// peers and the orchestrator are gone. Not a run length: holds last as long as needed.
+pub const IDLE_EXIT_S: f64 = 60.0;
 /// An injected kill waits this long after recording its event, so the record writer
 /// closes the chunk holding it (the loop is already silent, as after a real kill).
 const KILL_FLUSH_WAIT: Duration = Duration::from_millis(120);

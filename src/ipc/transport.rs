@@ -412,8 +412,9 @@ pub fn service_settings(stream: Stream) -> (usize, usize, usize, usize) {
         Stream::Setpoint | Stream::Command => (0, 8, 1, 4),
         // Heartbeats and control messages are rarer; control keeps its last message for
         // late subscribers.
-        Stream::Heartbeat => (0, 64, 4, 4),
-        Stream::Control => (1, 8, 2, 4),
+        // `fastemu ctl` and the live view subscribe to heartbeats and publish control.
+        Stream::Heartbeat => (0, 64, 4, 6),
+        Stream::Control => (1, 8, 4, 4),
     }
 }
 

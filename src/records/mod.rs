@@ -11,6 +11,7 @@
 //!   run left (memory bounded by one chunk, whatever the run's length; a truncated file
 //!   is read up to its last closed chunk).
 //! - `merge`: the parts of a finished run into one `records.mcap`.
+//! - `tail`: follows parts while they are written (the live view).
 //! - `export`: the records as CSV files (one per process stream).
 //!
 //! Must not: block, allocate, lock or do I/O in `RecordSink::push` (a full queue drops the
@@ -20,6 +21,7 @@ pub mod event;
 pub mod export;
 pub mod merge;
 pub mod reader;
+pub mod tail;
 pub mod writer;
 
 use std::io::Write;

@@ -265,6 +265,10 @@ fn open_part(
         .compression(Some(mcap::Compression::Zstd))
         // Compress in this (non-real-time) thread: no worker threads beside the loops.
         .compression_threads(0)
+        // Assemble each chunk in memory and write it whole when closed: a reader following
+        // the file (the live view) or a killed writer's file never holds a chunk header
+        // whose lengths are still to be patched.
+        .disable_seeking(true)
         .chunk_size(None)
         .create(BufWriter::with_capacity(1 << 16, file))
         .map_err(|e| format!("{}: {e}", path.display()))?;

@@ -40,6 +40,10 @@ record_type! {
             external_force_n: f64,
             /// load programme time (pauses while held), s
             programme_time_s: f64,
+            /// completed passes through the programme's block sequence (durability cycles)
+            programme_cycle: u64,
+            /// the programme block running (index in the sequence)
+            programme_block: u32,
             /// sample sequence behind the command in effect (-1 none yet)
             command_sample_seq: u64,
             /// periods since the last command of any kind
@@ -94,7 +98,7 @@ impl RigCore {
     /// The rig at rest in static equilibrium under the programme's first force.
     pub fn new(cfg: &HilConfig) -> RigCore {
         let dt_s = cfg.loop_.dt_s();
-        let load = LoadProgramme::new(&cfg.scenario, cfg.model.length_m);
+        let load = LoadProgramme::new(&cfg.programme, cfg.model.length_m);
         let programme = ProgrammeRunner::new(load, dt_s);
         let f0 = programme.force_n();
         let x0 = cfg.model.element.static_displacement_m(f0);
@@ -119,7 +123,7 @@ impl RigCore {
             ),
             servo: Servo::new(cfg.servo_config(), x0, f0),
             programme,
-            duration_s: cfg.scenario.duration_s,
+            duration_s: cfg.programme.end_s,
             step_idx: 0,
             injections,
             next_injection: 0,
@@ -305,6 +309,10 @@ impl RigCore {
         }
         self.was_at_rest = at_rest;
         let f_start = self.programme.force_n();
+        let position = self
+            .programme
+            .load()
+            .position(self.programme.programme_time_s());
         self.last_state = out.state;
         let record = RigRecord {
             t_s: t,
@@ -316,6 +324,8 @@ impl RigCore {
             actuator_force_n: self.physics.actuator_force_n,
             external_force_n: f_start,
             programme_time_s: self.programme.programme_time_s(),
+            programme_cycle: position.cycle,
+            programme_block: position.block,
             command_sample_seq: self.command_sample_seq,
             command_age_periods: out.command_age_periods,
             law_age_periods: out.law_age_periods,

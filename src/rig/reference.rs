@@ -12,16 +12,25 @@ pub struct ReferenceStepper {
     osc: Oscillator,
     load: LoadProgramme,
     dt_s: f64,
+    /// Programme step of the oscillator's state.
     k: u64,
+    /// Steps handed out by the iterator.
+    emitted: u64,
 }
 
 impl ReferenceStepper {
     /// Sub-stepping is sized for the largest force the programme reaches within
-    /// `horizon_s` (scanned at the loop rate).
+    /// `horizon_s` (scanned at the loop rate over one pass through its block sequence at
+    /// most: the programme repeats).
     pub fn new(cfg: &HilConfig, horizon_s: f64) -> ReferenceStepper {
         let dt_s = cfg.loop_.dt_s();
-        let load = LoadProgramme::new(&cfg.scenario, cfg.model.length_m);
-        let n = (horizon_s / dt_s).ceil() as u64;
+        let load = LoadProgramme::new(&cfg.programme, cfg.model.length_m);
+        let scan_s = if load.sequence_s() > 0.0 {
+            horizon_s.min(load.sequence_s())
+        } else {
+            horizon_s
+        };
+        let n = (scan_s / dt_s).ceil() as u64;
         let max_force = (0..=n)
             .map(|k| load.force_n(k as f64 * dt_s).abs())
             .fold(0.0, f64::max);
@@ -38,7 +47,30 @@ impl ReferenceStepper {
             load,
             dt_s,
             k: 0,
+            emitted: 0,
         }
+    }
+}
+
+impl ReferenceStepper {
+    /// The displacement at programme step `m` (`t = m dt`), stepping forward to it.
+    pub fn advance_to(&mut self, m: u64) -> f64 {
+        while self.k < m {
+            self.osc.step(
+                self.load.force_n(self.k as f64 * self.dt_s),
+                self.load.force_n((self.k + 1) as f64 * self.dt_s),
+            );
+            self.k += 1;
+        }
+        self.osc.displacement_m()
+    }
+
+    /// Restarts the reference from a measured state at programme step `m` (after an
+    /// operator hold the rig resumes from where it was held, not where the reference
+    /// would be); the element starts relaxed there, as it is after a hold.
+    pub fn resync(&mut self, x_m: f64, v_m_per_s: f64, m: u64) {
+        self.osc.set_state(x_m, v_m_per_s);
+        self.k = m;
     }
 }
 
@@ -47,15 +79,9 @@ impl Iterator for ReferenceStepper {
 
     /// The displacement at the next grid instant (the first call gives `t = 0`).
     fn next(&mut self) -> Option<f64> {
-        if self.k > 0 {
-            let k = self.k - 1;
-            self.osc.step(
-                self.load.force_n(k as f64 * self.dt_s),
-                self.load.force_n((k + 1) as f64 * self.dt_s),
-            );
-        }
-        self.k += 1;
-        Some(self.osc.displacement_m())
+        let x = self.advance_to(self.emitted);
+        self.emitted += 1;
+        Some(x)
     }
 }
 

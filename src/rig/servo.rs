@@ -142,10 +142,10 @@ enum Phase {
         unload: bool,
         operator: bool,
     },
-    /// Back from an operator hold: blend from the hold force to force control.
+    /// Back from an operator hold: blend from the (still active) position hold to force
+    /// control, so the specimen is restrained by both all through the blend.
     Resuming {
         since_step: u64,
-        hold_force_n: f64,
     },
 }
 
@@ -297,16 +297,23 @@ impl Servo {
             if self.trip.is_none() {
                 self.phase = Phase::Resuming {
                     since_step: step_idx,
-                    hold_force_n: self.last_output_n,
                 };
             }
         }
     }
 
-    /// Orderly end requested by the operator: hold, unload, finish.
+    /// Orderly end requested by the operator: hold, unload, finish. The hold's clock
+    /// restarts, so an end after a long operator hold still unloads before finishing.
     pub fn operator_end(&mut self, step_idx: u64) {
         match self.phase {
-            Phase::Holding { ref mut unload, .. } => *unload = true,
+            Phase::Holding {
+                ref mut unload,
+                ref mut since_step,
+                ..
+            } => {
+                *unload = true;
+                *since_step = step_idx;
+            }
             _ => self.enter_hold(step_idx, true, true),
         }
     }
@@ -463,11 +470,9 @@ impl Servo {
                 let (f, mode) = self.force_control_n();
                 (f, rig_state::RUNNING, mode, ProgrammeRequest::Run)
             }
-            Phase::Resuming {
-                since_step,
-                hold_force_n,
-            } => {
+            Phase::Resuming { since_step } => {
                 let (f, mode) = self.force_control_n();
+                let hold = self.hold_force_n(z_measured_m);
                 let w = ((step_idx - since_step) as f64 * self.cfg.period_s
                     / self.cfg.resume_blend_s.max(self.cfg.period_s))
                 .min(1.0);
@@ -475,7 +480,7 @@ impl Servo {
                     self.phase = Phase::Force;
                 }
                 (
-                    (1.0 - w) * hold_force_n + w * f,
+                    (1.0 - w) * hold + w * f,
                     rig_state::RUNNING,
                     mode,
                     ProgrammeRequest::Run,
@@ -501,6 +506,21 @@ impl Servo {
         )
     }
 
+    /// The position hold's force at measured displacement `z_m` (PID about the hold
+    /// position; the load's change since the hold began is fed forward, as equilibrium
+    /// needs it, and the PID takes the rest). Advances the integrator by one period.
+    fn hold_force_n(&mut self, z_m: f64) -> f64 {
+        let dt = self.cfg.period_s;
+        let error_m = z_m - self.hold_position_m;
+        self.hold_integral_m_s += error_m * dt;
+        let velocity = (self.z_history_m[0] - self.z_history_m[1]) / dt;
+        self.hold_feedforward_n
+            + (self.load_now_n - self.hold_load_at_start_n)
+            + self.cfg.hold_kp * error_m
+            + self.cfg.hold_ki * self.hold_integral_m_s
+            + self.cfg.hold_kd * velocity
+    }
+
     fn hold_step(
         &mut self,
         step_idx: u64,
@@ -510,16 +530,7 @@ impl Servo {
         operator: bool,
     ) -> (f64, u32, u32, ProgrammeRequest) {
         let dt = self.cfg.period_s;
-        let error_m = z_m - self.hold_position_m;
-        self.hold_integral_m_s += error_m * dt;
-        let velocity = (self.z_history_m[0] - self.z_history_m[1]) / dt;
-        // The load's change since the hold began is fed forward (equilibrium needs it); the
-        // PID takes the rest.
-        let command_n = self.hold_feedforward_n
-            + (self.load_now_n - self.hold_load_at_start_n)
-            + self.cfg.hold_kp * error_m
-            + self.cfg.hold_ki * self.hold_integral_m_s
-            + self.cfg.hold_kd * velocity;
+        let command_n = self.hold_force_n(z_m);
         // At rest: the window since the hold began is full and within the band.
         let held_periods = step_idx - since_step;
         let window_full = held_periods as usize >= self.rest_len;

@@ -27,6 +27,31 @@ use fastemu::rig::core::RigRecord;
 
 pub(super) static SERIAL: Mutex<()> = Mutex::new(());
 
+/// Serialises the tests that run `hil` (other modules take it too).
+pub fn serial() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Kills a process (SIGTERM twice, then SIGKILL) and reaps nothing: for tests that own
+/// the `Child` themselves and wait on it.
+pub struct KillOnDrop(pub u32);
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        let alive = |pid: u32| unsafe { libc::kill(pid as i32, 0) } == 0;
+        if alive(self.0) {
+            unsafe { libc::kill(self.0 as i32, libc::SIGTERM) };
+            std::thread::sleep(Duration::from_millis(50));
+            unsafe { libc::kill(self.0 as i32, libc::SIGTERM) };
+            let t = Instant::now();
+            while alive(self.0) && t.elapsed() < Duration::from_secs(5) {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            unsafe { libc::kill(self.0 as i32, libc::SIGKILL) };
+        }
+    }
+}
+
 pub(super) const FASTEMU: &str = env!("CARGO_BIN_EXE_fastemu");
 /// The tests' scenario puts the first axle here (the default: 2.0 s) to keep runs short.
 pub(super) const AXLE_S: f64 = 1.0;
@@ -637,6 +662,79 @@ fn an_operator_stop_holds_unloads_and_ends_the_run() {
         .read_all::<EventRecord>()
         .unwrap();
     assert!(events.iter().any(|e| e.kind == event_kind::OPERATOR_STOP));
+    assert_nothing_left(&json);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+fn ctl(args: &[&str]) -> (bool, String) {
+    let out = Command::new(FASTEMU)
+        .arg("ctl")
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.success(),
+        format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        ),
+    )
+}
+
+#[test]
+fn ctl_holds_resumes_and_stops_a_running_run_from_another_process() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = scratch_dir("ctl");
+    let report = dir.join("report");
+    let mut hil = spawn_hil(&write_config(&dir, &[], ""), &report, 30.0);
+    hil.at(0.5);
+    let run_id = format!("fe{}x", hil.pid());
+    let (ok, status) = ctl(&["status"]);
+    assert!(
+        ok && status.contains(&run_id) && status.contains("bench_rig: running"),
+        "{status}"
+    );
+    let id = status.split_whitespace().nth(1).unwrap().to_string();
+    let (ok, text) = ctl(&["--run-id", &id, "hold"]);
+    assert!(ok && text.contains("hold (operator)"), "{text}");
+    std::thread::sleep(Duration::from_millis(600));
+    let (ok, text) = ctl(&["--run-id", &id, "resume"]);
+    assert!(ok && text.contains("running"), "{text}");
+    std::thread::sleep(Duration::from_millis(300));
+    let (ok, text) = ctl(&["--run-id", &id, "stop"]);
+    assert!(ok, "{text}");
+    let (code, json) = hil.finish(Duration::from_secs(60));
+    assert_eq!(code, 0, "{json}\n{}", hil.stderr());
+    assert_eq!(json["operator_stop"], true);
+    let actions = json["safety"]["operator_actions"].as_array().unwrap();
+    assert_eq!(actions.len(), 3, "{actions:?}");
+    // The records show the hold (programme paused), the resume, and the unload to zero.
+    let rig = rig_records(&report);
+    // The first contiguous operator hold (`stop` holds again before it unloads).
+    let held: Vec<&RigRecord> = rig
+        .iter()
+        .skip_while(|r| r.state != rig_state::OPERATOR_HOLD)
+        .take_while(|r| r.state == rig_state::OPERATOR_HOLD)
+        .collect();
+    assert!(
+        held.len() as f64 / 4096.0 > 0.4,
+        "held {} periods",
+        held.len()
+    );
+    assert!(held
+        .iter()
+        .all(|r| r.programme_time_s == held[0].programme_time_s));
+    let resumed = rig
+        .iter()
+        .position(|r| r.t_s > held.last().unwrap().t_s && r.state == rig_state::RUNNING);
+    assert!(resumed.is_some(), "never resumed");
+    assert!(rig.iter().any(|r| r.state == rig_state::UNLOAD));
+    assert_eq!(rig.last().unwrap().external_force_n, 0.0);
+    assert!(
+        !ctl(&["--run-id", &id, "status"]).0,
+        "the finished run is still listed"
+    );
     assert_nothing_left(&json);
     std::fs::remove_dir_all(&dir).ok();
 }

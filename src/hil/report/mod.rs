@@ -39,6 +39,22 @@ pub use latency::Percentiles;
 /// Points per plotted series (each bucket contributes its min and max).
 const PLOT_BUCKETS: usize = 4000;
 
+/// How far the load programme got.
+#[derive(Debug, Clone, Serialize, Default)]
+pub struct ProgrammeSummary {
+    /// Completed passes through the block sequence (durability cycles).
+    pub cycles_completed: u64,
+    /// The block running at the end (index) and its name.
+    pub last_block: u32,
+    pub last_block_name: String,
+    /// Programme time reached, s (it pauses while held).
+    pub programme_time_s: f64,
+    /// Programme time at which it would have ended, s.
+    pub end_s: f64,
+    /// Whether it reached its end (rather than a hold or an operator stop ending the run).
+    pub completed: bool,
+}
+
 /// Where the analysis read the records from.
 #[derive(Debug, Clone, Serialize, Default)]
 pub struct RecordsInfo {
@@ -58,6 +74,7 @@ pub struct Analysis {
     pub latency_ns: Latency,
     pub safety: Safety,
     pub stalls: Stalls,
+    pub programme: ProgrammeSummary,
     /// Largest resonant (>100 Hz) residual before any hold, m: the largest transient.
     pub largest_transient_m: f64,
     pub records: RecordsInfo,
@@ -79,12 +96,16 @@ fn rig_record_from_sample(e: &EmulatorRecord) -> RigRecord {
         t_s: e.t_s,
         step_idx: e.sample_seq,
         x_m: e.z_used_m,
-        v_m_per_s: f64::NAN,
+        // Unknown: a resume from an operator hold restarts the reference at rest.
+        v_m_per_s: 0.0,
         z_measured_m: e.z_used_m,
         command_n: f64::NAN,
         actuator_force_n: e.rig_force_n,
         external_force_n: f64::NAN,
-        programme_time_s: f64::NAN,
+        // Unknown: the rig's sample time stands in (the comparison ends at a hold).
+        programme_time_s: e.t_s,
+        programme_cycle: 0,
+        programme_block: 0,
         command_sample_seq: u64::MAX,
         command_age_periods: 0,
         law_age_periods: 0,
@@ -217,6 +238,8 @@ struct RigPlots {
 /// What the rig pass gives.
 struct RigPass {
     rig_steps: u64,
+    /// The last record's programme position: (cycle, block, programme time).
+    programme_at_end: (u64, u32, f64),
     residual: ResidualAnalyser,
     stalls: Stalls,
     safety: Safety,
@@ -231,9 +254,7 @@ fn read_rig_stream(
 ) -> anyhow::Result<RigPass> {
     let rate = cfg.loop_.rate_hz;
     let dt = cfg.loop_.dt_s();
-    let mut reference = ReferenceStepper::new(cfg, cfg.scenario.duration_s + cfg.safety.hold_max_s);
-    let mut ref_k = 0u64;
-    let mut x_ref_now = f64::NAN;
+    let mut reference = ReferenceStepper::new(cfg, cfg.programme.end_s + cfg.safety.hold_max_s);
     let mut residual = ResidualAnalyser::new(rate);
     let mut high_pass = CentredHighPass::new(rate);
     let mut hp_steps: VecDeque<u64> = VecDeque::new();
@@ -242,8 +263,12 @@ fn read_rig_stream(
     let first_fault = safety.first_fault_s();
     let rig_gaps: std::cell::RefCell<Vec<Gap>> = std::cell::RefCell::new(Vec::new());
     let mut catch_up_run: Option<(f64, u64)> = None;
+    // A fault hold (or the final unload) ends the comparison; an operator hold pauses it,
+    // and the reference restarts from the measured state when the rig resumes.
     let mut held = false;
+    let mut paused = false;
     let mut rig_steps = 0u64;
+    let mut programme_at_end = (0u64, 0u32, 0.0f64);
     let mut plots = RigPlots {
         x_hil: Decimator::new(0.0, 1e-3, PLOT_BUCKETS),
         x_ref: Decimator::new(0.0, 1e-3, PLOT_BUCKETS),
@@ -268,10 +293,14 @@ fn read_rig_stream(
     };
     let mut on_rig_record = |r: &RigRecord| {
         rig_steps += 1;
-        while ref_k <= r.step_idx {
-            x_ref_now = reference.next().unwrap_or(f64::NAN);
-            ref_k += 1;
+        programme_at_end = (r.programme_cycle, r.programme_block, r.programme_time_s);
+        // The reference follows programme time (it pauses while the rig holds).
+        let programme_step = (r.programme_time_s / dt).round() as u64;
+        if paused && r.state == rig_state::RUNNING {
+            paused = false;
+            reference.resync(r.x_m, r.v_m_per_s, programme_step);
         }
+        let x_ref_now = reference.advance_to(programme_step);
         safety.push(r);
         // A process's own gap: consecutive catch-up periods of the rig.
         match (&mut catch_up_run, r.catch_up) {
@@ -285,8 +314,17 @@ fn read_rig_stream(
             }
             _ => {}
         }
-        held |= !matches!(r.state, rig_state::RUNNING | rig_state::STARTING);
-        if !held {
+        held |= matches!(r.state, rig_state::HOLD | rig_state::UNLOAD);
+        if r.state == rig_state::OPERATOR_HOLD && !paused {
+            // The segment before the hold is complete: flush the high-pass.
+            paused = true;
+            for out in high_pass.finish() {
+                on_hp(out, &mut hp_steps, &mut residual, &mut stalls);
+            }
+            hp_steps.clear();
+            high_pass = CentredHighPass::new(rate);
+        }
+        if !held && !paused {
             residual.push_displacement(r.x_m, x_ref_now);
             stalls.push_law_age(r.step_idx, r.law_age_periods);
             hp_steps.push_back(r.step_idx);
@@ -324,6 +362,7 @@ fn read_rig_stream(
     let stalls = stalls.finish(&sources);
     Ok(RigPass {
         rig_steps,
+        programme_at_end,
         residual,
         stalls,
         safety: safety.finish(),
@@ -375,7 +414,36 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
         wake_jitter: percentiles(&side.wake_jitter),
     };
     draw_plots(dir, &side, &rig)?;
+    let (cycle, block, programme_time_s) = rig.programme_at_end;
+    let end_s = cfg.programme.end_s;
+    // The rig's last record is the period before the end: within one period of it.
+    let completed = programme_time_s + 1.5 * cfg.loop_.dt_s() >= end_s;
+    let sequence_s: f64 = cfg
+        .programme
+        .blocks
+        .iter()
+        .map(|b| b.duration_s * b.repeat as f64)
+        .sum();
+    // Passes finished by the end of the last recorded period.
+    let finished_passes = if sequence_s > 0.0 {
+        ((programme_time_s + 1.5 * cfg.loop_.dt_s()) / sequence_s).floor() as u64
+    } else {
+        cycle
+    };
+    let programme = ProgrammeSummary {
+        cycles_completed: finished_passes.max(cycle),
+        last_block: block,
+        last_block_name: cfg
+            .programme
+            .blocks
+            .get(block as usize)
+            .map_or(String::new(), |b| b.name.clone()),
+        programme_time_s,
+        end_s,
+        completed,
+    };
     Ok(Analysis {
+        programme,
         steps: side.emulator_steps,
         rig_steps: rig.rig_steps,
         fidelity: rig.residual.fidelity(&bands(cfg)),
