@@ -33,6 +33,8 @@
  * CLOCK_MONOTONIC time of sample 0: the rig takes sample k at start_time_ns + k * T
  * (T = 1 / [loop] rate_hz of the configuration; 244140.625 ns -> 244141 ns at 4096 Hz)
  * and publishes it at once, with publish_time_ns = CLOCK_MONOTONIC now.
+ * The iceoryx2 version must be fastemu's (0.10; any language binding), payloads without
+ * a user header.
  * Heartbeats: after the start, one every 10 ms {process 0, state (FASTEMU_RIG_*),
  * sequence, time_ns, fault_code}. hil treats 1 s without one as the rig lost.
  *
@@ -98,7 +100,8 @@
  * header.sequence counts the sender's datagrams of that kind from 0, +1 each.
  * header.sender_time_ns is the sender's own monotonic clock (any epoch).
  * START: the rig takes sample 0 start_delay_ns after the START datagram arrived and runs
- * at period_ns (refuse a START whose period_ns is not the rig's own). The rig's clock
+ * at period_ns (refuse a START whose period_ns differs from the rig's own by more than
+ * rounding; fastemu likewise checks the status datagram's period). The rig's clock
  * then runs free: fastemu steps its model once per sample, whenever it arrives.
  * Echo for the link's round trip: each sample carries the sender_time_ns of the newest
  * command datagram the rig received and the rig time since it read that datagram.

@@ -166,7 +166,7 @@ fn receive_loop(
             .store(r.arrival_ns, Ordering::Relaxed);
         match r.datagram {
             Datagram::Status(s) => {
-                if s.period_ns != period_ns {
+                if !super::protocol::same_period(s.period_ns, period_ns) {
                     receiver.reject_content(&r);
                     shared.wrong_period_ns.store(s.period_ns, Ordering::Relaxed);
                     continue;

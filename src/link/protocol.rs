@@ -53,6 +53,13 @@ pub fn datagram_bytes(kind: u16) -> Option<usize> {
     }
 }
 
+/// Whether a peer's period is the same loop period: equal up to rounding (a relative
+/// 1e-5, 2.4 ns at 4096 Hz), so a rig that truncates 1e9/4096 instead of rounding it
+/// is not refused.
+pub fn same_period(a_ns: u64, b_ns: u64) -> bool {
+    a_ns.abs_diff(b_ns) as f64 <= 1e-5 * a_ns.max(b_ns) as f64
+}
+
 /// Which end of the link decodes: each accepts only the kinds sent to it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Side {

@@ -98,7 +98,9 @@ impl UdpRigEnd {
                             | run_command::RESUME
                             | run_command::END
                     );
-                    if !known || (c.command == run_command::START && c.period_ns != self.period_ns)
+                    if !known
+                        || (c.command == run_command::START
+                            && !super::protocol::same_period(c.period_ns, self.period_ns))
                     {
                         self.receiver.reject_content(&received);
                         continue;
