@@ -30,7 +30,7 @@ use fastemu::rt::CycleStats;
 
 use super::hil_processes::{
     assert_hold_in_records, assert_nothing_left, faults, scratch_dir, spawn_hil_with, the_child,
-    write_config, AXLE_S, FASTEMU, SERIAL,
+    write_config, Hil, AXLE_S, FASTEMU, SERIAL,
 };
 
 const EXAMPLE_RIG: &str = env!("CARGO_BIN_EXE_example_rig");
@@ -359,17 +359,24 @@ fn port_in(stderr: &str, what: &str) -> Option<SocketAddr> {
         .ok()
 }
 
-#[test]
-fn udp_link_run_is_clean_and_faithful_under_garbage_and_replays() {
-    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let dir = scratch_dir("udp-link");
+/// `hil --rig-link udp` for 3 s of the default scenario (first axle at `AXLE_S`):
+/// (scratch directory, report directory, the running `hil`).
+fn spawn_udp_run(name: &str) -> (std::path::PathBuf, std::path::PathBuf, Hil) {
+    let dir = scratch_dir(name);
     let report = dir.join("report");
-    let mut hil = spawn_hil_with(
+    let hil = spawn_hil_with(
         &write_config(&dir, &[], ""),
         &report,
         3.0,
         &["--rig-link", "udp"],
     );
+    (dir, report, hil)
+}
+
+#[test]
+fn udp_link_run_is_clean_and_faithful_under_garbage_and_replays() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let (dir, report, mut hil) = spawn_udp_run("udp-link");
     hil.at(0.2);
     let stderr = hil.stderr();
     let link = port_in(&stderr, "fastemu's link at ").expect("link address printed");
@@ -450,14 +457,7 @@ fn udp_link_run_is_clean_and_faithful_under_garbage_and_replays() {
 #[test]
 fn killing_the_link_leaves_the_far_rig_holding() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let dir = scratch_dir("link-kill");
-    let report = dir.join("report");
-    let mut hil = spawn_hil_with(
-        &write_config(&dir, &[], ""),
-        &report,
-        3.0,
-        &["--rig-link", "udp"],
-    );
+    let (dir, report, mut hil) = spawn_udp_run("link-kill");
     let link = the_child(&hil, " link --bind");
     hil.at(AXLE_S);
     unsafe { libc::kill(link as i32, libc::SIGKILL) };
