@@ -16,7 +16,7 @@
 //! `fastemu hil --rig external --rig-link udp --link-bind 127.0.0.1:50000 --link-peer
 //! 127.0.0.1:50001` then `example_rig --udp 127.0.0.1:50001 127.0.0.1:50000`.
 //! Options: --rate-hz 4096 --duration-s 6 --mass-kg 60.16 --damping-ns-per-m 3600
-//! --preload-n 0 --amplitude-n 4000 --frequency-hz 2 --stale-periods 100.
+//! --preload-n 0 --amplitude-n 4000 --frequency-hz 2 --stale-periods 205.
 
 use std::net::{SocketAddr, UdpSocket};
 use std::time::Duration;
@@ -504,7 +504,7 @@ fn lead_weights(order: usize, h: f64, lead: f64) -> ([f64; 4], [f64; 4]) {
 
 /// A rig's loop is real-time: SCHED_FIFO 80 and locked memory where the OS permits (as
 /// root, or with CAP_SYS_NICE), else a warning: a rig that stalls for longer than
-/// fastemu's stale-sample limit (39 ms by default) trips the emulator.
+/// fastemu's stale-sample limit (59 ms by default) trips the emulator.
 fn real_time() {
     // SAFETY: plain system calls on this process with valid arguments.
     unsafe {
@@ -768,7 +768,7 @@ fn main() -> std::process::ExitCode {
         preload_n: 0.0,
         amplitude_n: 4000.0,
         frequency_hz: 2.0,
-        stale_periods: 100,
+        stale_periods: 205,
     };
     let mut transport: Option<Box<dyn Transport>> = None;
     let mut i = 0;

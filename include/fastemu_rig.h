@@ -66,7 +66,7 @@
  *  d. The rig's own interlock: once a first command has arrived, more than N periods
  *     without a new command (any mode; keep-alive repeats count: fastemu repeats the last
  *     command every 8 periods when it has nothing new) latch fault 20 commands-stale
- *     and hold (as HOLD). N = [rig] command_stale_periods (100 = 24 ms by default). The
+ *     and hold (as HOLD). N = [rig] command_stale_periods (205 = 50 ms by default). The
  *     rig detects this itself: it holds even when every fastemu process is dead, the
  *     link is cut, or the network is flooded.
  *  e. Run control: STOP ends the session now; HOLD (operator) holds position and pauses

@@ -353,6 +353,16 @@ pub struct ProgrammeConfig {
     pub end_s: f64,
 }
 
+impl ProgrammeConfig {
+    /// Length of one pass through the block sequence, s.
+    pub fn sequence_s(&self) -> f64 {
+        self.blocks
+            .iter()
+            .map(|b| b.duration_s * b.repeat as f64)
+            .sum()
+    }
+}
+
 /// A loop process, as named in `[[inject]] process`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum LoopProcess {
@@ -652,6 +662,16 @@ pub fn parse_hil_config(
             ),
         ));
     }
+    if (controller.emulator_heartbeat_timeout_ns as f64) < safety.stall_limit_s * 1e9 {
+        return Err(check.err(
+            "controller.emulator_heartbeat_timeout_ms",
+            format!(
+                "{} is not valid: expected at least the ride-through limit ([safety] stall_limit_ms = {} ms), or a stall the loop rides through would trip it",
+                controller.emulator_heartbeat_timeout_ns as f64 * 1e-6,
+                safety.stall_limit_s * 1e3
+            ),
+        ));
+    }
     Ok(HilConfig {
         origin: origin.to_string(),
         loop_,
@@ -675,12 +695,7 @@ impl HilConfig {
         if self.programme.blocks.len() == 1 && self.programme.blocks[0].name == SCENARIO_BLOCK {
             self.programme.blocks[0].duration_s = duration_s;
         }
-        let sequence: f64 = self
-            .programme
-            .blocks
-            .iter()
-            .map(|b| b.duration_s * b.repeat as f64)
-            .sum();
+        let sequence = self.programme.sequence_s();
         self.programme.end_s = if self.programme.repeat > 0 {
             duration_s.min(sequence * self.programme.repeat as f64)
         } else {
@@ -790,11 +805,7 @@ fn parse_programme(
         repeat: raw.repeat,
         end_s: scenario.duration_s,
     };
-    let sequence: f64 = programme
-        .blocks
-        .iter()
-        .map(|b| b.duration_s * b.repeat as f64)
-        .sum();
+    let sequence = programme.sequence_s();
     if programme.repeat > 0 {
         programme.end_s = scenario.duration_s.min(sequence * programme.repeat as f64);
     }

@@ -157,19 +157,12 @@ pub fn run_controller(
         reserved: core.emulator_fault_code(),
     });
     let written = recorder.finish();
-    let counts = |topic: &str| {
-        written
-            .counts
-            .iter()
-            .find(|(t, _)| t == topic)
-            .map_or(SinkCounts::default(), |(_, c)| *c)
-    };
     let summary = ControllerSummary {
         commands: commands_sent,
         limited_commands: core.limited_commands,
         repeated_commands: core.repeated_commands,
-        records: counts("/controller"),
-        events: counts("/events"),
+        records: written.counts_of("/controller"),
+        events: written.counts_of("/events"),
         record_error: written.error,
         fault: core.fault().map(|f| f.name().to_string()),
         emulator_fault: (core.emulator_fault_code() != 0)

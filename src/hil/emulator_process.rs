@@ -190,13 +190,6 @@ pub fn run_emulator(
         reserved: 0,
     });
     let written = recorder.finish();
-    let counts = |topic: &str| {
-        written
-            .counts
-            .iter()
-            .find(|(t, _)| t == topic)
-            .map_or(SinkCounts::default(), |(_, c)| *c)
-    };
     let summary = EmulatorSummary {
         cycles: core.counts.cycles,
         model_steps: core.counts.model_steps,
@@ -204,8 +197,8 @@ pub fn run_emulator(
         missing_samples: core.counts.missing_samples,
         missed_deadlines: core.counts.missed_deadlines,
         longest_stall_ms: core.counts.longest_stall_ns as f64 * 1e-6,
-        records: counts("/emulator"),
-        events: counts("/events"),
+        records: written.counts_of("/emulator"),
+        events: written.counts_of("/events"),
         record_error: written.error,
         fault: core.fault().map(|f| f.name().to_string()),
     };

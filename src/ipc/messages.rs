@@ -122,6 +122,20 @@ impl LocalLaw {
     }
 }
 
+impl From<crate::model::effects::LocalLinearLaw> for LocalLaw {
+    fn from(l: crate::model::effects::LocalLinearLaw) -> LocalLaw {
+        LocalLaw {
+            force_n: l.force_n,
+            displacement_m: l.displacement_m,
+            velocity_m_per_s: l.velocity_m_per_s,
+            stiffness_n_per_m: l.stiffness_n_per_m,
+            damping_ns_per_m: l.damping_ns_per_m,
+            force_rate_n_per_s: l.force_rate_n_per_s,
+            stiffness_slope_n_per_m2: l.stiffness_slope_n_per_m2,
+        }
+    }
+}
+
 /// Emulator state carried in `ForceSetpoint::emulator_state` and heartbeats.
 pub mod emulator_state {
     pub const STARTING: u32 = 0;

@@ -682,6 +682,12 @@ fn normal_quantile(p: f64) -> f64 {
     }
 }
 
+/// The springpot coefficient at the model's temperature: `c (a_T s)^alpha b_T`, the
+/// temperature shift scaling the coefficient (`factors` = (modulus, time) factors).
+fn shifted_springpot_coefficient(coefficient: f64, alpha: f64, factors: (f64, f64)) -> f64 {
+    coefficient * factors.0 * factors.1.powf(alpha)
+}
+
 /// A model's local linear law (see `ModelStepper::local_law`).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct LocalLinearLaw {
@@ -741,9 +747,11 @@ impl ModelStepper {
                     coefficient_ns_alpha_per_m,
                     alpha,
                 } => {
-                    // c (a_T s)^alpha b_T: the temperature shift scales the coefficient.
-                    let coefficient =
-                        coefficient_ns_alpha_per_m * modulus_factor * time_factor.powf(alpha);
+                    let coefficient = shifted_springpot_coefficient(
+                        coefficient_ns_alpha_per_m,
+                        alpha,
+                        (modulus_factor, time_factor),
+                    );
                     let springpot = SpringpotBank::new(coefficient, alpha);
                     let mut state = BankState {
                         rates_per_s: springpot.rates_per_s,
@@ -818,8 +826,11 @@ impl ModelStepper {
                     coefficient_ns_alpha_per_m,
                     alpha,
                 } => {
-                    let coefficient =
-                        coefficient_ns_alpha_per_m * modulus_factor * time_factor.powf(alpha);
+                    let coefficient = shifted_springpot_coefficient(
+                        coefficient_ns_alpha_per_m,
+                        alpha,
+                        (modulus_factor, time_factor),
+                    );
                     let (re, im) = SpringpotBank::new(coefficient, alpha).modulus(omega);
                     k += re;
                     if omega > 0.0 {

@@ -19,9 +19,9 @@ use crossbeam::queue::ArrayQueue;
 use super::{Record, META_TOPIC, PROFILE};
 
 /// Longest time a record waits in memory before its chunk is closed and flushed.
-pub const FLUSH_INTERVAL: Duration = Duration::from_millis(50);
+pub const FLUSH_INTERVAL: Duration = Duration::from_millis(80);
 /// A part file is finished and the next begun after this long.
-pub const ROLL_INTERVAL: Duration = Duration::from_secs(600);
+pub const ROLL_INTERVAL: Duration = Duration::from_secs(300);
 /// The writer thread's poll period.
 const POLL: Duration = Duration::from_millis(2);
 
@@ -210,6 +210,16 @@ pub struct WriterResult {
     pub error: Option<String>,
 }
 
+impl WriterResult {
+    /// The counts of `topic` (zeros if it was not recorded).
+    pub fn counts_of(&self, topic: &str) -> SinkCounts {
+        self.counts
+            .iter()
+            .find(|(t, _)| t == topic)
+            .map_or(SinkCounts::default(), |(_, c)| *c)
+    }
+}
+
 impl Recorder {
     /// Gives the writer the run's time base (Unix ns at loop time 0) and the `/meta`
     /// message (JSON); records are written from now on. Call before the loop starts.
@@ -317,23 +327,25 @@ fn write_loop(
         .map(|m| m.clone())
         .unwrap_or_default();
     let mut index = 0;
-    let mut current = match open_part(
-        parts_dir,
-        process,
-        index,
-        &mut drains,
-        &meta_json,
-        start_unix_ns,
-    ) {
-        Ok((w, p)) => {
-            result.files.push(p);
-            Some(w)
-        }
-        Err(e) => {
-            result.error = Some(e);
-            None
-        }
-    };
+    let open =
+        |index: usize, drains: &mut [Box<dyn Drain>], result: &mut WriterResult| match open_part(
+            parts_dir,
+            process,
+            index,
+            drains,
+            &meta_json,
+            start_unix_ns,
+        ) {
+            Ok((w, p)) => {
+                result.files.push(p);
+                Some(w)
+            }
+            Err(e) => {
+                result.error.get_or_insert(e);
+                None
+            }
+        };
+    let mut current = open(index, &mut drains, &mut result);
     let mut last_flush = Instant::now();
     let mut part_started = Instant::now();
     loop {
@@ -361,23 +373,7 @@ fn write_loop(
                 }
                 index += 1;
                 part_started = Instant::now();
-                current = match open_part(
-                    parts_dir,
-                    process,
-                    index,
-                    &mut drains,
-                    &meta_json,
-                    start_unix_ns,
-                ) {
-                    Ok((w, p)) => {
-                        result.files.push(p);
-                        Some(w)
-                    }
-                    Err(e) => {
-                        result.error.get_or_insert(e);
-                        None
-                    }
-                };
+                current = open(index, &mut drains, &mut result);
             }
         } else {
             for d in drains.iter_mut() {

@@ -339,13 +339,6 @@ fn run_rig_loop(
         },
     );
     let written = recorder.finish();
-    let counts = |topic: &str| {
-        written
-            .counts
-            .iter()
-            .find(|(t, _)| t == topic)
-            .map_or(SinkCounts::default(), |(_, c)| *c)
-    };
     Ok(RigSummary {
         steps: core.step_idx(),
         missed_deadlines: missed,
@@ -354,8 +347,8 @@ fn run_rig_loop(
         held: core.servo().holding(),
         at_rest: core.servo().at_rest(),
         orchestrator_lost,
-        records: counts("/rig"),
-        events: counts("/events"),
+        records: written.counts_of("/rig"),
+        events: written.counts_of("/events"),
         record_error: written.error,
         link: None,
     })

@@ -55,6 +55,9 @@ impl Drop for KillOnDrop {
 pub(super) const FASTEMU: &str = env!("CARGO_BIN_EXE_fastemu");
 /// The tests' scenario puts the first axle here (the default: 2.0 s) to keep runs short.
 pub(super) const AXLE_S: f64 = 1.0;
+/// How long `hil` waits for another run's machine-wide lock before it gives up: a test
+/// waits that long too (another checkout's tests may be running).
+pub const LOCK_WAIT: Duration = Duration::from_secs(300);
 
 /// A running `hil`: killed (SIGTERM, then SIGKILL) and reaped on every exit path.
 pub(super) struct Hil {
@@ -161,7 +164,7 @@ impl Hil {
     pub(super) fn at(&self, t_s: f64) {
         let start = self
             .started
-            .recv_timeout(Duration::from_secs(30))
+            .recv_timeout(LOCK_WAIT + Duration::from_secs(30))
             .expect("hil did not start its loops");
         let when = start + Duration::from_secs_f64(t_s);
         std::thread::sleep(when.saturating_duration_since(Instant::now()));
@@ -169,6 +172,7 @@ impl Hil {
 
     /// Waits for `hil` to exit (at most `timeout`); returns (exit code, parsed JSON).
     pub(super) fn finish(&mut self, timeout: Duration) -> (i32, serde_json::Value) {
+        let timeout = timeout + LOCK_WAIT;
         let child = self.child.as_mut().unwrap();
         let t = Instant::now();
         let status = loop {
@@ -260,7 +264,11 @@ pub(super) fn the_child(hil: &Hil, needle: &str) -> u32 {
         if let Some(&pid) = children_of(hil.pid(), needle).first() {
             return pid;
         }
-        assert!(t.elapsed() < Duration::from_secs(20), "no {needle} child");
+        // `hil` may first wait (up to 300 s) for another run's machine lock.
+        assert!(
+            t.elapsed() < LOCK_WAIT + Duration::from_secs(20),
+            "no {needle} child"
+        );
         std::thread::sleep(Duration::from_millis(20));
     }
 }

@@ -418,12 +418,7 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
     let end_s = cfg.programme.end_s;
     // The rig's last record is the period before the end: within one period of it.
     let completed = programme_time_s + 1.5 * cfg.loop_.dt_s() >= end_s;
-    let sequence_s: f64 = cfg
-        .programme
-        .blocks
-        .iter()
-        .map(|b| b.duration_s * b.repeat as f64)
-        .sum();
+    let sequence_s = cfg.programme.sequence_s();
     // Passes finished by the end of the last recorded period.
     let finished_passes = if sequence_s > 0.0 {
         ((programme_time_s + 1.5 * cfg.loop_.dt_s()) / sequence_s).floor() as u64

@@ -1,0 +1,54 @@
+#!/usr/bin/env bash
+# Soak figures for the README (issue 11): one long `fastemu hil` run of the durability
+# programme, each process's resident memory sampled every 10 s, then the report's
+# deadline misses, stalls, transients and the record size per hour.
+#
+#   benches/soak.sh [DURATION_S] [OUT_DIR]      (default: 3600 s, out/soak)
+#
+# Needs a release build (cargo build --release). Timings stay out of pass/fail tests:
+# this prints figures; it fails only if the run itself fails.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+DURATION=${1:-3600}
+OUT=${2:-out/soak}
+EXE=target/release/fastemu
+[ -x "$EXE" ] || { echo "build first: cargo build --release" >&2; exit 1; }
+rm -rf "$OUT"; mkdir -p "$OUT"
+"$EXE" hil --config configs/hil-durability.toml --duration-s "$DURATION" --json --out "$OUT/report" \
+    > "$OUT/summary.json" 2> "$OUT/hil.err" &
+HIL=$!
+echo "soak: $DURATION s, report in $OUT/report; memory samples in $OUT/rss.tsv" >&2
+printf 't_s\tprocess\trss_kb\n' > "$OUT/rss.tsv"
+START=$(date +%s)
+while kill -0 "$HIL" 2>/dev/null; do
+  NOW=$(( $(date +%s) - START ))
+  for p in $(pgrep -P "$HIL" || true); do
+    name=$(tr '\0' ' ' < "/proc/$p/cmdline" 2>/dev/null | awk '{n=$1; sub(".*/","",n); print ($2 ~ /^--/ ? n : n"-"$2)}')
+    rss=$(awk '/VmRSS/{print $2}' "/proc/$p/status" 2>/dev/null || true)
+    [ -n "$rss" ] && printf '%s\t%s\t%s\n' "$NOW" "$name" "$rss" >> "$OUT/rss.tsv"
+  done
+  rss=$(awk '/VmRSS/{print $2}' "/proc/$HIL/status" 2>/dev/null || true)
+  [ -n "$rss" ] && printf '%s\thil\t%s\n' "$NOW" "$rss" >> "$OUT/rss.tsv"
+  sleep 10
+done
+wait "$HIL" || echo "soak: hil exited with $?" >&2
+python3 - "$OUT" "$DURATION" <<'PY'
+import json, os, sys, collections
+out, duration = sys.argv[1], float(sys.argv[2])
+s = json.load(open(os.path.join(out, "summary.json")))
+rss = collections.defaultdict(list)
+for line in open(os.path.join(out, "rss.tsv")).read().splitlines()[1:]:
+    t, p, kb = line.split("\t"); rss[p].append((int(t), int(kb)))
+print(f"soak: {duration:.0f} s requested, exit {'clean' if s.get('clean') else 'not clean: ' + '; '.join(s.get('not_clean_because', []))}")
+for p, v in sorted(rss.items()):
+    first = next((kb for t, kb in v if t >= 60), v[0][1]); last = v[-1][1]
+    print(f"  {p:22s} RSS at 1 min {first/1024:6.1f} MB, at the end ({v[-1][0]} s) {last/1024:6.1f} MB, change {(last-first)/1024:+.1f} MB")
+steps = s["steps"]; misses = s["deadline_misses"]
+print(f"  model steps {steps}, emulator deadline misses {misses} ({misses/max(steps,1):.1e})")
+st = s.get("stalls") or {}
+print(f"  stalls {st.get('count')}, longest {st.get('longest_ms', 0):.1f} ms, largest transient {st.get('largest_transient_um', 0):.2f} um; largest transient overall {s.get('largest_transient_um', 0):.2f} um")
+print(f"  faults {s['faults']}; displacement error {s['fidelity']['displacement_rel_rms']*100:.3f} %; cycles {s['programme']['cycles_completed']}")
+size = os.path.getsize(os.path.join(out, "report", "records.mcap")) if os.path.exists(os.path.join(out, "report", "records.mcap")) else 0
+run_s = s['programme']['programme_time_s'] or duration
+print(f"  records.mcap {size/1e6:.1f} MB = {size/1e9*3600/run_s:.2f} GB per hour")
+PY
