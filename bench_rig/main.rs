@@ -1,10 +1,12 @@
-//! `bench_rig`: the simulated rig process (hardware stand-in). Physics, servo and process
-//! loop live in `fastemu::rig`; this file only parses arguments.
+//! `bench_rig`: the simulated rig process (hardware stand-in), on iceoryx2 or as the far
+//! end of the UDP rig link (`--link-bind`, `--link-peer`); started by `hil`, or by hand as
+//! an external rig (`hil --rig external`). Physics, servo and process loop live in
+//! `fastemu::rig`; this file only parses arguments.
 
 use std::process::ExitCode;
 
 use clap::Parser;
-use fastemu::cli::loopproc::{run_rig_command, LoopProcessArgs};
+use fastemu::cli::loopproc::{run_rig_command, RigArgs};
 
 #[derive(Parser)]
 #[command(
@@ -13,7 +15,7 @@ use fastemu::cli::loopproc::{run_rig_command, LoopProcessArgs};
 )]
 struct Cli {
     #[command(flatten)]
-    args: LoopProcessArgs,
+    args: RigArgs,
 }
 
 fn main() -> ExitCode {

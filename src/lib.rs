@@ -8,6 +8,7 @@ pub mod csvio;
 pub mod hil;
 pub mod ident;
 pub mod ipc;
+pub mod link;
 pub mod live;
 pub mod model;
 pub mod paper;

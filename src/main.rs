@@ -43,7 +43,10 @@ enum Command {
     /// The simulated rig in this binary (what `bench_rig` runs; used by `hil` when the
     /// `bench_rig` binary was not built, e.g. after `cargo run --release -- hil`).
     #[command(hide = true)]
-    Rig(cli::loopproc::LoopProcessArgs),
+    Rig(cli::loopproc::RigArgs),
+    /// fastemu's end of the UDP rig link (started by `hil --rig-link udp`).
+    #[command(hide = true)]
+    Link(cli::link::LinkArgs),
     /// Re-run the emulator's model on a recorded input stream; verify bit-identical forces.
     Replay(cli::replay::ReplayArgs),
     /// Export a run's records (records.mcap) as CSV files.
@@ -69,6 +72,7 @@ fn main() -> std::process::ExitCode {
         Command::Export(args) => cli::export::run(args),
         Command::Ctl(args) => cli::ctl::run(args),
         Command::Rig(args) => cli::loopproc::run_rig_command(args),
+        Command::Link(args) => cli::link::run(args),
     };
     match result {
         Ok(code) => code,

@@ -110,6 +110,8 @@ pub struct LatencyPeerArgs {
     #[arg(long)]
     pub parent_udp_port: u16,
     #[arg(long)]
+    pub peer_udp_port: u16,
+    #[arg(long)]
     pub parent_uds: PathBuf,
     #[arg(long)]
     pub peer_uds: PathBuf,
@@ -286,6 +288,7 @@ fn run_latency_peer(args: LatencyPeerArgs) -> anyhow::Result<ExitCode> {
         control_path: args.control,
         iox_prefix: args.iox_prefix,
         parent_udp_port: args.parent_udp_port,
+        peer_udp_port: args.peer_udp_port,
         parent_uds_path: args.parent_uds,
         peer_uds_path: args.peer_uds,
         rt: RtSetup {

@@ -11,7 +11,7 @@ use serde_json::json;
 
 use crate::hil::config::{load_or_default, HilConfig, DEFAULT_CONFIG_TOML};
 use crate::hil::orchestrator::{
-    install_signal_handlers, lock_machine, new_run_id, run_processes, RunOutcome, RunPlan,
+    install_signal_handlers, lock_machine, new_run_id, run_processes, RigSetup, RunOutcome, RunPlan,
 };
 use crate::hil::report::{analyse_run, Analysis};
 use crate::ipc::cleanup::clear_stale_runs;
@@ -50,6 +50,172 @@ pub struct HilArgs {
     /// Messages per second of the live displacement and force channels.
     #[arg(long, default_value_t = 512.0)]
     pub live_rate_hz: f64,
+    #[command(flatten)]
+    pub rig: RigArgs,
+}
+
+/// Which rig, and how it connects (README "Connecting a rig").
+#[derive(Debug, Clone, Args)]
+pub struct RigArgs {
+    /// `sim`: the simulated rig, started by hil; `external`: wait for a rig that fastemu
+    /// did not start (hil prints where it must connect).
+    #[arg(long = "rig", value_parser = ["sim", "external"], default_value = "sim")]
+    pub kind: String,
+    /// `ipc`: iceoryx2 shared memory; `udp`: the UDP rig link (with `--rig sim`, the
+    /// simulated rig on the far side of a loopback link).
+    #[arg(long = "rig-link", value_parser = ["ipc", "udp"], default_value = "ipc")]
+    pub link: String,
+    /// Run id for an external rig: the services are `fastemu/<NAME>/...` and the iceoryx2
+    /// files `<NAME>_*` (letters, digits, `_`, `-`); default a fresh id, printed.
+    #[arg(long, value_name = "NAME")]
+    pub run_id: Option<String>,
+    /// `--rig external --rig-link udp`: fastemu's end, the address of the interface that
+    /// faces the rig (IP:PORT; never 0.0.0.0).
+    #[arg(long, value_name = "IP:PORT")]
+    pub link_bind: Option<String>,
+    /// `--rig external --rig-link udp`: the rig's address; datagrams from anywhere else
+    /// are rejected.
+    #[arg(long, value_name = "IP:PORT")]
+    pub link_peer: Option<String>,
+    /// How long to wait for an external rig, s.
+    #[arg(long, default_value_t = 120.0)]
+    pub rig_wait_s: f64,
+}
+
+impl RigArgs {
+    fn external(&self) -> bool {
+        self.kind == "external"
+    }
+    fn udp(&self) -> bool {
+        self.link == "udp"
+    }
+}
+
+/// Letters, digits, `_` and `-`, 1 to 40 of them: a valid iceoryx2 file prefix and
+/// service-name segment.
+fn check_run_id(id: &str) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        !id.is_empty()
+            && id.len() <= 40
+            && id
+                .bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-'),
+        "--run-id `{id}` is not valid: expected 1 to 40 letters, digits, `_` or `-`"
+    );
+    Ok(())
+}
+
+/// The rig setup the arguments ask for (checked).
+fn rig_setup(rig: &RigArgs) -> anyhow::Result<RigSetup> {
+    use crate::link::socket::{free_loopback_pair, parse_link_address};
+    anyhow::ensure!(
+        rig.rig_wait_s > 0.0 && rig.rig_wait_s.is_finite(),
+        "--rig-wait-s {}: expected a number of seconds > 0",
+        rig.rig_wait_s
+    );
+    let wait = std::time::Duration::from_secs_f64(rig.rig_wait_s);
+    match (rig.external(), rig.udp()) {
+        (false, false) | (true, false) => {
+            anyhow::ensure!(
+                rig.link_bind.is_none() && rig.link_peer.is_none(),
+                "--link-bind and --link-peer need --rig-link udp"
+            );
+            Ok(if rig.external() {
+                RigSetup::External { wait }
+            } else {
+                RigSetup::Simulated
+            })
+        }
+        (false, true) => {
+            anyhow::ensure!(
+                rig.link_bind.is_none() && rig.link_peer.is_none(),
+                "--rig sim --rig-link udp puts the simulated rig on a loopback link that hil sets up; --link-bind and --link-peer are for --rig external"
+            );
+            let (link, rig) = free_loopback_pair()?;
+            Ok(RigSetup::SimulatedUdp { link, rig })
+        }
+        (true, true) => {
+            let (Some(bind), Some(peer)) = (&rig.link_bind, &rig.link_peer) else {
+                anyhow::bail!("--rig external --rig-link udp needs --link-bind IP:PORT (this machine's interface facing the rig) and --link-peer IP:PORT (the rig)");
+            };
+            Ok(RigSetup::ExternalUdp {
+                link: parse_link_address("--link-bind", bind)?,
+                rig: parse_link_address("--link-peer", peer)?,
+                wait,
+            })
+        }
+    }
+}
+
+/// Tells the operator where an external rig must connect.
+fn print_rig_instructions(run_id: &str, setup: &RigSetup) {
+    use crate::ipc::messages::ABI_VERSION;
+    use crate::ipc::{IpcNode, Stream};
+    match setup {
+        RigSetup::External { wait } => {
+            let service = |s| IpcNode::stream_service_name(run_id, s);
+            eprintln!(
+                "hil: waiting up to {} s for an external rig on iceoryx2 (rig ABI version {ABI_VERSION}, include/fastemu_rig.h):\n\
+                 hil:   run id {run_id}: iceoryx2 config global.prefix = \"{run_id}_\"\n\
+                 hil:   publish DisplacementSample on {} and Heartbeat on {}\n\
+                 hil:   subscribe to ActuatorCommand on {} and RunControl on {}\n\
+                 hil:   e.g. bench_rig --run-id {run_id} --config <this config> --out <dir>",
+                wait.as_secs_f64(),
+                service(Stream::Displacement),
+                service(Stream::Heartbeat),
+                service(Stream::Command),
+                service(Stream::Control),
+            );
+        }
+        RigSetup::ExternalUdp { link, rig, wait } => eprintln!(
+            "hil: waiting up to {} s for an external rig on the UDP link (link protocol version {}, README \"UDP rig link\"): fastemu at {link}, the rig at {rig}; the rig sends status datagrams to {link} until it gets START",
+            wait.as_secs_f64(),
+            crate::link::protocol::LINK_VERSION
+        ),
+        RigSetup::SimulatedUdp { link, rig } => eprintln!(
+            "hil: the simulated rig behind a loopback UDP link: fastemu's link at {link}, the rig at {rig}"
+        ),
+        RigSetup::Simulated => {}
+    }
+}
+
+/// The `link` object of the report: fastemu's end (`link-summary.json`) and, with the
+/// simulated rig, the rig's end (`rig-summary.json`).
+fn link_report(out_dir: &std::path::Path, setup: &RigSetup) -> serde_json::Value {
+    if matches!(setup, RigSetup::Simulated | RigSetup::External { .. }) {
+        return serde_json::Value::Null;
+    }
+    let mut link = read_json(&out_dir.join("link-summary.json"));
+    if link.is_null() {
+        return json!({"transport": "udp", "error": "the link process wrote no summary"});
+    }
+    let one_way = link["sample_one_way_ns"].clone();
+    let (latency, basis) = if one_way.is_object() {
+        (
+            one_way,
+            "sample datagram, rig sent -> fastemu received (one clock: loopback)",
+        )
+    } else if link["round_trip_ns"].is_object() {
+        let rtt = &link["round_trip_ns"];
+        let half = |k: &str| rtt[k].as_u64().map(|v| v / 2);
+        (
+            json!({"p50": half("p50"), "p99": half("p99"), "p999": half("p999"), "max": half("max"), "count": rtt["count"]}),
+            "round trip / 2 (command sent -> sample back, minus the rig's hold)",
+        )
+    } else {
+        (serde_json::Value::Null, "no measurement")
+    };
+    link["latency_ns"] = latency;
+    link["latency_basis"] = json!(basis);
+    let rig_end = read_json(&out_dir.join("rig-summary.json"))["link"].clone();
+    if rig_end.is_object() {
+        link["rejected_total_both_ends"] = json!(
+            link["rejected_total"].as_u64().unwrap_or(0)
+                + rig_end["rejected_total"].as_u64().unwrap_or(0)
+        );
+        link["rig_end"] = rig_end;
+    }
+    link
 }
 
 /// `yyyymmddThhmmssZ` for a Unix time (UTC), without a date crate.
@@ -245,7 +411,16 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
             stale.join(", ")
         );
     }
-    let run_id = new_run_id();
+    let rig_setup = rig_setup(&args.rig)?;
+    let run_id = match &args.rig.run_id {
+        Some(id) => {
+            check_run_id(id)?;
+            // A crashed earlier run of this id may have left dead nodes.
+            let _ = crate::ipc::cleanup_dead_nodes(id);
+            id.clone()
+        }
+        None => new_run_id(),
+    };
     let bin_dir = std::env::current_exe()?
         .parent()
         .map(PathBuf::from)
@@ -258,6 +433,7 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         duration_override_s: args.duration_s,
         bin_dir,
         hold_max_s: cfg.safety.hold_max_s,
+        rig: rig_setup.clone(),
     };
     eprintln!(
         "hil: run {run_id}: {} s at {} Hz, {} commands, report in {}",
@@ -269,6 +445,7 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         },
         out_dir.display()
     );
+    print_rig_instructions(&run_id, &rig_setup);
     for inj in &cfg.injections {
         eprintln!("hil: injected fault configured: {}", inj.describe());
     }
@@ -321,6 +498,7 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         analysis.as_ref(),
         records,
         &effect_names,
+        &rig_setup,
     )
 }
 
@@ -335,6 +513,7 @@ fn summarise(
     analysis: Option<&Analysis>,
     records: serde_json::Value,
     effect_names: &[&str],
+    rig_setup: &RigSetup,
 ) -> anyhow::Result<ExitCode> {
     let emu = read_json(&out_dir.join("emulator-summary.json"));
     let rig = read_json(&out_dir.join("rig-summary.json"));
@@ -352,7 +531,7 @@ fn summarise(
     let why = not_clean_because(cfg, outcome, analysis, records_dropped);
     let clean = why.is_empty();
     let value = |v: Option<serde_json::Value>| v.unwrap_or(serde_json::Value::Null);
-    let summary = json!({
+    let mut summary = json!({
         "rate_hz": cfg.loop_.rate_hz,
         "duration_s": cfg.scenario.duration_s,
         "steps": analysis.map_or(u(&emu, "model_steps"), |a| a.steps),
@@ -408,6 +587,8 @@ fn summarise(
         "run_id": run_id,
         "report_dir": out_dir.display().to_string(),
     });
+    summary["rig"] = json!({"kind": args.rig.kind, "link": args.rig.link});
+    summary["link"] = link_report(out_dir, rig_setup);
     let text = serde_json::to_string_pretty(&summary)?;
     std::fs::write(out_dir.join("summary.json"), &text)?;
     if args.json {

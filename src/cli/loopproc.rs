@@ -1,4 +1,5 @@
-//! `fastemu emulator`, `fastemu controller` and the hidden `fastemu rig`: the loop
+//! `fastemu emulator`, `fastemu controller` and the hidden `fastemu rig` (on iceoryx2, or
+//! as the far end of the UDP rig link): the loop
 //! processes' command lines. Parse arguments, load the config, run the process; no loop
 //! logic here.
 
@@ -28,6 +29,36 @@ pub struct LoopProcessArgs {
     /// Overrides `[scenario] duration_s`.
     #[arg(long)]
     pub duration_s: Option<f64>,
+    /// How long to wait for the start, s (a process started by hand, e.g. a rig that
+    /// waits for `hil --rig external`, may wait longer than the 30 s default).
+    #[arg(long, default_value_t = 30.0)]
+    pub start_timeout_s: f64,
+}
+
+/// Arguments of the simulated rig (`bench_rig`, `fastemu rig`).
+#[derive(Debug, Clone, Args)]
+pub struct RigArgs {
+    #[command(flatten)]
+    pub process: LoopProcessArgs,
+    /// Run as the far end of the UDP rig link instead of on iceoryx2: bind here (an
+    /// interface address, e.g. 127.0.0.1:50001) ...
+    #[arg(long, requires = "link_peer")]
+    pub link_bind: Option<String>,
+    /// ... and exchange datagrams with fastemu's link at this address only.
+    #[arg(long, requires = "link_bind")]
+    pub link_peer: Option<String>,
+}
+
+impl LoopProcessArgs {
+    /// `--start-timeout-s` as a duration (checked).
+    pub fn start_timeout(&self) -> anyhow::Result<std::time::Duration> {
+        anyhow::ensure!(
+            self.start_timeout_s > 0.0 && self.start_timeout_s.is_finite(),
+            "--start-timeout-s {}: expected a number of seconds > 0",
+            self.start_timeout_s
+        );
+        Ok(std::time::Duration::from_secs_f64(self.start_timeout_s))
+    }
 }
 
 /// A loaded configuration with its text and base directory (recorded for replay).
@@ -115,8 +146,19 @@ pub fn run_controller_command(args: LoopProcessArgs) -> anyhow::Result<ExitCode>
     Ok(exit_code(s.fault.is_some()))
 }
 
-pub fn run_rig_command(args: LoopProcessArgs) -> anyhow::Result<ExitCode> {
+pub fn run_rig_command(args: RigArgs) -> anyhow::Result<ExitCode> {
+    use crate::link::socket::parse_link_address;
+    use crate::rig::process::RigConnection;
     quiet_iceoryx2_logs();
+    let connection = match (&args.link_bind, &args.link_peer) {
+        (Some(bind), Some(peer)) => RigConnection::Udp {
+            bind: parse_link_address("--link-bind", bind)?,
+            peer: parse_link_address("--link-peer", peer)?,
+        },
+        _ => RigConnection::Ipc,
+    };
+    let start_timeout = args.process.start_timeout()?;
+    let args = args.process;
     let c = args.load()?;
     let s = crate::rig::process::run_rig(
         &c.cfg,
@@ -124,6 +166,8 @@ pub fn run_rig_command(args: LoopProcessArgs) -> anyhow::Result<ExitCode> {
         c.base_dir.as_deref(),
         &args.run_id,
         &args.out,
+        connection,
+        start_timeout,
     )
     .context("bench_rig")?;
     eprintln!(

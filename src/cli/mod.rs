@@ -8,6 +8,7 @@ pub mod equiv;
 pub mod export;
 pub mod hil;
 pub mod identify;
+pub mod link;
 pub mod loopproc;
 pub mod paper;
 pub mod replay;

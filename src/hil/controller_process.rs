@@ -50,6 +50,8 @@ pub fn run_controller(
     let setpoints = node.setpoint_in()?;
     let listener = node.setpoint_listener()?;
     let commands = node.command_out()?;
+    // Wakes a UDP rig link that forwards commands (nobody listens with an iceoryx2 rig).
+    let command_wake = node.command_wake()?;
     let heartbeats_in = node.heartbeat_in()?;
     let heartbeat = node.heartbeat_out()?;
     let control = node.control_in()?;
@@ -94,6 +96,7 @@ pub fn run_controller(
                    records: &RecordSink<ControllerRecord>| {
         if let Some((cmd, rec)) = out {
             commands.publish(cmd);
+            command_wake.notify();
             records.push(rec);
             *sent += 1;
         }

@@ -58,6 +58,31 @@ record_type! {
             law_damping_ns_per_m: f64,
             /// local law: force drift at fixed displacement, N/s
             law_force_rate_n_per_s: f64,
+            /// the rig's measured actuator force in the sample, N (NaN: not measured, or interpolated)
+            rig_force_n: f64,
+            /// the rig's state in the sample: 1 running, 2 hold, 4 unload, 5 operator hold
+            rig_state: u32,
+            /// the rig's latched fault code in the sample, 0 none
+            rig_fault_code: u32,
+        }
+    }
+}
+
+/// What a sample says about the rig itself (recorded with each step, so a report on an
+/// external rig, whose own records fastemu does not have, knows its state).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct RigView {
+    force_n: f64,
+    state: u32,
+    fault_code: u32,
+}
+
+impl RigView {
+    fn of(sample: &DisplacementSample) -> RigView {
+        RigView {
+            force_n: sample.actuator_force_n,
+            state: sample.rig_state,
+            fault_code: sample.rig_fault_code,
         }
     }
 }
@@ -204,6 +229,7 @@ impl EmulatorCore {
         z_m: f64,
         sample_seq: u64,
         interpolated: bool,
+        rig: RigView,
         stats: &CycleStats,
         record: &mut impl FnMut(EmulatorRecord),
     ) {
@@ -224,6 +250,9 @@ impl EmulatorCore {
             law_stiffness_n_per_m: law.stiffness_n_per_m,
             law_damping_ns_per_m: law.damping_ns_per_m,
             law_force_rate_n_per_s: law.force_rate_n_per_s,
+            rig_force_n: if interpolated { f64::NAN } else { rig.force_n },
+            rig_state: rig.state,
+            rig_fault_code: rig.fault_code,
         });
         self.step_idx += 1;
     }
@@ -272,12 +301,21 @@ impl EmulatorCore {
                         let w = j as f64 / span;
                         let z =
                             last.displacement_m + w * (sample.displacement_m - last.displacement_m);
-                        self.step_and_record(z, last.sequence + j, true, stats, record);
+                        let rig = RigView::of(&sample);
+                        self.step_and_record(z, last.sequence + j, true, rig, stats, record);
                     }
                 }
             }
         }
-        self.step_and_record(sample.displacement_m, sample.sequence, false, stats, record);
+        let rig = RigView::of(&sample);
+        self.step_and_record(
+            sample.displacement_m,
+            sample.sequence,
+            false,
+            rig,
+            stats,
+            record,
+        );
         self.last_sample = Some(sample);
     }
 
@@ -300,7 +338,13 @@ impl EmulatorCore {
             self.fault = Some(Fault::EmulatorStalled);
         }
         let steps_before = self.counts.model_steps;
-        let expected = self.last_sample.map_or(0, |s| s.sequence + 1);
+        // The rig's sample of this cycle's grid instant, or the next one after the last:
+        // expecting only "the next after the last" would, after one late sample (a slow
+        // link), stay a cycle behind for good, taking each sample a cycle late.
+        let expected = self
+            .last_sample
+            .map_or(0, |s| s.sequence + 1)
+            .max(stats.cycle_idx + stats.missed_deadlines);
         io.receive_samples(expected, &mut |s| self.on_sample(s, stats, record));
         if self.end_of_run {
             return CycleOutcome::EndOfRun;

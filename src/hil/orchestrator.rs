@@ -1,4 +1,6 @@
-//! The `hil` orchestrator: starts the three loop processes under a unique run id, waits
+//! The `hil` orchestrator: starts the three loop processes under a unique run id (with an
+//! external rig, the emulator and controller once the rig is ready; with the UDP rig link,
+//! the link process in the rig's place and the simulated rig behind it), waits
 //! until they are ready, starts them on a common clock, supervises them (exits,
 //! heartbeats, faults), lets the rig end the run (after a fault: once its hold is over),
 //! stops and reaps the others on every exit path (`ChildGuard`), removes the run's shared
@@ -9,6 +11,7 @@
 //! before its hold is over (unless the operator insists).
 
 use std::collections::BTreeMap;
+use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::{Command, ExitStatus, Stdio};
 use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, Ordering};
@@ -57,6 +60,33 @@ pub fn new_run_id() -> String {
     )
 }
 
+/// Which rig the run has and how it connects.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RigSetup {
+    /// The simulated rig on iceoryx2 (the default).
+    Simulated,
+    /// The simulated rig on the far side of a UDP link: fastemu's link process at `link`
+    /// (the rig, as the loop sees it), the simulated rig at `rig`.
+    SimulatedUdp { link: SocketAddr, rig: SocketAddr },
+    /// A rig fastemu did not start, on the run's iceoryx2 services; waited for this long.
+    External { wait: Duration },
+    /// A rig fastemu did not start, behind the UDP link.
+    ExternalUdp {
+        link: SocketAddr,
+        rig: SocketAddr,
+        wait: Duration,
+    },
+}
+
+impl RigSetup {
+    fn external_wait(&self) -> Option<Duration> {
+        match self {
+            RigSetup::External { wait } | RigSetup::ExternalUdp { wait, .. } => Some(*wait),
+            _ => None,
+        }
+    }
+}
+
 /// What the orchestrator needs to run.
 #[derive(Debug, Clone)]
 pub struct RunPlan {
@@ -68,6 +98,7 @@ pub struct RunPlan {
     pub bin_dir: PathBuf,
     /// The longest hold the rig may take before it ends the run, s.
     pub hold_max_s: f64,
+    pub rig: RigSetup,
 }
 
 /// How the run ended.
@@ -109,28 +140,111 @@ fn heartbeat_fault(hb: &Heartbeat) -> Option<String> {
     Some(text)
 }
 
-/// Starts the three processes; each dies with SIGTERM when the orchestrator dies, so the
-/// rig holds and the others end with their records flushed.
-fn spawn_loop_processes(plan: &RunPlan) -> Result<Vec<(String, ChildGuard)>, ProcessError> {
+/// A process `hil` starts: its name, what it runs, and which loop process it is on
+/// iceoryx2 (`None`: the simulated rig behind the UDP link, not on iceoryx2).
+struct ChildSpec {
+    name: &'static str,
+    exe: PathBuf,
+    args: Vec<String>,
+    process: Option<u32>,
+}
+
+/// The processes of `plan`, in start order; with an external rig, the emulator and the
+/// controller come after the rig is ready (`after_rig`).
+fn child_specs(plan: &RunPlan) -> Result<(Vec<ChildSpec>, Vec<ChildSpec>), ProcessError> {
     let fastemu = std::env::current_exe()
         .map_err(|e| ProcessError(format!("cannot find own executable: {e}")))?;
     // `bench_rig` next to this executable; if it was not built (`cargo run` builds only
     // the binary it runs), the same rig from this binary's hidden `rig` subcommand.
     let bench_rig = plan.bin_dir.join("bench_rig");
     let (rig_exe, rig_sub) = if bench_rig.exists() {
-        (bench_rig, None)
+        (bench_rig, vec![])
     } else {
-        (fastemu.clone(), Some("rig"))
+        (fastemu.clone(), vec!["rig".to_string()])
     };
-    let exes = [rig_exe, fastemu.clone(), fastemu];
-    let subcommands: [Option<&str>; 3] = [rig_sub, Some("emulator"), Some("controller")];
-    let mut children = Vec::new();
-    for (i, name) in PROCESS_NAMES.iter().enumerate() {
-        let mut cmd = Command::new(&exes[i]);
-        if let Some(sub) = subcommands[i] {
-            cmd.arg(sub);
+    let spec = |name, exe: &PathBuf, sub: Vec<String>, extra: Vec<String>, process| ChildSpec {
+        name,
+        exe: exe.clone(),
+        args: sub.into_iter().chain(extra).collect(),
+        process,
+    };
+    let link = |link: &SocketAddr, rig: &SocketAddr, wait: Option<Duration>| {
+        let mut extra = vec![
+            "--bind".to_string(),
+            link.to_string(),
+            "--peer".to_string(),
+            rig.to_string(),
+        ];
+        if let Some(w) = wait {
+            extra.extend(["--rig-wait-s".to_string(), w.as_secs_f64().to_string()]);
         }
-        cmd.arg("--config")
+        spec(
+            "link",
+            &fastemu,
+            vec!["link".into()],
+            extra,
+            Some(process_id::RIG),
+        )
+    };
+    let loop_processes = || {
+        vec![
+            spec(
+                PROCESS_NAMES[1],
+                &fastemu,
+                vec!["emulator".into()],
+                vec![],
+                Some(process_id::EMULATOR),
+            ),
+            spec(
+                PROCESS_NAMES[2],
+                &fastemu,
+                vec!["controller".into()],
+                vec![],
+                Some(process_id::CONTROLLER),
+            ),
+        ]
+    };
+    let mut first = Vec::new();
+    match &plan.rig {
+        RigSetup::Simulated => first.push(spec(
+            PROCESS_NAMES[0],
+            &rig_exe,
+            rig_sub,
+            vec![],
+            Some(process_id::RIG),
+        )),
+        RigSetup::SimulatedUdp { link: l, rig } => {
+            first.push(link(l, rig, None));
+            let far = vec![
+                "--link-bind".to_string(),
+                rig.to_string(),
+                "--link-peer".to_string(),
+                l.to_string(),
+            ];
+            first.push(spec(PROCESS_NAMES[0], &rig_exe, rig_sub, far, None));
+        }
+        RigSetup::External { .. } => {}
+        RigSetup::ExternalUdp { link: l, rig, wait } => first.push(link(l, rig, Some(*wait))),
+    }
+    if plan.rig.external_wait().is_some() {
+        Ok((first, loop_processes()))
+    } else {
+        first.extend(loop_processes());
+        Ok((first, vec![]))
+    }
+}
+
+/// Starts `specs`; each dies with SIGTERM when the orchestrator dies, so the rig holds and
+/// the others end with their records flushed.
+fn spawn_children(
+    plan: &RunPlan,
+    specs: Vec<ChildSpec>,
+    sup: &mut Supervisor,
+) -> Result<(), ProcessError> {
+    for spec in specs {
+        let mut cmd = Command::new(&spec.exe);
+        cmd.args(&spec.args)
+            .arg("--config")
             .arg(&plan.config_path)
             .arg("--run-id")
             .arg(&plan.run_id)
@@ -155,18 +269,30 @@ fn spawn_loop_processes(plan: &RunPlan) -> Result<Vec<(String, ChildGuard)>, Pro
             });
         }
         let child = cmd.spawn().map_err(|e| {
-            ProcessError(format!("cannot start {name} ({}): {e}", exes[i].display()))
+            ProcessError(format!(
+                "cannot start {} ({}): {e}",
+                spec.name,
+                spec.exe.display()
+            ))
         })?;
-        children.push((name.to_string(), ChildGuard::new(child)));
+        sup.children
+            .push((spec.name.to_string(), ChildGuard::new(child)));
+        sup.child_process.push(spec.process);
+        sup.finished.push(false);
     }
-    Ok(children)
+    Ok(())
 }
 
 /// Supervision state of a run.
 struct Supervisor {
     children: Vec<(String, ChildGuard)>,
+    /// The loop process (`process_id`) each child is on iceoryx2, if any.
+    child_process: Vec<Option<u32>>,
     outcome: RunOutcome,
-    finished: [bool; 3],
+    /// Per child: exited and reaped.
+    finished: Vec<bool>,
+    /// An external rig's heartbeat stopped (it is not a child whose exit can be seen).
+    rig_lost: bool,
     last_heartbeat: [Option<Instant>; 3],
     ready: [bool; 3],
     started_at: Option<Instant>,
@@ -175,6 +301,8 @@ struct Supervisor {
     end_sent_at: Option<Instant>,
     interrupts_seen: u32,
     sequence: u64,
+    /// Where the link process writes its summary (its error, if it fails).
+    link_summary_error: Option<PathBuf>,
 }
 
 impl Supervisor {
@@ -216,12 +344,15 @@ impl Supervisor {
                 self.outcome
                     .exit_statuses
                     .insert(name.clone(), describe_status(&status));
-                if i == process_id::RIG as usize && status.code().is_some() {
+                if self.child_process[i] == Some(process_id::RIG) && status.code().is_some() {
                     self.outcome.rig_finished = true;
                 }
                 let orderly = status.code().is_some()
                     && (self.outcome.rig_finished || self.stop_sent_at.is_some());
-                if !status.success() && !orderly {
+                if name == "link" && !status.success() {
+                    // The link names its own failure (a silent rig, a wrong period).
+                    self.push_fault(format!("link: {}", self.link_error(&status)));
+                } else if !status.success() && !orderly {
                     self.push_fault(format!(
                         "{name}: process (pid {pid}) {}",
                         describe_status(&status)
@@ -253,21 +384,43 @@ impl Supervisor {
         }
     }
 
-    /// A process that stops sending heartbeats (e.g. SIGSTOP) is a fault too.
+    /// Whether loop process `process` has ended: its child exited (an external rig, which
+    /// is no child: it said it finished, or its heartbeat stopped).
+    fn process_finished(&self, process: u32) -> bool {
+        match self.child_process.iter().position(|&p| p == Some(process)) {
+            Some(i) => self.finished[i],
+            None => process == process_id::RIG && (self.outcome.rig_finished || self.rig_lost),
+        }
+    }
+
+    /// The link's own account of why it failed (`link-summary.json`).
+    fn link_error(&self, status: &ExitStatus) -> String {
+        self.link_summary_error
+            .as_ref()
+            .and_then(|path| std::fs::read_to_string(path).ok())
+            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+            .and_then(|v| v["error"].as_str().map(String::from))
+            .unwrap_or_else(|| describe_status(status))
+    }
+
+    /// A process that stops sending heartbeats (e.g. SIGSTOP) is a fault too; an external
+    /// rig that stops is gone (the run stops).
     fn check_silence(&mut self, now: Instant) {
         let quiet_ok = self.stop_sent_at.is_some() || self.outcome.rig_finished;
-        let silent: Vec<&str> = PROCESS_NAMES
-            .iter()
-            .zip(self.last_heartbeat.iter().zip(&self.finished))
-            .filter(|(_, (last, finished))| {
-                !**finished
-                    && last.is_some_and(|h| now.duration_since(h) > Duration::from_millis(1000))
+        let silent: Vec<u32> = (0..3u32)
+            .filter(|&p| {
+                !self.process_finished(p)
+                    && self.last_heartbeat[p as usize]
+                        .is_some_and(|h| now.duration_since(h) > Duration::from_millis(1000))
             })
-            .map(|(name, _)| *name)
             .collect();
         if !quiet_ok {
-            for name in silent {
+            for p in silent {
+                let name = PROCESS_NAMES[p as usize];
                 self.push_fault(format!("{name}: heartbeat lost (no heartbeat for 1 s)"));
+                if p == process_id::RIG && !self.child_process.contains(&Some(p)) {
+                    self.rig_lost = true;
+                }
             }
         }
     }
@@ -281,12 +434,21 @@ pub fn run_processes(
     live: Option<&crate::live::LiveHandle>,
 ) -> Result<RunOutcome, ProcessError> {
     let node = IpcNode::new(&plan.run_id, "hil")?;
+    // With an external rig, the rig's services exist (with the loop's settings) before
+    // it connects, and as long as the run.
+    let rig_services = match plan.rig {
+        RigSetup::External { .. } => Some(node.hold_rig_services()?),
+        _ => None,
+    };
     let heartbeats = node.heartbeat_in()?;
     let control = node.control_out()?;
+    let (first, after_rig) = child_specs(plan)?;
     let mut sup = Supervisor {
-        children: spawn_loop_processes(plan)?,
+        children: Vec::new(),
+        child_process: Vec::new(),
         outcome: RunOutcome::default(),
-        finished: [false; 3],
+        finished: Vec::new(),
+        rig_lost: false,
         last_heartbeat: [None; 3],
         ready: [false; 3],
         started_at: None,
@@ -295,7 +457,17 @@ pub fn run_processes(
         end_sent_at: None,
         interrupts_seen: 0,
         sequence: 0,
+        link_summary_error: Some(plan.out_dir.join("link-summary.json")),
     };
+    spawn_children(plan, first, &mut sup)?;
+    if let Some(wait) = plan.rig.external_wait() {
+        if wait_for_external_rig(&mut sup, &heartbeats, wait)? {
+            spawn_children(plan, after_rig, &mut sup)?;
+        } else if sup.stop_sent_at.is_none() {
+            sup.send(&control, run_command::STOP, 0, 0);
+            sup.stop_sent_at = Some(Instant::now());
+        }
+    }
     let start_wait = Instant::now();
     let mut last_progress = Instant::now();
     // No wall-clock limit on the run: an operator hold lasts as long as the operator
@@ -376,7 +548,7 @@ pub fn run_processes(
                     sup.send(&control, command, 0, 0);
                 }
                 // The rig ended the run (or died): the others stop now.
-                let rig_done = sup.outcome.rig_finished || sup.finished[process_id::RIG as usize];
+                let rig_done = sup.process_finished(process_id::RIG);
                 if rig_done && sup.stop_sent_at.is_none() {
                     sup.send(&control, run_command::STOP, 0, 0);
                     sup.stop_sent_at = Some(now);
@@ -399,9 +571,21 @@ pub fn run_processes(
         if sup.finished.iter().all(|&f| f) {
             break;
         }
+        // The simulated rig behind a link that died holds on its own until at rest: it
+        // gets as long as a hold may take; the others 3 s.
+        let far_rig_holding = sup
+            .child_process
+            .iter()
+            .zip(&sup.finished)
+            .any(|(p, f)| p.is_none() && !f);
+        let grace = if far_rig_holding {
+            Duration::from_secs_f64(plan.hold_max_s + 3.0)
+        } else {
+            Duration::from_secs(3)
+        };
         if sup
             .stop_sent_at
-            .is_some_and(|s| now.duration_since(s) > Duration::from_secs(3))
+            .is_some_and(|s| now.duration_since(s) > grace)
         {
             break;
         }
@@ -418,9 +602,65 @@ pub fn run_processes(
     }
     drop(heartbeats);
     drop(control);
+    drop(rig_services);
     drop(node);
-    outcome.leftover_files = clear_run(&plan.run_id);
+    outcome.leftover_files = match plan.rig {
+        RigSetup::External { .. } => clear_external_run(&plan.run_id),
+        _ => clear_run(&plan.run_id),
+    };
     Ok(outcome)
+}
+
+/// Waits until the external rig (or the link, for a rig behind it) reports ready, at
+/// most `wait`; false if it did not come, the link died, or the operator stopped.
+fn wait_for_external_rig(
+    sup: &mut Supervisor,
+    heartbeats: &In<Heartbeat>,
+    wait: Duration,
+) -> Result<bool, ProcessError> {
+    let t0 = Instant::now();
+    loop {
+        sup.check_exits();
+        sup.check_heartbeats(heartbeats);
+        if sup.ready[process_id::RIG as usize] {
+            eprintln!("hil: the rig is ready; starting the emulator and the controller");
+            return Ok(true);
+        }
+        if INTERRUPTS.load(Ordering::SeqCst) > 0 {
+            sup.outcome.operator_stop = true;
+            sup.push_fault("hil: interrupted while waiting for the rig".into());
+            return Ok(false);
+        }
+        if sup.process_finished(process_id::RIG) || sup.first_fault_at.is_some() {
+            return Ok(false);
+        }
+        if t0.elapsed() > wait {
+            sup.push_fault(format!(
+                "hil: no rig connected within {} s (see README \"Connecting a rig\")",
+                wait.as_secs_f64()
+            ));
+            return Ok(false);
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// Clears a run with an external rig once its node is gone (waits up to 3 s for it, so
+/// a rig finishing its last records is not cut off); a rig still connected keeps its
+/// files, and they are reported.
+fn clear_external_run(run_id: &str) -> Vec<PathBuf> {
+    let t = Instant::now();
+    while crate::ipc::count_nodes(run_id).unwrap_or(0) > 0 && t.elapsed() < Duration::from_secs(3) {
+        let _ = crate::ipc::cleanup_dead_nodes(run_id);
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    if crate::ipc::count_nodes(run_id).unwrap_or(0) > 0 {
+        eprintln!(
+            "hil: warning: the external rig is still connected to run {run_id}; its files stay"
+        );
+        return crate::ipc::cleanup::files_with_prefix(&crate::ipc::file_prefix(run_id));
+    }
+    clear_run(run_id)
 }
 
 pub struct MachineLock {

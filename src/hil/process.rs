@@ -88,13 +88,23 @@ pub struct StartInfo {
     pub start_unix_ns: u64,
 }
 
-/// Publishes READY heartbeats until a START arrives.
+/// Publishes READY heartbeats until a START arrives (at most `START_TIMEOUT`).
 pub fn wait_for_start(
     process: u32,
     heartbeat: &Out<Heartbeat>,
     control: &In<RunControl>,
 ) -> Result<StartInfo, ProcessError> {
-    let deadline = monotonic_now_ns() + START_TIMEOUT.as_nanos() as u64;
+    wait_for_start_within(process, heartbeat, control, START_TIMEOUT)
+}
+
+/// Publishes READY heartbeats until a START arrives, at most `timeout`.
+pub fn wait_for_start_within(
+    process: u32,
+    heartbeat: &Out<Heartbeat>,
+    control: &In<RunControl>,
+    timeout: Duration,
+) -> Result<StartInfo, ProcessError> {
+    let deadline = monotonic_now_ns() + timeout.as_nanos() as u64;
     let mut seq = 0;
     loop {
         let mut start = None;
@@ -117,9 +127,7 @@ pub fn wait_for_start(
         }
         let now = monotonic_now_ns();
         if now > deadline {
-            return Err(ProcessError(format!(
-                "no start command within {START_TIMEOUT:?}"
-            )));
+            return Err(ProcessError(format!("no start command within {timeout:?}")));
         }
         heartbeat.publish(Heartbeat {
             process,

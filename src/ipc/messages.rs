@@ -1,6 +1,8 @@
 //! Fixed-size `#[repr(C)]` messages carried on the loop's publish-subscribe services: the
 //! rig ABI (`ABI_VERSION`). A rig that fastemu did not start publishes `DisplacementSample`
-//! and consumes `ActuatorCommand` with exactly these layouts (`include/fastemu_rig.h`).
+//! and `Heartbeat`, and consumes `ActuatorCommand` and `RunControl`, with exactly these
+//! layouts (`include/fastemu_rig.h`, README "Connecting a rig"; a test checks the header's
+//! sizes and offsets against these types).
 //!
 //! Times are `CLOCK_MONOTONIC` nanoseconds (the same base in every process on one
 //! machine), so a timestamp set by the rig can be compared with the controller's clock for
@@ -10,7 +12,8 @@
 use iceoryx2::prelude::ZeroCopySend;
 
 /// Version of the message layouts and their meaning; bumped on any change.
-pub const ABI_VERSION: u32 = 1;
+/// 2: `DisplacementSample` carries the rig's measured force, state and latched fault.
+pub const ABI_VERSION: u32 = 2;
 
 /// Status of a displacement sample (`DisplacementSample::status`).
 pub mod sample_status {
@@ -35,8 +38,15 @@ pub struct DisplacementSample {
     pub publish_time_ns: u64,
     /// Measured displacement, m, positive in compression.
     pub displacement_m: f64,
+    /// Force the actuator applies at the sample instant (load cell), N, positive pushing
+    /// against compression; NaN when the rig does not measure it.
+    pub actuator_force_n: f64,
     /// One of `sample_status`.
     pub status: u32,
+    /// The rig's state at the sample (`rig_state`).
+    pub rig_state: u32,
+    /// The rig's latched fault code (its own interlock, e.g. `commands-stale`), 0 none.
+    pub rig_fault_code: u32,
     pub reserved: u32,
 }
 

@@ -9,7 +9,7 @@ pub mod messages;
 pub mod transport;
 
 pub use transport::{
-    cleanup_dead_nodes, count_nodes, file_prefix, quiet_iceoryx2_logs, In, IpcError, IpcNode, Out,
-    Wake, WakeListener,
+    cleanup_dead_nodes, count_nodes, file_prefix, quiet_iceoryx2_logs, service_settings, In,
+    IpcError, IpcNode, IpcWaitSet, Out, RigServices, Stream, Wake, WakeListener, MAX_NODES,
 };
 pub mod pingpong;

@@ -172,6 +172,9 @@ impl Wake {
     }
 }
 
+/// The waitset a `WakeListener` blocks in (`WakeListener::with_waitset`).
+pub type IpcWaitSet = iceoryx2::prelude::WaitSet<ipc::Service>;
+
 /// Blocks until woken (event-driven, no busy polling).
 pub struct WakeListener {
     listener: Listener<ipc::Service>,
@@ -213,6 +216,11 @@ impl WakeListener {
 }
 
 impl IpcNode {
+    /// The service name of `stream` in this run: `fastemu/<run_id>/<stream>`.
+    pub fn stream_service_name(run_id: &str, stream: Stream) -> String {
+        format!("fastemu/{run_id}/{}", stream.name())
+    }
+
     /// Creates the node of process `process_name` in run `run_id`.
     pub fn new(run_id: &str, process_name: &str) -> Result<IpcNode, IpcError> {
         let config = run_config(run_id)?;
@@ -244,17 +252,8 @@ impl IpcNode {
         IpcError,
     > {
         // Loop streams keep the newest few samples (the reader wants the newest; older
-        // ones are overwritten, never block the writer). Heartbeats and control messages
-        // are rarer; control keeps its last message for late subscribers.
-        // The displacement stream holds 256 samples (62 ms at 4096 Hz): a reader stalled
-        // by the OS for milliseconds still drains and validates every sample it missed,
-        // so a single bad sample cannot be overwritten unseen.
-        let (history, buffer, max_publishers, max_subscribers) = match stream {
-            Stream::Displacement => (0, 256, 1, 4),
-            Stream::Setpoint | Stream::Command => (0, 8, 1, 4),
-            Stream::Heartbeat => (0, 64, 4, 6),
-            Stream::Control => (1, 8, 4, 4),
-        };
+        // ones are overwritten, never block the writer).
+        let (history, buffer, max_publishers, max_subscribers) = service_settings(stream);
         self.node
             .service_builder(&self.service_name(stream.name())?)
             .publish_subscribe::<T>()
@@ -263,7 +262,7 @@ impl IpcNode {
             .enable_safe_overflow(true)
             .max_publishers(max_publishers)
             .max_subscribers(max_subscribers)
-            .max_nodes(8)
+            .max_nodes(MAX_NODES)
             .open_or_create()
             .map_err(|e| ipc_err(format!("opening service {}", stream.name()))(format!("{e:?}")))
     }
@@ -356,4 +355,68 @@ impl IpcNode {
             .map_err(|e| ipc_err("setpoint listener")(format!("{e:?}")))?;
         Ok(WakeListener { listener })
     }
+
+    /// Notifier that wakes whoever forwards new commands (the UDP rig link).
+    pub fn command_wake(&self) -> Result<Wake, IpcError> {
+        let notifier = self
+            .event(Stream::Command)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| ipc_err("command notifier")(format!("{e:?}")))?;
+        Ok(Wake { notifier })
+    }
+
+    /// Listener for new-command notifications.
+    pub fn command_listener(&self) -> Result<WakeListener, IpcError> {
+        let listener = self
+            .event(Stream::Command)?
+            .listener_builder()
+            .create()
+            .map_err(|e| ipc_err("command listener")(format!("{e:?}")))?;
+        Ok(WakeListener { listener })
+    }
+
+    /// Creates (or opens) the services a rig connects to and keeps them while the
+    /// returned value lives, so an external rig started later can simply open them.
+    pub fn hold_rig_services(&self) -> Result<RigServices, IpcError> {
+        Ok(RigServices {
+            _displacement: self.pubsub::<DisplacementSample>(Stream::Displacement)?,
+            _command: self.pubsub::<ActuatorCommand>(Stream::Command)?,
+            _heartbeat: self.pubsub::<Heartbeat>(Stream::Heartbeat)?,
+            _control: self.pubsub::<RunControl>(Stream::Control)?,
+        })
+    }
 }
+
+type Factory<T> =
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>;
+
+/// The rig's services, kept open (see `IpcNode::hold_rig_services`).
+pub struct RigServices {
+    _displacement: Factory<DisplacementSample>,
+    _command: Factory<ActuatorCommand>,
+    _heartbeat: Factory<Heartbeat>,
+    _control: Factory<RunControl>,
+}
+
+/// The settings every process opens or creates a stream's service with: (history size,
+/// subscriber buffer size, max publishers, max subscribers); every service also has
+/// safe overflow on and at most `MAX_NODES` nodes. An external rig that creates a service
+/// (it starts before `hil`) must use these (README "Connecting a rig").
+pub fn service_settings(stream: Stream) -> (usize, usize, usize, usize) {
+    match stream {
+        // The displacement stream holds 256 samples (62 ms at 4096 Hz): a reader stalled
+        // by the OS for milliseconds still drains and validates every sample it missed,
+        // so a single bad sample cannot be overwritten unseen.
+        Stream::Displacement => (0, 256, 1, 4),
+        Stream::Setpoint | Stream::Command => (0, 8, 1, 4),
+        // Heartbeats and control messages are rarer; control keeps its last message for
+        // late subscribers.
+        // `fastemu ctl` and the live view subscribe to heartbeats and publish control.
+        Stream::Heartbeat => (0, 64, 4, 6),
+        Stream::Control => (1, 8, 4, 4),
+    }
+}
+
+/// Largest number of nodes on any service of a run.
+pub const MAX_NODES: usize = 8;

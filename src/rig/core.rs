@@ -238,7 +238,10 @@ impl RigCore {
             rig_time_ns: self.step_idx * self.period_ns,
             publish_time_ns,
             displacement_m: z,
+            actuator_force_n: self.physics.actuator_force_n,
             status: sample_status::OK,
+            rig_state: self.last_state,
+            rig_fault_code: self.servo.trip().map_or(0, |t| t.fault.code()),
             reserved: 0,
         })
     }

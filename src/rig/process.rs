@@ -6,8 +6,14 @@
 //! records until the specimen is at rest, writes its records, clears the run's shared
 //! memory and exits.
 //!
-//! Must not: allocate or do I/O in the loop body (records go through `RecordSink`).
+//! The same loop runs on iceoryx2 (`RigConnection::Ipc`: the simulated rig started by
+//! `hil`, or started by hand as an external rig) or as the far end of the UDP rig link
+//! (`RigConnection::Udp`), through `RigTransport`.
+//!
+//! Must not: allocate or do I/O in the loop body beyond the transport's send and receive
+//! (records go through `RecordSink`).
 
+use std::net::SocketAddr;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
@@ -15,16 +21,79 @@ use super::core::{RigCore, RigRecord};
 use crate::hil::config::{HilConfig, LoopProcess};
 use crate::hil::process::{
     install_termination_handler, meta_json, poll_control, real_time_setup, termination_requested,
-    wait_for_start, write_summary, Injector, ProcessError, HEARTBEAT_PERIOD_NS,
+    wait_for_start_within, write_summary, ControlRequests, Injector, ProcessError, StartInfo,
+    HEARTBEAT_PERIOD_NS,
 };
 use crate::ipc::messages::{
     process_id, rig_state, sample_status, ActuatorCommand, DisplacementSample, Heartbeat,
+    RunControl,
 };
 use crate::ipc::{count_nodes, In, IpcNode, Out};
 use crate::records::event::event_kind;
 use crate::records::{EventRecord, RecordSink, RecorderBuilder, SinkCounts};
 use crate::rt::clock::monotonic_now_ns;
 use crate::rt::{MonotonicClock, Scheduler, WaitMode};
+
+/// Where the rig's samples go and where its commands, run control and start come from:
+/// the run's iceoryx2 services, or the far end of the UDP rig link
+/// (`crate::link::rig_end::UdpRigEnd`).
+pub trait RigTransport {
+    /// Announces readiness until the start; returns the time base on this machine's clock.
+    fn wait_for_start(&mut self) -> Result<StartInfo, ProcessError>;
+    /// Sends one sample (every period: must not allocate, lock or block).
+    fn send_sample(&mut self, sample: &DisplacementSample);
+    /// Hands over every command received since the last call, oldest first (every period).
+    fn receive_commands(&mut self, on_command: &mut dyn FnMut(&ActuatorCommand));
+    /// At heartbeat rate: reports the rig's state, returns the run control received.
+    fn heartbeat(&mut self, heartbeat: &Heartbeat) -> ControlRequests;
+    /// After the last period: the end-of-run sample and the final heartbeat.
+    fn finish(&mut self, last: &DisplacementSample, heartbeat: &Heartbeat);
+}
+
+/// How the rig connects to the loop.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RigConnection {
+    /// The run's iceoryx2 services (`fastemu/<run_id>/...`).
+    Ipc,
+    /// The UDP rig link: this rig is its far end, bound to `bind`, talking to `peer`.
+    Udp { bind: SocketAddr, peer: SocketAddr },
+}
+
+/// The rig's iceoryx2 ports.
+struct IpcRigTransport {
+    samples: Out<DisplacementSample>,
+    commands: In<ActuatorCommand>,
+    heartbeat: Out<Heartbeat>,
+    control: In<RunControl>,
+    start_timeout: Duration,
+}
+
+impl RigTransport for IpcRigTransport {
+    fn wait_for_start(&mut self) -> Result<StartInfo, ProcessError> {
+        wait_for_start_within(
+            process_id::RIG,
+            &self.heartbeat,
+            &self.control,
+            self.start_timeout,
+        )
+    }
+    #[inline]
+    fn send_sample(&mut self, sample: &DisplacementSample) {
+        self.samples.publish(*sample);
+    }
+    #[inline]
+    fn receive_commands(&mut self, on_command: &mut dyn FnMut(&ActuatorCommand)) {
+        self.commands.receive_each(|c| on_command(&c));
+    }
+    fn heartbeat(&mut self, heartbeat: &Heartbeat) -> ControlRequests {
+        self.heartbeat.publish(*heartbeat);
+        poll_control(&self.control)
+    }
+    fn finish(&mut self, last: &DisplacementSample, heartbeat: &Heartbeat) {
+        self.samples.publish(*last);
+        self.heartbeat.publish(*heartbeat);
+    }
+}
 
 /// Rig end-of-run summary (`rig-summary.json`).
 #[derive(Debug, Clone, serde::Serialize)]
@@ -41,19 +110,16 @@ pub struct RigSummary {
     pub records: SinkCounts,
     pub events: SinkCounts,
     pub record_error: Option<String>,
+    /// The rig's end of the UDP link (`RigConnection::Udp`): datagrams sent, received,
+    /// rejected by reason, lost.
+    pub link: Option<serde_json::Value>,
 }
 
-/// The rig's ports.
-struct RigPorts {
-    samples: Out<DisplacementSample>,
-    commands: In<ActuatorCommand>,
-}
-
-/// One rig period: measure and publish, take commands, servo, physics, record.
+/// One rig period: measure and send, take commands, servo, physics, record.
 #[inline]
 fn run_period(
     core: &mut RigCore,
-    ports: &RigPorts,
+    transport: &mut impl RigTransport,
     wake_late_ns: u64,
     catch_up: bool,
     records: &RecordSink<RigRecord>,
@@ -61,11 +127,11 @@ fn run_period(
     without_command: &mut u64,
 ) {
     if let Some(sample) = core.measure(monotonic_now_ns()) {
-        ports.samples.publish(sample);
+        transport.send_sample(&sample);
     }
     let mut any = false;
-    ports.commands.receive_each(|cmd| {
-        core.on_command(&cmd);
+    transport.receive_commands(&mut |cmd| {
+        core.on_command(cmd);
         any = true;
     });
     if !any {
@@ -75,39 +141,98 @@ fn run_period(
     core.drain_events(|e| events.push(e));
 }
 
-/// Runs the rig until the scenario ends, a hold is over, or STOP.
+/// Runs the rig until the scenario ends, a hold is over, or STOP; `start_timeout` bounds
+/// the wait for the start (a rig started by hand waits longer than one `hil` started).
 pub fn run_rig(
     cfg: &HilConfig,
     config_text: &str,
     config_base_dir: Option<&Path>,
     run_id: &str,
     out_dir: &Path,
+    connection: RigConnection,
+    start_timeout: Duration,
 ) -> Result<RigSummary, ProcessError> {
     install_termination_handler();
     std::fs::create_dir_all(out_dir)?;
-    let node = IpcNode::new(run_id, "rig")?;
-    let ports = RigPorts {
-        samples: node.displacement_out()?,
-        commands: node.command_in()?,
+    let context = RunContext {
+        cfg,
+        config_text,
+        config_base_dir,
+        run_id,
+        out_dir,
     };
-    let heartbeat = node.heartbeat_out()?;
-    let control = node.control_in()?;
-    let mut builder = RecorderBuilder::new(out_dir, "rig");
+    let summary = match connection {
+        RigConnection::Ipc => {
+            let node = IpcNode::new(run_id, "rig")?;
+            let mut transport = IpcRigTransport {
+                samples: node.displacement_out()?,
+                commands: node.command_in()?,
+                heartbeat: node.heartbeat_out()?,
+                control: node.control_in()?,
+                start_timeout,
+            };
+            let summary = run_rig_loop(&context, &mut transport)?;
+            if summary.orchestrator_lost {
+                // Last one out of a run whose orchestrator died: wait (bounded) for the
+                // other processes to go, then clear the run's shared memory.
+                drop(transport);
+                drop(node);
+                let t = Instant::now();
+                while count_nodes(run_id).unwrap_or(0) > 0 && t.elapsed() < Duration::from_secs(3) {
+                    let _ = crate::ipc::cleanup_dead_nodes(run_id);
+                    std::thread::sleep(Duration::from_millis(50));
+                }
+                crate::ipc::cleanup::clear_run(run_id);
+            }
+            summary
+        }
+        RigConnection::Udp { bind, peer } => {
+            let mut transport = crate::link::rig_end::UdpRigEnd::open(
+                bind,
+                peer,
+                cfg.loop_.period_ns,
+                start_timeout,
+            )
+            .map_err(|e| ProcessError(e.to_string()))?;
+            let mut summary = run_rig_loop(&context, &mut transport)?;
+            summary.link = Some(transport.summary_json());
+            summary
+        }
+    };
+    write_summary(out_dir, "rig", &summary)?;
+    Ok(summary)
+}
+
+/// What the rig's loop needs besides its transport.
+struct RunContext<'a> {
+    cfg: &'a HilConfig,
+    config_text: &'a str,
+    config_base_dir: Option<&'a Path>,
+    run_id: &'a str,
+    out_dir: &'a Path,
+}
+
+fn run_rig_loop(
+    context: &RunContext,
+    transport: &mut impl RigTransport,
+) -> Result<RigSummary, ProcessError> {
+    let cfg = context.cfg;
+    let mut builder = RecorderBuilder::new(context.out_dir, "rig");
     let records = builder.sink::<RigRecord>(cfg.loop_.record_queue_capacity);
     let events = builder.sink::<EventRecord>(256);
     let recorder = builder.spawn()?;
     let mut core = RigCore::new(cfg);
 
     real_time_setup(cfg, &cfg.loop_.rig_cpus, "bench_rig");
-    let start = wait_for_start(process_id::RIG, &heartbeat, &control)?;
+    let start = transport.wait_for_start()?;
     recorder.start(
         start.start_unix_ns,
         meta_json(
             cfg,
             "rig",
-            run_id,
-            config_text,
-            config_base_dir,
+            context.run_id,
+            context.config_text,
+            context.config_base_dir,
             start.start_unix_ns,
         ),
     );
@@ -132,7 +257,7 @@ pub fn run_rig(
         while core.step_idx() < stats.cycle_idx {
             run_period(
                 &mut core,
-                &ports,
+                transport,
                 0,
                 true,
                 &records,
@@ -150,7 +275,7 @@ pub fn run_rig(
         injector.fire_due(core.step_idx() as f64 * dt, core.step_idx(), &events);
         run_period(
             &mut core,
-            &ports,
+            transport,
             stats.wake_late_ns,
             false,
             &records,
@@ -166,7 +291,7 @@ pub fn run_rig(
             break;
         }
         if core.step_idx().is_multiple_of(heartbeat_every) {
-            heartbeat.publish(Heartbeat {
+            let requests = transport.heartbeat(&Heartbeat {
                 process: process_id::RIG,
                 state: core.servo_state(),
                 sequence: core.step_idx(),
@@ -174,7 +299,6 @@ pub fn run_rig(
                 fault_code: core.servo().trip().map_or(0, |t| t.fault.code()),
                 reserved: 0,
             });
-            let requests = poll_control(&control);
             if requests.hold {
                 core.operator(event_kind::OPERATOR_HOLD);
             }
@@ -192,24 +316,30 @@ pub fn run_rig(
     }
     core.finish_event();
     core.drain_events(|e| events.push(e));
-    ports.samples.publish(DisplacementSample {
-        sequence: core.step_idx(),
-        rig_time_ns: core.step_idx() * cfg.loop_.period_ns,
-        publish_time_ns: monotonic_now_ns(),
-        displacement_m: core.physics().x_m,
-        status: sample_status::END_OF_RUN,
-        reserved: 0,
-    });
-    heartbeat.publish(Heartbeat {
-        process: process_id::RIG,
-        state: rig_state::FINISHED,
-        sequence: core.step_idx(),
-        time_ns: monotonic_now_ns(),
-        fault_code: core.servo().trip().map_or(0, |t| t.fault.code()),
-        reserved: 0,
-    });
+    let fault_code = core.servo().trip().map_or(0, |t| t.fault.code());
+    transport.finish(
+        &DisplacementSample {
+            sequence: core.step_idx(),
+            rig_time_ns: core.step_idx() * cfg.loop_.period_ns,
+            publish_time_ns: monotonic_now_ns(),
+            displacement_m: core.physics().x_m,
+            actuator_force_n: core.physics().actuator_force_n,
+            status: sample_status::END_OF_RUN,
+            rig_state: rig_state::FINISHED,
+            rig_fault_code: fault_code,
+            reserved: 0,
+        },
+        &Heartbeat {
+            process: process_id::RIG,
+            state: rig_state::FINISHED,
+            sequence: core.step_idx(),
+            time_ns: monotonic_now_ns(),
+            fault_code,
+            reserved: 0,
+        },
+    );
     let written = recorder.finish();
-    let summary = RigSummary {
+    Ok(RigSummary {
         steps: core.step_idx(),
         missed_deadlines: missed,
         periods_without_command: without_command,
@@ -220,18 +350,6 @@ pub fn run_rig(
         records: written.counts_of("/rig"),
         events: written.counts_of("/events"),
         record_error: written.error,
-    };
-    write_summary(out_dir, "rig", &summary)?;
-    if orchestrator_lost {
-        // Last one out of a run whose orchestrator died: wait (bounded) for the other
-        // processes to go, then clear the run's shared memory.
-        drop((ports, heartbeat, control, node));
-        let t = Instant::now();
-        while count_nodes(run_id).unwrap_or(0) > 0 && t.elapsed() < Duration::from_secs(3) {
-            let _ = crate::ipc::cleanup_dead_nodes(run_id);
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        crate::ipc::cleanup::clear_run(run_id);
-    }
-    Ok(summary)
+        link: None,
+    })
 }

@@ -25,7 +25,7 @@ use fastemu::records::event::event_kind;
 use fastemu::records::{EventRecord, RecordSet};
 use fastemu::rig::core::RigRecord;
 
-static SERIAL: Mutex<()> = Mutex::new(());
+pub(super) static SERIAL: Mutex<()> = Mutex::new(());
 
 /// Serialises the tests that run `hil` (other modules take it too).
 pub fn serial() -> std::sync::MutexGuard<'static, ()> {
@@ -52,15 +52,15 @@ impl Drop for KillOnDrop {
     }
 }
 
-const FASTEMU: &str = env!("CARGO_BIN_EXE_fastemu");
+pub(super) const FASTEMU: &str = env!("CARGO_BIN_EXE_fastemu");
 /// The tests' scenario puts the first axle here (the default: 2.0 s) to keep runs short.
-const AXLE_S: f64 = 1.0;
+pub(super) const AXLE_S: f64 = 1.0;
 /// How long `hil` waits for another run's machine-wide lock before it gives up: a test
 /// waits that long too (another checkout's tests may be running).
 pub const LOCK_WAIT: Duration = Duration::from_secs(300);
 
 /// A running `hil`: killed (SIGTERM, then SIGKILL) and reaped on every exit path.
-struct Hil {
+pub(super) struct Hil {
     child: Option<Child>,
     /// Receives once, when `hil` printed that the loops start.
     started: mpsc::Receiver<Instant>,
@@ -89,7 +89,7 @@ impl Drop for Hil {
     }
 }
 
-fn scratch_dir(name: &str) -> PathBuf {
+pub(super) fn scratch_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("fastemu-it-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
@@ -97,7 +97,7 @@ fn scratch_dir(name: &str) -> PathBuf {
 }
 
 /// The default configuration with the first axle at `AXLE_S`, plus `extra` TOML.
-fn write_config(dir: &Path, replacements: &[(&str, &str)], extra: &str) -> PathBuf {
+pub(super) fn write_config(dir: &Path, replacements: &[(&str, &str)], extra: &str) -> PathBuf {
     let mut text = DEFAULT_CONFIG_TOML.replace(
         "train_first_axle_s = 2.0",
         &format!("train_first_axle_s = {AXLE_S}"),
@@ -113,6 +113,11 @@ fn write_config(dir: &Path, replacements: &[(&str, &str)], extra: &str) -> PathB
 }
 
 fn spawn_hil(config: &Path, out: &Path, duration_s: f64) -> Hil {
+    spawn_hil_with(config, out, duration_s, &[])
+}
+
+/// `spawn_hil` with more arguments for `hil` (e.g. `--rig-link udp`).
+pub(super) fn spawn_hil_with(config: &Path, out: &Path, duration_s: f64, extra: &[&str]) -> Hil {
     let mut child = Command::new(FASTEMU)
         .arg("hil")
         .arg("--json")
@@ -122,6 +127,7 @@ fn spawn_hil(config: &Path, out: &Path, duration_s: f64) -> Hil {
         .arg(duration_s.to_string())
         .arg("--config")
         .arg(config)
+        .args(extra)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -150,12 +156,12 @@ fn spawn_hil(config: &Path, out: &Path, duration_s: f64) -> Hil {
 }
 
 impl Hil {
-    fn pid(&self) -> u32 {
+    pub(super) fn pid(&self) -> u32 {
         self.child.as_ref().unwrap().id()
     }
 
     /// Sleeps until `t_s` of loop time.
-    fn at(&self, t_s: f64) {
+    pub(super) fn at(&self, t_s: f64) {
         let start = self
             .started
             .recv_timeout(LOCK_WAIT + Duration::from_secs(30))
@@ -165,7 +171,7 @@ impl Hil {
     }
 
     /// Waits for `hil` to exit (at most `timeout`); returns (exit code, parsed JSON).
-    fn finish(&mut self, timeout: Duration) -> (i32, serde_json::Value) {
+    pub(super) fn finish(&mut self, timeout: Duration) -> (i32, serde_json::Value) {
         let timeout = timeout + LOCK_WAIT;
         let child = self.child.as_mut().unwrap();
         let t = Instant::now();
@@ -187,7 +193,7 @@ impl Hil {
         (status.code().unwrap_or(-1), json)
     }
 
-    fn stderr(&self) -> String {
+    pub(super) fn stderr(&self) -> String {
         self.stderr.lock().map(|s| s.clone()).unwrap_or_default()
     }
 }
@@ -218,7 +224,7 @@ fn children_of(parent: u32, needle: &str) -> Vec<u32> {
 }
 
 /// Processes anywhere whose command line mentions `run_id`.
-fn processes_of_run(run_id: &str) -> Vec<u32> {
+pub(super) fn processes_of_run(run_id: &str) -> Vec<u32> {
     let mut pids = Vec::new();
     for e in std::fs::read_dir("/proc").unwrap().flatten() {
         let Ok(pid) = e.file_name().to_string_lossy().parse::<u32>() else {
@@ -232,7 +238,7 @@ fn processes_of_run(run_id: &str) -> Vec<u32> {
     pids
 }
 
-fn faults(json: &serde_json::Value) -> Vec<String> {
+pub(super) fn faults(json: &serde_json::Value) -> Vec<String> {
     json["faults"].as_array().map_or(Vec::new(), |a| {
         a.iter()
             .filter_map(|f| f.as_str().map(String::from))
@@ -240,7 +246,7 @@ fn faults(json: &serde_json::Value) -> Vec<String> {
     })
 }
 
-fn assert_nothing_left(json: &serde_json::Value) {
+pub(super) fn assert_nothing_left(json: &serde_json::Value) {
     let run_id = json["run_id"].as_str().expect("run_id in output");
     assert!(
         processes_of_run(run_id).is_empty(),
@@ -252,7 +258,7 @@ fn assert_nothing_left(json: &serde_json::Value) {
     );
 }
 
-fn the_child(hil: &Hil, needle: &str) -> u32 {
+pub(super) fn the_child(hil: &Hil, needle: &str) -> u32 {
     let t = Instant::now();
     loop {
         if let Some(&pid) = children_of(hil.pid(), needle).first() {
@@ -268,7 +274,7 @@ fn the_child(hil: &Hil, needle: &str) -> u32 {
 }
 
 /// The rig's records, read back from the report directory.
-fn rig_records(dir: &Path) -> Vec<RigRecord> {
+pub(super) fn rig_records(dir: &Path) -> Vec<RigRecord> {
     RecordSet::open(dir)
         .unwrap()
         .read_all::<RigRecord>()
@@ -278,7 +284,7 @@ fn rig_records(dir: &Path) -> Vec<RigRecord> {
 /// The physics of a hold after a fault near `fault_s`, from the rig's own records: the
 /// rig held (for at least 0.5 s), the specimen stayed within the pre-fault range
 /// +- 0.5 mm, and it was at rest at the end.
-fn assert_hold_in_records(dir: &Path, fault_s: f64, label: &str) {
+pub(super) fn assert_hold_in_records(dir: &Path, fault_s: f64, label: &str) {
     let rig = rig_records(dir);
     let pre: Vec<f64> = rig
         .iter()

@@ -15,7 +15,7 @@ use fastemu::bench::latency::end_to_end::parse_hil_output;
 use fastemu::bench::latency::hlog::{write_interval_log, LoggedInterval};
 use fastemu::bench::latency::split_into_rounds;
 use fastemu::bench::latency::stats::{new_latency_histogram, percentile_curve, PercentileSummary};
-use fastemu::bench::latency::transport::{decode_sample, encode_sample, Transport};
+use fastemu::bench::latency::transport::{Transport, SOCKET_BYTES};
 use fastemu::child::ChildGuard;
 use fastemu::ipc::messages::DisplacementSample;
 
@@ -167,16 +167,26 @@ fn hlog_rejects_tags_the_format_cannot_carry() {
 }
 
 #[test]
-fn socket_encoding_round_trips_the_real_message() {
+fn socket_rounds_carry_the_rig_links_datagrams_and_keys_round_trip() {
+    use fastemu::link::protocol::{decode, encode_sample, Datagram, SampleDatagram, Side};
     let sample = DisplacementSample {
         sequence: u64::MAX - 3,
         rig_time_ns: 123_456_789,
         publish_time_ns: 987_654_321_000,
         displacement_m: -4.25e-4,
+        actuator_force_n: 2.0e4,
         status: 2,
-        reserved: 0xdead_beef,
+        rig_state: 1,
+        rig_fault_code: 0,
+        reserved: 0,
     };
-    assert_eq!(decode_sample(&encode_sample(&sample)), sample);
+    let mut buf = [0u8; fastemu::link::protocol::MAX_DATAGRAM_BYTES];
+    let n = encode_sample(&mut buf, 7, 8, &SampleDatagram::of(&sample, 0, 0));
+    assert_eq!(n, SOCKET_BYTES.0);
+    match decode(&buf[..n], Side::Fastemu).unwrap().1 {
+        Datagram::Sample(d) => assert_eq!(d.to_sample(sample.publish_time_ns), sample),
+        other => panic!("{other:?}"),
+    }
     for t in Transport::ALL {
         assert_eq!(Transport::from_key(t.key()), Some(t));
     }
@@ -298,7 +308,12 @@ fn tiny_run_reports_every_transport_and_writes_its_files() {
         }
     }
     assert!(report["ratio_udp_over_iceoryx2_p99"].is_number());
-    assert_eq!(report["message_bytes"], 40);
+    assert_eq!(report["message_bytes"], 56);
+    assert_eq!(
+        report["socket_datagram_bytes"],
+        serde_json::json!([88, 144])
+    );
+    assert!(report["loop"]["end_to_end_udp_link"]["note"].is_string());
     assert_eq!(report["out_dir"], out.to_str().unwrap());
 
     // One interval per round per transport and per scheduler configuration.

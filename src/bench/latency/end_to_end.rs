@@ -1,6 +1,8 @@
 //! End-to-end latency of the real three-process loop (rig sample published -> actuator
-//! command received), taken from a short `fastemu hil --json --duration-s S` run of the
-//! same executable. Its contract: one JSON object on stdout with
+//! command published), taken from a short `fastemu hil --json --duration-s S` run of the
+//! same executable, on iceoryx2 and with the simulated rig behind the UDP rig link
+//! (`--rig-link udp`: the sample's time is when the rig sent its datagram, so the link's
+//! hop is included; the link's own latency comes from `link.latency_ns`). Its contract: one JSON object on stdout with
 //! `latency_ns.end_to_end` and `latency_ns.wake_jitter`, each holding `p50`, `p99`,
 //! `p999`, `max` in ns. If this binary has no `hil` subcommand, or the run fails, the
 //! result is "unavailable" with the reason, never an error of the benchmark.
@@ -28,6 +30,8 @@ pub enum EndToEnd {
         end_to_end: LoopLatency,
         /// The loop's own wake-up jitter during that run, if reported.
         wake_jitter: Option<LoopLatency>,
+        /// The UDP rig link's latency (`link.latency_ns`) when the run used the link.
+        link: Option<LoopLatency>,
         command: String,
     },
     Unavailable {
@@ -68,14 +72,29 @@ pub fn parse_hil_output(stdout: &str) -> Result<(LoopLatency, Option<LoopLatency
     Ok((end_to_end, wake_jitter))
 }
 
-/// Runs `exe hil --json --duration-s duration_s`, killing it after `timeout`.
-pub fn measure_end_to_end(exe: &Path, duration_s: f64, timeout: Duration) -> EndToEnd {
-    let args = [
+/// Reads `link.latency_ns` of a `hil --json --rig-link udp` output, if there.
+pub fn parse_link_latency(stdout: &str) -> Option<LoopLatency> {
+    let object: serde_json::Value = stdout
+        .lines()
+        .rev()
+        .find_map(|line| serde_json::from_str(line.trim()).ok())?;
+    parse_loop_latency(&object["link"]["latency_ns"])
+}
+
+/// Runs `exe hil --json --duration-s duration_s [extra]`, killing it after `timeout`.
+pub fn measure_end_to_end(
+    exe: &Path,
+    duration_s: f64,
+    timeout: Duration,
+    extra: &[&str],
+) -> EndToEnd {
+    let mut args = vec![
         "hil".to_string(),
         "--json".to_string(),
         "--duration-s".to_string(),
         format!("{duration_s}"),
     ];
+    args.extend(extra.iter().map(|a| a.to_string()));
     let command = format!("{} {}", exe.display(), args.join(" "));
     let unavailable = |reason: String| EndToEnd::Unavailable {
         reason,
@@ -137,6 +156,7 @@ pub fn measure_end_to_end(exe: &Path, duration_s: f64, timeout: Duration) -> End
         Ok((end_to_end, wake_jitter)) => EndToEnd::Measured {
             end_to_end,
             wake_jitter,
+            link: parse_link_latency(&stdout),
             command,
         },
         Err(reason) => unavailable(reason),

@@ -32,7 +32,7 @@ use jitter::{
     measure_wake_jitter, set_timer_slack_ns, thread_is_realtime, timer_slack_ns, JitterConfig,
 };
 use stats::{new_latency_histogram, percentile_curve, PercentileSummary};
-use transport::{crossbeam_round, PeerSession, Transport, MESSAGE_BYTES};
+use transport::{crossbeam_round, PeerSession, Transport, MESSAGE_BYTES, SOCKET_BYTES};
 
 /// Everything one benchmark run needs.
 #[derive(Debug, Clone)]
@@ -87,6 +87,8 @@ pub struct LatencyReport {
     pub transports: Vec<TransportResult>,
     pub wake_jitter: Vec<JitterResult>,
     pub end_to_end: EndToEnd,
+    /// The same loop with the simulated rig behind the UDP rig link.
+    pub end_to_end_udp_link: EndToEnd,
     pub rounds: u64,
     pub warmup_per_round: u64,
     pub spin_ns: u64,
@@ -173,10 +175,12 @@ pub fn run_latency_bench(
         )?;
         warnings.extend(session.peer_warnings.iter().map(|w| format!("peer: {w}")));
         progress(&format!(
-            "transports: {} rounds x ~{} samples each of {}, message {MESSAGE_BYTES} bytes",
+            "transports: {} rounds x ~{} samples each of {}, message {MESSAGE_BYTES} bytes (sockets: link datagrams {} out, {} back)",
             rounds,
             per_round[0],
-            Transport::ALL.map(Transport::key).join(", ")
+            Transport::ALL.map(Transport::key).join(", "),
+            SOCKET_BYTES.0,
+            SOCKET_BYTES.1
         ));
         for (round_idx, &n_measured) in per_round.iter().enumerate() {
             let mut line = format!("  round {}/{rounds}:", round_idx + 1);
@@ -291,16 +295,18 @@ pub fn run_latency_bench(
         })
         .collect();
 
-    // --- end-to-end from the real loop --------------------------------------------
-    let end_to_end = match config.hil_duration_s {
+    // --- end-to-end from the real loop, on iceoryx2 and behind the UDP rig link ------
+    let hil_run = |extra: &[&str], progress: &mut dyn FnMut(&str)| match config.hil_duration_s {
         Some(duration_s) => {
             progress(&format!(
-                "end-to-end: `hil --json --duration-s {duration_s}`"
+                "end-to-end: `hil --json --duration-s {duration_s} {}`",
+                extra.join(" ")
             ));
             measure_end_to_end(
                 &config.exe,
                 duration_s,
                 Duration::from_secs_f64(duration_s + 60.0),
+                extra,
             )
         }
         None => EndToEnd::Unavailable {
@@ -308,6 +314,8 @@ pub fn run_latency_bench(
             command: String::new(),
         },
     };
+    let end_to_end = hil_run(&[], &mut *progress);
+    let end_to_end_udp_link = hil_run(&["--rig-link", "udp"], &mut *progress);
 
     let leftovers: Vec<String> = iceoryx2_shm_entries()
         .difference(&shm_before)
@@ -335,6 +343,7 @@ pub fn run_latency_bench(
         transports,
         wake_jitter,
         end_to_end,
+        end_to_end_udp_link,
         rounds,
         warmup_per_round: config.warmup_per_round,
         spin_ns: config.spin_ns,
@@ -428,6 +437,7 @@ impl LatencyReport {
                 end_to_end,
                 wake_jitter,
                 command,
+                ..
             } => (
                 serde_json::to_value(end_to_end).expect("plain struct"),
                 format!("from `{command}`"),
@@ -442,6 +452,7 @@ impl LatencyReport {
         serde_json::json!({
             "hop": "one-way hop latency = round-trip time / 2, ns, 2 processes (crossbeam: 2 threads)",
             "message_bytes": MESSAGE_BYTES,
+            "socket_datagram_bytes": [SOCKET_BYTES.0, SOCKET_BYTES.1],
             "rounds": self.rounds,
             "warmup_per_round": self.warmup_per_round,
             "transports": transports,
@@ -451,6 +462,7 @@ impl LatencyReport {
                 "jitter_thread_realtime": self.jitter_thread_realtime,
                 "end_to_end": end_to_end,
                 "end_to_end_note": end_to_end_note,
+                "end_to_end_udp_link": self.udp_link_json(),
                 "hil_wake_jitter": hil_wake_jitter,
             },
             "ratio_udp_over_iceoryx2_p99": self.ratio_udp_over_iceoryx2_p99(),
@@ -462,6 +474,26 @@ impl LatencyReport {
             "png": self.png_path.display().to_string(),
             "elapsed_s": self.elapsed_s,
         })
+    }
+
+    /// `loop.end_to_end_udp_link`: the loop's end-to-end latency and the link's own
+    /// latency with the simulated rig behind the UDP rig link.
+    fn udp_link_json(&self) -> serde_json::Value {
+        match &self.end_to_end_udp_link {
+            EndToEnd::Measured {
+                end_to_end,
+                link,
+                command,
+                ..
+            } => serde_json::json!({
+                "end_to_end": end_to_end,
+                "link": link,
+                "note": format!("from `{command}`"),
+            }),
+            EndToEnd::Unavailable { reason, .. } => {
+                serde_json::json!({"note": format!("unavailable: {reason}")})
+            }
+        }
     }
 
     /// The terminal table.
@@ -486,7 +518,9 @@ impl LatencyReport {
             )
         };
         out.push_str(&format!(
-            "One-way hop latency = RTT/2 ({MESSAGE_BYTES}-byte DisplacementSample, {} rounds interleaved)\n",
+            "One-way hop latency = RTT/2 ({MESSAGE_BYTES}-byte DisplacementSample; udp/uds: the rig link's {}-byte sample and {}-byte command datagrams; {} rounds interleaved)\n",
+            SOCKET_BYTES.0,
+            SOCKET_BYTES.1,
             self.rounds
         ));
         out.push_str(&header);
@@ -527,6 +561,38 @@ impl LatencyReport {
                 e.p999_ns / 1e3,
                 e.max_ns / 1e3
             )),
+            EndToEnd::Unavailable { reason, .. } => {
+                out.push_str(&format!("unavailable: {reason}\n"))
+            }
+        }
+        out.push_str(
+            "End-to-end, simulated rig behind the UDP rig link (rig sent -> command published): ",
+        );
+        match &self.end_to_end_udp_link {
+            EndToEnd::Measured {
+                end_to_end: e,
+                link,
+                command,
+                ..
+            } => {
+                out.push_str(&format!(
+                    "p50 {:.2} us, p99 {:.2} us, p99.9 {:.2} us, max {:.2} us\n",
+                    e.p50_ns / 1e3,
+                    e.p99_ns / 1e3,
+                    e.p999_ns / 1e3,
+                    e.max_ns / 1e3
+                ));
+                if let Some(l) = link {
+                    out.push_str(&format!(
+                        "  the link's sample datagram alone: p50 {:.2} us, p99 {:.2} us, p99.9 {:.2} us, max {:.2} us\n",
+                        l.p50_ns / 1e3,
+                        l.p99_ns / 1e3,
+                        l.p999_ns / 1e3,
+                        l.max_ns / 1e3
+                    ));
+                }
+                out.push_str(&format!("  (from `{command}`)\n"));
+            }
             EndToEnd::Unavailable { reason, .. } => {
                 out.push_str(&format!("unavailable: {reason}\n"))
             }

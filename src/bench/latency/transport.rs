@@ -1,7 +1,8 @@
-//! Ping-pong hop latency over five transports with the loop's real message
-//! (`DisplacementSample`, 40 bytes): iceoryx2 busy polling, iceoryx2 with `WaitSet`
-//! wake-up, UDP on 127.0.0.1, a Unix datagram socket, and a crossbeam channel between
-//! two threads of this process (the lower bound).
+//! Ping-pong hop latency over five transports with the loop's real messages: iceoryx2
+//! busy polling, iceoryx2 with `WaitSet` wake-up and a crossbeam channel between two
+//! threads of this process (the lower bound) carry `DisplacementSample`; UDP on 127.0.0.1
+//! and a Unix datagram socket carry the UDP rig link's datagrams (a sample out, a command
+//! back), UDP through the link's own socket code (`crate::link`).
 //!
 //! The measuring process (`PeerSession`) spawns a copy of the current executable
 //! (`fastemu bench latency-peer`, served by `serve_peer`) and drives it over a Unix
@@ -15,7 +16,6 @@
 //! `RECEIVE_TIMEOUT` so a dead peer fails the run instead of hanging it.
 
 use std::io::{BufRead, BufReader, Write};
-use std::net::UdpSocket;
 use std::os::unix::net::{UnixDatagram, UnixListener, UnixStream};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -25,8 +25,15 @@ use anyhow::{bail, ensure, Context};
 use hdrhistogram::Histogram;
 
 use crate::child::ChildGuard;
-use crate::ipc::messages::DisplacementSample;
+use crate::ipc::messages::{
+    command_mode, controller_state, ActuatorCommand, DisplacementSample, LocalLaw,
+};
 use crate::ipc::pingpong::{IoxPingPong, IoxRole};
+use crate::link::protocol::{
+    decode, encode_command, encode_sample, CommandDatagram, Datagram, SampleDatagram, Side,
+    COMMAND_BYTES, MAX_DATAGRAM_BYTES, SAMPLE_BYTES,
+};
+use crate::link::socket::{free_loopback_pair, open_link, LinkReceiver, LinkSender, Receive};
 use crate::rt::clock::monotonic_now_ns;
 use crate::rt::{apply_rt_setup, RtSetup};
 
@@ -35,12 +42,11 @@ pub const RECEIVE_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long the peer may take to start and to answer control lines.
 const CONTROL_TIMEOUT: Duration = Duration::from_secs(30);
 
-/// Bytes of one message on every transport.
+/// Bytes of the iceoryx2 and crossbeam message (`DisplacementSample`).
 pub const MESSAGE_BYTES: usize = std::mem::size_of::<DisplacementSample>();
-const _: () = assert!(
-    MESSAGE_BYTES == 40,
-    "socket encoding below assumes 40 bytes"
-);
+/// The socket transports carry the UDP rig link's datagrams: a sample datagram out, a
+/// command datagram back (the link's own encoding, `crate::link::protocol`).
+pub const SOCKET_BYTES: (usize, usize) = (SAMPLE_BYTES, COMMAND_BYTES);
 
 /// A transport under test.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -96,29 +102,57 @@ impl Transport {
     }
 }
 
-/// Encodes a sample for the socket transports (little-endian fields, 40 bytes).
-pub fn encode_sample(sample: &DisplacementSample) -> [u8; MESSAGE_BYTES] {
-    let mut out = [0u8; MESSAGE_BYTES];
-    out[0..8].copy_from_slice(&sample.sequence.to_le_bytes());
-    out[8..16].copy_from_slice(&sample.rig_time_ns.to_le_bytes());
-    out[16..24].copy_from_slice(&sample.publish_time_ns.to_le_bytes());
-    out[24..32].copy_from_slice(&sample.displacement_m.to_le_bytes());
-    out[32..36].copy_from_slice(&sample.status.to_le_bytes());
-    out[36..40].copy_from_slice(&sample.reserved.to_le_bytes());
-    out
+/// The command datagram that answers `sample` (its sequence and send time echoed): what
+/// fastemu's end of the link sends the rig.
+fn answer(sample: &SampleDatagram, sample_time_ns: u64) -> CommandDatagram {
+    CommandDatagram {
+        command: ActuatorCommand {
+            sequence: sample.sample_sequence,
+            setpoint_sequence: sample.sample_sequence,
+            sample_sequence: sample.sample_sequence,
+            sample_publish_time_ns: 0,
+            law: LocalLaw::constant(2.0e4),
+            force_min_n: -5e3,
+            force_max_n: 1.2e5,
+            mode: command_mode::LAW,
+            controller_state: controller_state::RUNNING,
+            fault_code: 0,
+            reserved: 0,
+        },
+        echo_sample_time_ns: sample_time_ns,
+    }
 }
 
-/// Inverse of `encode_sample`.
-pub fn decode_sample(bytes: &[u8; MESSAGE_BYTES]) -> DisplacementSample {
-    let u64_at = |i: usize| u64::from_le_bytes(bytes[i..i + 8].try_into().expect("8 bytes"));
-    let u32_at = |i: usize| u32::from_le_bytes(bytes[i..i + 4].try_into().expect("4 bytes"));
-    DisplacementSample {
-        sequence: u64_at(0),
-        rig_time_ns: u64_at(8),
-        publish_time_ns: u64_at(16),
-        displacement_m: f64::from_bits(u64_at(24)),
-        status: u32_at(32),
-        reserved: u32_at(36),
+/// The sample a command datagram answers (its sequence), for the ping loop.
+fn answered(command: &CommandDatagram) -> DisplacementSample {
+    SampleDatagram {
+        sample_sequence: command.command.sample_sequence,
+        rig_time_ns: 0,
+        displacement_m: 0.0,
+        actuator_force_n: 0.0,
+        status: 0,
+        rig_state: 0,
+        rig_fault_code: 0,
+        echo_command_time_ns: 0,
+        echo_hold_ns: 0,
+    }
+    .to_sample(0)
+}
+
+/// Receives on the link until a datagram of the wanted kind is accepted (rejected ones
+/// are skipped); fails after `RECEIVE_TIMEOUT` of silence.
+fn link_receive(receiver: &mut LinkReceiver, what: &str) -> anyhow::Result<Datagram> {
+    let start_ns = monotonic_now_ns();
+    loop {
+        match receiver.receive() {
+            Receive::Accepted(r) => return Ok(r.datagram),
+            Receive::Rejected(reason) => bail!("{what}: datagram rejected ({reason})"),
+            Receive::Nothing => {
+                if monotonic_now_ns() - start_ns > RECEIVE_TIMEOUT.as_nanos() as u64 {
+                    bail!("{what}: nothing received for {RECEIVE_TIMEOUT:?}");
+                }
+            }
+        }
     }
 }
 
@@ -169,7 +203,10 @@ fn ping_loop(
             rig_time_ns: sequence,
             publish_time_ns: sent_ns,
             displacement_m: 4e-4,
+            actuator_force_n: 0.0,
             status: 0,
+            rig_state: 0,
+            rig_fault_code: 0,
             reserved: 0,
         };
         let echo = exchange(ping)?;
@@ -200,22 +237,22 @@ fn echo_loop(
     Ok(())
 }
 
-fn socket_receive(
-    result: std::io::Result<usize>,
-    buf: &[u8; MESSAGE_BYTES],
+/// Receives one datagram on a Unix socket and decodes it for `side`.
+fn uds_receive(
+    uds: &UnixDatagram,
+    buf: &mut [u8; MAX_DATAGRAM_BYTES + 1],
+    side: Side,
     what: &str,
-) -> anyhow::Result<DisplacementSample> {
-    let len = result.with_context(|| format!("{what} receive"))?;
-    ensure!(
-        len == MESSAGE_BYTES,
-        "{what}: datagram of {len} bytes, expected {MESSAGE_BYTES}"
-    );
-    Ok(decode_sample(buf))
+) -> anyhow::Result<Datagram> {
+    let len = uds.recv(buf).with_context(|| format!("{what} receive"))?;
+    decode(&buf[..len], side)
+        .map(|(_, d)| d)
+        .map_err(|reason| anyhow::anyhow!("{what}: datagram rejected ({reason})"))
 }
 
-fn socket_send(result: std::io::Result<usize>, what: &str) -> anyhow::Result<()> {
-    let len = result.with_context(|| format!("{what} send"))?;
-    ensure!(len == MESSAGE_BYTES, "{what}: sent {len} bytes");
+fn uds_send(uds: &UnixDatagram, bytes: &[u8], what: &str) -> anyhow::Result<()> {
+    let len = uds.send(bytes).with_context(|| format!("{what} send"))?;
+    ensure!(len == bytes.len(), "{what}: sent {len} bytes");
     Ok(())
 }
 
@@ -324,6 +361,7 @@ pub struct PeerConfig {
     pub control_path: PathBuf,
     pub iox_prefix: String,
     pub parent_udp_port: u16,
+    pub peer_udp_port: u16,
     pub parent_uds_path: PathBuf,
     pub peer_uds_path: PathBuf,
     pub rt: RtSetup,
@@ -336,7 +374,7 @@ pub struct PeerSession {
     control_reader: BufReader<UnixStream>,
     control_writer: UnixStream,
     iox: IoxPingPong,
-    udp: UdpSocket,
+    udp: (LinkSender, LinkReceiver),
     uds: UnixDatagram,
     yield_while_spinning: bool,
     /// Warnings the peer reported for its real-time setup.
@@ -358,8 +396,10 @@ impl PeerSession {
         let dir = RunDir::create(unique)?;
         let iox_prefix = format!("fastemu_latency_{unique}");
         let iox = IoxPingPong::new(&iox_prefix, IoxRole::Pinger)?;
-        let udp = UdpSocket::bind("127.0.0.1:0").context("binding UDP socket on 127.0.0.1")?;
-        let parent_udp_port = udp.local_addr()?.port();
+        // The pinger is the rig's end of a UDP rig link, the peer fastemu's end.
+        let (parent_udp, peer_udp) = free_loopback_pair()?;
+        let udp = open_link(parent_udp, peer_udp, Side::Rig, Some(RECEIVE_TIMEOUT))?;
+        let parent_udp_port = parent_udp.port();
         let parent_uds_path = dir.path().join("main.sock");
         let peer_uds_path = dir.path().join("peer.sock");
         let control_path = dir.path().join("control.sock");
@@ -373,6 +413,7 @@ impl PeerSession {
             control_path,
             iox_prefix,
             parent_udp_port,
+            peer_udp_port: peer_udp.port(),
             parent_uds_path,
             peer_uds_path: peer_uds_path.clone(),
             rt: peer_rt.clone(),
@@ -412,23 +453,23 @@ impl PeerSession {
         let control_writer = control.try_clone()?;
         let mut session_reader = BufReader::new(control);
         let mut peer_warnings = Vec::new();
-        let peer_udp_port = loop {
+        loop {
             let line = read_control_line(&mut session_reader)?;
             if let Some(warning) = line.strip_prefix("warn ") {
                 peer_warnings.push(warning.to_string());
             } else if let Some(port) = line.strip_prefix("ready ") {
-                break port
-                    .parse::<u16>()
-                    .with_context(|| format!("peer sent a bad UDP port `{port}`"))?;
+                ensure!(
+                    port == peer_udp.port().to_string(),
+                    "peer bound UDP port `{port}`, expected {}",
+                    peer_udp.port()
+                );
+                break;
             } else if let Some(error) = line.strip_prefix("error ") {
                 bail!("latency peer failed to start: {error}");
             } else {
                 bail!("unexpected line from latency peer: `{line}`");
             }
-        };
-        udp.connect(("127.0.0.1", peer_udp_port))
-            .context("connecting UDP socket to the peer")?;
-        udp.set_read_timeout(Some(RECEIVE_TIMEOUT))?;
+        }
         uds.connect(&peer_uds_path)
             .with_context(|| format!("connecting to {}", peer_uds_path.display()))?;
         uds.set_read_timeout(Some(RECEIVE_TIMEOUT))?;
@@ -482,19 +523,31 @@ impl PeerSession {
                 })??;
             }
             Transport::Udp => {
-                let udp = &self.udp;
-                let mut buf = [0u8; MESSAGE_BYTES];
+                let (sender, receiver) = &mut self.udp;
                 ping_loop(n_warmup, n_measured, hop_ns, |ping| {
-                    socket_send(udp.send(&encode_sample(&ping)), "udp")?;
-                    socket_receive(udp.recv(&mut buf), &buf, "udp")
+                    sender.send_sample(&SampleDatagram::of(&ping, 0, 0));
+                    match link_receive(receiver, "udp")? {
+                        Datagram::Command(c) => Ok(answered(&c)),
+                        other => bail!("udp: expected a command datagram, got {other:?}"),
+                    }
                 })?;
             }
             Transport::Uds => {
                 let uds = &self.uds;
-                let mut buf = [0u8; MESSAGE_BYTES];
+                let mut out = [0u8; MAX_DATAGRAM_BYTES];
+                let mut buf = [0u8; MAX_DATAGRAM_BYTES + 1];
                 ping_loop(n_warmup, n_measured, hop_ns, |ping| {
-                    socket_send(uds.send(&encode_sample(&ping)), "uds")?;
-                    socket_receive(uds.recv(&mut buf), &buf, "uds")
+                    let n = encode_sample(
+                        &mut out,
+                        ping.sequence,
+                        ping.publish_time_ns,
+                        &SampleDatagram::of(&ping, 0, 0),
+                    );
+                    uds_send(uds, &out[..n], "uds")?;
+                    match uds_receive(uds, &mut buf, Side::Rig, "uds")? {
+                        Datagram::Command(c) => Ok(answered(&c)),
+                        other => bail!("uds: expected a command datagram, got {other:?}"),
+                    }
                 })?;
             }
             Transport::Crossbeam => unreachable!("checked above"),
@@ -536,6 +589,8 @@ pub fn peer_command_args(config: &PeerConfig) -> Vec<String> {
         config.iox_prefix.clone(),
         "--parent-udp-port".to_string(),
         config.parent_udp_port.to_string(),
+        "--peer-udp-port".to_string(),
+        config.peer_udp_port.to_string(),
         "--parent-uds".to_string(),
         config.parent_uds_path.display().to_string(),
         "--peer-uds".to_string(),
@@ -573,14 +628,14 @@ pub fn serve_peer(config: &PeerConfig) -> anyhow::Result<()> {
     for warning in apply_rt_setup(&config.rt) {
         writeln!(writer, "warn {warning}")?;
     }
-    let endpoints = match PeerEndpoints::open(config) {
+    let mut endpoints = match PeerEndpoints::open(config) {
         Ok(e) => e,
         Err(e) => {
             let _ = writeln!(writer, "error {e:#}");
             return Err(e);
         }
     };
-    writeln!(writer, "ready {}", endpoints.udp.local_addr()?.port())?;
+    writeln!(writer, "ready {}", endpoints.udp.0.local_addr()?.port())?;
     let yield_spin = config.yield_while_spinning;
     loop {
         let mut line = String::new();
@@ -604,16 +659,20 @@ pub fn serve_peer(config: &PeerConfig) -> anyhow::Result<()> {
 
 struct PeerEndpoints {
     iox: IoxPingPong,
-    udp: UdpSocket,
+    udp: (LinkSender, LinkReceiver),
     uds: UnixDatagram,
 }
 
 impl PeerEndpoints {
     fn open(config: &PeerConfig) -> anyhow::Result<PeerEndpoints> {
         let iox = IoxPingPong::new(&config.iox_prefix, IoxRole::Ponger)?;
-        let udp = UdpSocket::bind("127.0.0.1:0").context("binding UDP socket on 127.0.0.1")?;
-        udp.connect(("127.0.0.1", config.parent_udp_port))?;
-        udp.set_read_timeout(Some(RECEIVE_TIMEOUT))?;
+        let loopback = |port: u16| std::net::SocketAddr::from(([127, 0, 0, 1], port));
+        let udp = open_link(
+            loopback(config.peer_udp_port),
+            loopback(config.parent_udp_port),
+            Side::Fastemu,
+            Some(RECEIVE_TIMEOUT),
+        )?;
         let uds = UnixDatagram::bind(&config.peer_uds_path)
             .with_context(|| format!("binding {}", config.peer_uds_path.display()))?;
         uds.connect(&config.parent_uds_path)
@@ -623,7 +682,7 @@ impl PeerEndpoints {
     }
 
     fn echo_round(
-        &self,
+        &mut self,
         transport: Transport,
         count: u64,
         yield_spin: bool,
@@ -652,21 +711,31 @@ impl PeerEndpoints {
             })?,
             Transport::Udp => {
                 writeln!(control, "go")?;
-                let mut buf = [0u8; MESSAGE_BYTES];
-                echo_loop(
-                    count,
-                    || socket_receive(self.udp.recv(&mut buf), &buf, "udp echo"),
-                    |s| socket_send(self.udp.send(&encode_sample(&s)), "udp echo"),
-                )
+                let (sender, receiver) = &mut self.udp;
+                for _ in 0..count {
+                    match link_receive(receiver, "udp echo")? {
+                        Datagram::Sample(d) => {
+                            sender.send_command(&answer(&d, 0));
+                        }
+                        other => bail!("udp echo: expected a sample datagram, got {other:?}"),
+                    }
+                }
+                Ok(())
             }
             Transport::Uds => {
                 writeln!(control, "go")?;
-                let mut buf = [0u8; MESSAGE_BYTES];
-                echo_loop(
-                    count,
-                    || socket_receive(self.uds.recv(&mut buf), &buf, "uds echo"),
-                    |s| socket_send(self.uds.send(&encode_sample(&s)), "uds echo"),
-                )
+                let mut out = [0u8; MAX_DATAGRAM_BYTES];
+                let mut buf = [0u8; MAX_DATAGRAM_BYTES + 1];
+                for i in 0..count {
+                    match uds_receive(&self.uds, &mut buf, Side::Fastemu, "uds echo")? {
+                        Datagram::Sample(d) => {
+                            let n = encode_command(&mut out, i, 0, &answer(&d, 0));
+                            uds_send(&self.uds, &out[..n], "uds echo")?;
+                        }
+                        other => bail!("uds echo: expected a sample datagram, got {other:?}"),
+                    }
+                }
+                Ok(())
             }
             Transport::Crossbeam => bail!("crossbeam rounds need no peer"),
         }

@@ -80,6 +80,42 @@ pub struct Analysis {
     pub records: RecordsInfo,
     /// Every event, as one line each.
     pub events: Vec<String>,
+    /// Where the rig's view comes from: its own records, or (an external rig) what it
+    /// sent in its samples, from the emulator's records.
+    pub rig_view: String,
+}
+
+/// `Analysis::rig_view` when the rig's own records exist.
+pub const RIG_VIEW_OWN: &str = "the rig's own records";
+/// `Analysis::rig_view` for an external rig.
+pub const RIG_VIEW_EXTERNAL: &str = "external rig: what it sent in its samples (measured displacement, measured force, its state and fault), from the emulator's records; its true displacement, load programme, commands applied and own events are not available, and its own fault is dated by the first sample that carried it; the fidelity compares the measured displacement with the offline reference of this configuration's scenario, meaningful only if the rig ran that scenario on the configured specimen";
+
+/// The rig's view of one period from the emulator's record of its sample (external rig).
+fn rig_record_from_sample(e: &EmulatorRecord) -> RigRecord {
+    RigRecord {
+        t_s: e.t_s,
+        step_idx: e.sample_seq,
+        x_m: e.z_used_m,
+        // Unknown: a resume from an operator hold restarts the reference at rest.
+        v_m_per_s: 0.0,
+        z_measured_m: e.z_used_m,
+        command_n: f64::NAN,
+        actuator_force_n: e.rig_force_n,
+        external_force_n: f64::NAN,
+        // Unknown: the rig's sample time stands in (the comparison ends at a hold).
+        programme_time_s: e.t_s,
+        programme_cycle: 0,
+        programme_block: 0,
+        command_sample_seq: u64::MAX,
+        command_age_periods: 0,
+        law_age_periods: 0,
+        mode: crate::ipc::messages::command_mode::LAW,
+        state: e.rig_state,
+        fault_code: e.rig_fault_code,
+        wake_late_ns: 0,
+        catch_up: 0,
+        published: 1,
+    }
 }
 
 /// What the side streams give.
@@ -92,6 +128,10 @@ struct SideStreams {
     controller_gaps: Vec<Gap>,
     emulator_force: Decimator,
     truncated: Vec<String>,
+    /// Records of the rig itself (0: an external rig; its view comes from the samples).
+    rig_records: u64,
+    /// The first fault an external rig reported in its samples: (t_s, sample, code).
+    sample_rig_fault: Option<(f64, u64, u32)>,
 }
 
 /// Pass 1: events, the emulator's and the controller's records.
@@ -106,6 +146,8 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
         controller_gaps: Vec::new(),
         emulator_force: Decimator::new(0.0, 1e-3, PLOT_BUCKETS),
         truncated: Vec::new(),
+        rig_records: 0,
+        sample_rig_fault: None,
     };
     let mut last_cycle: Option<u64> = None;
     let mut last_command_t: Option<f64> = None;
@@ -118,9 +160,13 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
                     side.events.push(e);
                 }
             }
+            t if t == RigRecord::TOPIC => side.rig_records += 1,
             t if t == EmulatorRecord::TOPIC => {
                 if let Some(r) = EmulatorRecord::decode(data) {
                     side.emulator_steps += 1;
+                    if r.rig_fault_code != 0 && side.sample_rig_fault.is_none() {
+                        side.sample_rig_fault = Some((r.t_s, r.sample_seq, r.rig_fault_code));
+                    }
                     side.emulator_force.push(r.t_s, r.force_n);
                     if last_cycle != Some(r.cycle_idx) {
                         side.wake_jitter.saturating_record(r.wake_late_ns.max(1));
@@ -158,6 +204,22 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
         .iter()
         .map(|(p, e)| format!("{}: {e}", p.display()))
         .collect();
+    if side.rig_records == 0 {
+        // An external rig records nothing here: its own fault is known from its samples.
+        if let Some((t_s, step_idx, code)) = side.sample_rig_fault {
+            side.events.push(EventRecord {
+                t_s,
+                process: crate::ipc::messages::process_id::RIG,
+                kind: crate::records::event_kind::FAULT,
+                fault_code: code,
+                remote_fault_code: 0,
+                action: crate::records::event::action_code::NONE,
+                detection_latency_periods: 0,
+                step_idx,
+                value: f64::NAN,
+            });
+        }
+    }
     side.events.sort_by(|a, b| a.t_s.total_cmp(&b.t_s));
     Ok(side)
 }
@@ -229,7 +291,7 @@ fn read_rig_stream(
         ];
         stalls.push_high_passed(step, i_hp.1, &sources);
     };
-    set.for_each::<RigRecord>(|_, r| {
+    let mut on_rig_record = |r: &RigRecord| {
         rig_steps += 1;
         programme_at_end = (r.programme_cycle, r.programme_block, r.programme_time_s);
         // The reference follows programme time (it pauses while the rig holds).
@@ -239,7 +301,7 @@ fn read_rig_stream(
             reference.resync(r.x_m, r.v_m_per_s, programme_step);
         }
         let x_ref_now = reference.advance_to(programme_step);
-        safety.push(&r);
+        safety.push(r);
         // A process's own gap: consecutive catch-up periods of the rig.
         match (&mut catch_up_run, r.catch_up) {
             (Some((_, n)), 1) => *n += 1,
@@ -282,7 +344,12 @@ fn read_rig_stream(
                     .push((r.t_s, r.x_m, x_ref_now, r.actuator_force_n, r.state));
             }
         }
-    })?;
+    };
+    if side.rig_records > 0 {
+        set.for_each::<RigRecord>(|_, r| on_rig_record(&r))?;
+    } else {
+        set.for_each::<EmulatorRecord>(|_, e| on_rig_record(&rig_record_from_sample(&e)))?;
+    }
     for out in high_pass.finish() {
         on_hp(out, &mut hp_steps, &mut residual, &mut stalls);
     }
@@ -385,6 +452,12 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
             truncated: side.truncated.clone(),
         },
         events: side.events.iter().map(EventRecord::describe).collect(),
+        rig_view: if side.rig_records > 0 {
+            RIG_VIEW_OWN
+        } else {
+            RIG_VIEW_EXTERNAL
+        }
+        .to_string(),
     })
 }
 

@@ -1,0 +1,571 @@
+//! The UDP rig link and external rigs: datagrams that must be rejected are counted by
+//! reason and never used (in process, on real loopback sockets, with loss, duplicates,
+//! reordering and garbage scripted exactly); a cut link leaves the rig holding on stale
+//! commands and trips the emulator on stale samples (the real cores behind real sockets);
+//! `hil --rig-link udp` is clean and faithful while garbage is sent to every port it
+//! listens on; the example rig, written from the C header alone, completes sessions over
+//! iceoryx2 and over UDP that replay bit for bit; killing the link makes the far rig hold.
+//! Assertions are on counts, states and physics, never on timings; no retries.
+
+use std::net::{SocketAddr, UdpSocket};
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use fastemu::child::ChildGuard;
+use fastemu::hil::config::{default_hil_config, HilConfig};
+use fastemu::hil::controller::ControllerCore;
+use fastemu::hil::emulator::{EmulatorCore, EmulatorIo};
+use fastemu::hil::fault::Fault;
+use fastemu::ipc::messages::{rig_state, run_command, DisplacementSample, ForceSetpoint};
+use fastemu::link::protocol::{
+    encode_command, encode_sample, encode_status, CommandDatagram, ControlDatagram, Datagram,
+    Reject, SampleDatagram, Side, StatusDatagram, MAX_DATAGRAM_BYTES, SAMPLE_BYTES,
+};
+use fastemu::link::rig_end::UdpRigEnd;
+use fastemu::link::socket::{free_loopback_pair, open_link, LinkReceiver, Receive};
+use fastemu::rig::core::RigCore;
+use fastemu::rig::process::RigTransport;
+use fastemu::rt::CycleStats;
+
+use super::hil_processes::{
+    assert_hold_in_records, assert_nothing_left, faults, scratch_dir, spawn_hil_with, the_child,
+    write_config, Hil, AXLE_S, FASTEMU, SERIAL,
+};
+
+const EXAMPLE_RIG: &str = env!("CARGO_BIN_EXE_example_rig");
+
+fn sample_datagram(seq: u64) -> SampleDatagram {
+    SampleDatagram {
+        sample_sequence: seq,
+        rig_time_ns: seq * 244_141,
+        displacement_m: 4e-4,
+        actuator_force_n: 2e4,
+        status: 0,
+        rig_state: rig_state::RUNNING,
+        rig_fault_code: 0,
+        echo_command_time_ns: 0,
+        echo_hold_ns: 0,
+    }
+}
+
+/// Reads until nothing more comes for 100 ms; returns the accepted sample sequences.
+fn drain_samples(rx: &mut LinkReceiver) -> Vec<u64> {
+    let mut got = Vec::new();
+    loop {
+        match rx.receive() {
+            Receive::Accepted(r) => {
+                if let Datagram::Sample(d) = r.datagram {
+                    got.push(d.sample_sequence);
+                }
+            }
+            Receive::Rejected(_) => {}
+            Receive::Nothing => return got,
+        }
+    }
+}
+
+#[test]
+fn link_counts_loss_duplicates_reordering_and_garbage_by_reason_and_uses_none_of_them() {
+    let (fastemu_addr, rig_addr) = free_loopback_pair().unwrap();
+    let (_tx, mut rx) = open_link(
+        fastemu_addr,
+        rig_addr,
+        Side::Fastemu,
+        Some(Duration::from_millis(100)),
+    )
+    .unwrap();
+    // The rig's address, sending whatever the script says; and a stranger.
+    let rig = UdpSocket::bind(rig_addr).unwrap();
+    let stranger = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let mut buf = [0u8; MAX_DATAGRAM_BYTES];
+    let mut send_sample = |seq: u64, from: &UdpSocket| {
+        let n = encode_sample(&mut buf, seq, 1000 + seq, &sample_datagram(seq));
+        from.send_to(&buf[..n], fastemu_addr).unwrap();
+        buf[..n].to_vec()
+    };
+    // Sequence 3 lost, 4 duplicated, 5 after 6 (reordered), 100 from a stranger.
+    for seq in [0, 1, 2, 4, 4, 6, 5, 7] {
+        send_sample(seq, &rig);
+    }
+    let good = send_sample(100, &stranger);
+    // Malformed datagrams from the peer's own address.
+    let mut truncated = good.clone();
+    truncated.truncate(SAMPLE_BYTES - 1);
+    let mut oversized = good.clone();
+    oversized.push(0);
+    let mut bad_magic = good.clone();
+    bad_magic[0] = b'X';
+    let mut bad_version = good.clone();
+    bad_version[4] = 2;
+    let mut unknown_kind = good.clone();
+    unknown_kind[6] = 9;
+    let mut command = [0u8; MAX_DATAGRAM_BYTES];
+    let n = encode_command(
+        &mut command,
+        0,
+        0,
+        &CommandDatagram {
+            command: example_command(),
+            echo_sample_time_ns: 0,
+        },
+    );
+    for d in [
+        &truncated[..],
+        &oversized[..],
+        &bad_magic[..],
+        &bad_version[..],
+        &unknown_kind[..],
+        &command[..n],
+    ] {
+        rig.send_to(d, fastemu_addr).unwrap();
+    }
+    // A status with another period is refused by the link process (bad content); here the
+    // socket accepts its framing, and the content check is the process's.
+    let n = encode_status(
+        &mut buf,
+        0,
+        0,
+        &StatusDatagram {
+            rig_state: 100,
+            rig_fault_code: 0,
+            period_ns: 1,
+        },
+    );
+    rig.send_to(&buf[..n], fastemu_addr).unwrap();
+    // Random garbage from the peer's address: every datagram rejected, none used.
+    let mut x: u64 = 0x2545_f491_4f6c_dd1d;
+    let mut random = |n: usize| -> Vec<u8> {
+        (0..n)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                x as u8
+            })
+            .collect()
+    };
+    for i in 0..200usize {
+        let len = [0, 1, 7, 23, 24, 40, 56, 87, 88, 89, 143, 144, 145, 1400][i % 14];
+        rig.send_to(&random(len), fastemu_addr).unwrap();
+    }
+    let accepted = drain_samples(&mut rx);
+    assert_eq!(
+        accepted,
+        vec![0, 1, 2, 4, 6, 7],
+        "only new, well-formed samples"
+    );
+    let c = rx.counts;
+    assert_eq!(c.lost.sample, 2, "3 and 5 never accepted");
+    assert_eq!(c.accepted.status, 1);
+    // The random garbage: lengths below 4 are truncated, the rest have no magic (of 200
+    // datagrams cycling through 14 lengths, 30 have length 0 or 1).
+    for (reason, n) in [
+        (Reject::Duplicate, 1),
+        (Reject::Reordered, 1),
+        (Reject::ForeignSender, 1),
+        (Reject::Truncated, 1 + 30),
+        (Reject::Oversized, 1),
+        (Reject::BadMagic, 1 + 170),
+        (Reject::BadVersion, 1),
+        (Reject::UnknownKind, 1),
+        (Reject::WrongDirection, 1),
+        (Reject::BadContent, 0),
+    ] {
+        assert_eq!(c.rejected_of(reason), n, "{reason}: {c:?}");
+    }
+    assert_eq!(c.rejected_total(), 9 + 200, "{c:?}");
+}
+
+fn example_command() -> fastemu::ipc::messages::ActuatorCommand {
+    fastemu::ipc::messages::ActuatorCommand {
+        sequence: 0,
+        setpoint_sequence: 0,
+        sample_sequence: 0,
+        sample_publish_time_ns: 0,
+        law: fastemu::ipc::messages::LocalLaw::constant(2e4),
+        force_min_n: -5e3,
+        force_max_n: 1.2e5,
+        mode: fastemu::ipc::messages::command_mode::LAW,
+        controller_state: 1,
+        fault_code: 0,
+        reserved: 0,
+    }
+}
+
+/// The emulator's transport for the in-process test: the link's receiver (waits, bounded,
+/// for the sample it expects, as the process does); nothing arrives once `cut`.
+struct LinkIo<'a> {
+    rx: &'a mut LinkReceiver,
+    setpoints: Vec<ForceSetpoint>,
+    cut: bool,
+}
+
+impl EmulatorIo for LinkIo<'_> {
+    fn receive_samples(&mut self, expected: u64, on_sample: &mut dyn FnMut(DisplacementSample)) {
+        if self.cut {
+            return;
+        }
+        let t = Instant::now();
+        loop {
+            match self.rx.receive() {
+                Receive::Accepted(r) => {
+                    if let Datagram::Sample(d) = r.datagram {
+                        on_sample(d.to_sample(r.arrival_ns));
+                        if d.sample_sequence >= expected {
+                            return;
+                        }
+                    }
+                }
+                _ => assert!(
+                    t.elapsed() < Duration::from_secs(5),
+                    "sample {expected} lost"
+                ),
+            }
+        }
+    }
+    fn publish_setpoint(&mut self, setpoint: ForceSetpoint) {
+        self.setpoints.push(setpoint);
+    }
+}
+
+#[test]
+fn a_cut_link_leaves_the_rig_holding_and_trips_the_emulator() {
+    let cfg: HilConfig = default_hil_config().unwrap();
+    let period_ns = cfg.loop_.period_ns;
+    let (fastemu_addr, rig_addr) = free_loopback_pair().unwrap();
+    let (mut tx, mut rx) = open_link(fastemu_addr, rig_addr, Side::Fastemu, None).unwrap();
+    let mut rig_end =
+        UdpRigEnd::open(rig_addr, fastemu_addr, period_ns, Duration::from_secs(5)).unwrap();
+    tx.send_control(&ControlDatagram {
+        command: run_command::START,
+        control_sequence: 1,
+        start_delay_ns: 0,
+        period_ns,
+    });
+    rig_end.wait_for_start().unwrap();
+    let mut rig = RigCore::new(&cfg);
+    let mut emulator = EmulatorCore::new(
+        &cfg.augmented,
+        &cfg.loop_,
+        cfg.emulator,
+        cfg.stall_limit_periods(),
+    );
+    let mut controller = ControllerCore::new(
+        cfg.controller,
+        cfg.safety.actions,
+        period_ns,
+        (cfg.safety.stall_limit_s * 1e9) as u64,
+    );
+    controller.set_start_time_ns(0);
+    let cut_at = 2048u64; // 0.5 s
+    let stale = u64::from(cfg.rig.command_stale_periods);
+    let mut records = Vec::new();
+    let mut emulator_trip_cycle = None;
+    let mut last_command_period = 0;
+    for k in 0..cut_at + 4096 {
+        let cut = k >= cut_at;
+        if let Some(s) = rig.measure(k * period_ns) {
+            rig_end.send_sample(&s);
+        }
+        // fastemu's end: the emulator steps on the sample, the controller answers.
+        let mut io = LinkIo {
+            rx: &mut rx,
+            setpoints: Vec::new(),
+            cut,
+        };
+        let stats = CycleStats {
+            cycle_idx: k,
+            deadline_ns: k * period_ns,
+            woke_ns: k * period_ns,
+            wake_late_ns: 0,
+            missed_deadlines: 0,
+        };
+        emulator.cycle(&stats, &mut io, &mut |_| {});
+        if emulator.fault().is_some() && emulator_trip_cycle.is_none() {
+            emulator_trip_cycle = Some(k);
+        }
+        if !cut {
+            for sp in io.setpoints {
+                if let Some((cmd, _)) = controller.on_setpoint(&sp, k * period_ns + 30_000) {
+                    tx.send_command(&CommandDatagram {
+                        command: cmd,
+                        echo_sample_time_ns: 0,
+                    });
+                    // Loopback delivers at once; the rig reads it in the same period.
+                    last_command_period = k;
+                }
+            }
+        }
+        let t = Instant::now();
+        let mut got = false;
+        while !cut && !got {
+            rig_end.receive_commands(&mut |c| {
+                rig.on_command(c);
+                got = true;
+            });
+            assert!(t.elapsed() < Duration::from_secs(5), "command {k} lost");
+        }
+        if cut {
+            rig_end.receive_commands(&mut |c| rig.on_command(c));
+        }
+        records.push(rig.finish_period(0, false));
+    }
+    // Up to the cut: force control, nothing latched.
+    assert!(records[..cut_at as usize]
+        .iter()
+        .all(|r| r.state == rig_state::RUNNING && r.fault_code == 0));
+    // The rig holds on the stale commands, by itself, one stale limit after the last.
+    let trip = rig.servo().trip().expect("the rig latched no fault");
+    assert_eq!(trip.fault, Fault::CommandsStale);
+    assert!(
+        trip.step_idx > last_command_period + stale
+            && trip.step_idx <= last_command_period + stale + 2,
+        "tripped at period {}, last command at {last_command_period}",
+        trip.step_idx
+    );
+    let after: Vec<_> = records[trip.step_idx as usize + 1..].iter().collect();
+    assert!(after.iter().all(|r| r.state == rig_state::HOLD));
+    let pre: Vec<f64> = records[..cut_at as usize].iter().map(|r| r.x_m).collect();
+    let lo = pre.iter().cloned().fold(f64::INFINITY, f64::min);
+    let hi = pre.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+    assert!(
+        after
+            .iter()
+            .all(|r| r.x_m > lo - 0.5e-3 && r.x_m < hi + 0.5e-3),
+        "the held specimen left the pre-cut range"
+    );
+    // The emulator trips on the stale samples after its limit.
+    assert_eq!(emulator.fault(), Some(Fault::TooManyStaleSamples));
+    let trip_cycle = emulator_trip_cycle.unwrap();
+    assert_eq!(
+        trip_cycle - cut_at,
+        u64::from(cfg.loop_.trip_after_stale_samples),
+        "the emulator tripped {} cycles after the cut",
+        trip_cycle - cut_at
+    );
+    // Nothing was lost or rejected on the way.
+    assert_eq!(rx.counts.rejected_total(), 0);
+    assert_eq!(rx.counts.lost.sample, 0);
+}
+
+/// `127.0.0.1:P` of `what` in the `hil` progress line naming the link's two ends.
+fn port_in(stderr: &str, what: &str) -> Option<SocketAddr> {
+    let line = stderr.lines().find(|l| l.contains("fastemu's link at"))?;
+    let rest = &line[line.find(what)? + what.len()..];
+    rest.split(|c: char| c == ',' || c.is_whitespace())
+        .find(|w| !w.is_empty())?
+        .parse()
+        .ok()
+}
+
+/// `hil --rig-link udp` for 3 s of the default scenario (first axle at `AXLE_S`):
+/// (scratch directory, report directory, the running `hil`).
+fn spawn_udp_run(name: &str) -> (std::path::PathBuf, std::path::PathBuf, Hil) {
+    let dir = scratch_dir(name);
+    let report = dir.join("report");
+    let hil = spawn_hil_with(
+        &write_config(&dir, &[], ""),
+        &report,
+        3.0,
+        &["--rig-link", "udp"],
+    );
+    (dir, report, hil)
+}
+
+#[test]
+fn udp_link_run_is_clean_and_faithful_under_garbage_and_replays() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let (dir, report, mut hil) = spawn_udp_run("udp-link");
+    hil.at(0.2);
+    let stderr = hil.stderr();
+    let link = port_in(&stderr, "fastemu's link at ").expect("link address printed");
+    let rig = port_in(&stderr, "the rig at ").expect("rig address printed");
+    // 2 s of garbage to both ends from a stranger: random bytes, right magic with a wrong
+    // version, well-formed samples and commands, a jumbo datagram.
+    let stranger = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let mut sent = [0u64; 2];
+    let mut x: u64 = 0x9e37_79b9_7f4a_7c15;
+    let mut buf = [0u8; MAX_DATAGRAM_BYTES];
+    let t = Instant::now();
+    let mut i = 0u64;
+    while t.elapsed() < Duration::from_secs(2) {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        let datagram: Vec<u8> = match i % 5 {
+            0 => (0..(x % 200) as usize)
+                .map(|j| (x >> (j % 56)) as u8)
+                .collect(),
+            1 => {
+                let n = encode_sample(&mut buf, i, 0, &sample_datagram(i));
+                buf[4] = 7;
+                buf[..n].to_vec()
+            }
+            2 => {
+                let n = encode_sample(&mut buf, i, 0, &sample_datagram(i));
+                buf[..n].to_vec()
+            }
+            3 => {
+                let command = CommandDatagram {
+                    command: example_command(),
+                    echo_sample_time_ns: 0,
+                };
+                let n = encode_command(&mut buf, i, 0, &command);
+                buf[..n].to_vec()
+            }
+            _ => vec![0xA5; 1400],
+        };
+        for (j, to) in [link, rig].into_iter().enumerate() {
+            if stranger.send_to(&datagram, to).is_ok() {
+                sent[j] += 1;
+            }
+        }
+        i += 1;
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let (code, json) = hil.finish(Duration::from_secs(60));
+    assert_eq!(code, 0, "hil failed: {json}\n{}", hil.stderr());
+    assert_eq!(json["clean"], true, "{}", json["not_clean_because"]);
+    let rel = json["fidelity"]["displacement_rel_rms"].as_f64().unwrap();
+    assert!(rel < 0.02, "displacement relative RMS error {rel}");
+    let l = &json["link"];
+    assert_eq!(l["transport"], "udp");
+    assert_eq!(
+        l["rejected"]["foreign_sender"].as_u64(),
+        Some(sent[0]),
+        "{l}"
+    );
+    assert_eq!(l["rejected_total"].as_u64(), Some(sent[0]), "{l}");
+    assert_eq!(
+        l["rig_end"]["rejected"]["foreign_sender"].as_u64(),
+        Some(sent[1]),
+        "{l}"
+    );
+    let steps = json["steps"].as_u64().unwrap();
+    assert!(l["received"]["sample"].as_u64().unwrap() >= steps);
+    assert_eq!(l["lost"]["sample"], 0);
+    assert_eq!(l["rig_finished"], true);
+    for p in ["p50", "p99", "p999", "max"] {
+        assert!(l["latency_ns"][p].is_u64(), "link.latency_ns.{p}: {l}");
+    }
+    replay_is_bit_for_bit(&report);
+    assert_nothing_left(&json);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn killing_the_link_leaves_the_far_rig_holding() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let (dir, report, mut hil) = spawn_udp_run("link-kill");
+    let link = the_child(&hil, " link --bind");
+    hil.at(AXLE_S);
+    unsafe { libc::kill(link as i32, libc::SIGKILL) };
+    let (code, json) = hil.finish(Duration::from_secs(60));
+    assert_eq!(code, 2, "{json}");
+    let f = faults(&json);
+    assert!(
+        f[0].starts_with("link: ") && f[0].contains("signal 9"),
+        "{f:?}"
+    );
+    let safety = json["safety"]["faults"].as_array().unwrap();
+    assert!(
+        safety
+            .iter()
+            .any(|s| s["fault"] == "commands-stale" && s["action"] == "hold"),
+        "{safety:?}"
+    );
+    assert_hold_in_records(&report, AXLE_S, "link killed");
+    assert_nothing_left(&json);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Runs `hil --rig external ...` and the example rig with `rig_args`; returns hil's JSON.
+fn external_session(name: &str, hil_args: &[&str], rig_args: &[&str]) -> serde_json::Value {
+    let dir = scratch_dir(name);
+    let report = dir.join("report");
+    // The example rig's programme: no preload ramp, no train; the same mass and damping.
+    let config = write_config(
+        &dir,
+        &[
+            ("preload_n = 20000.0", "preload_n = 0.0"),
+            ("train_speed_kmh = 200.0", "train_speed_kmh = 0.0"),
+        ],
+        "",
+    );
+    let mut args = vec!["--rig", "external"];
+    args.extend_from_slice(hil_args);
+    let mut hil = spawn_hil_with(&config, &report, 2.5, &args);
+    let rig = Command::new(EXAMPLE_RIG)
+        .args(rig_args)
+        .args(["--duration-s", "2.5"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .unwrap();
+    let mut rig = ChildGuard::new(rig);
+    let status = rig.wait_timeout(Duration::from_secs(60)).unwrap();
+    assert!(
+        status.is_some_and(|s| s.success()),
+        "example rig: {status:?}"
+    );
+    drop(rig);
+    let (code, json) = hil.finish(Duration::from_secs(60));
+    assert_eq!(code, 0, "{name}: {json}\n{}", hil.stderr());
+    assert_eq!(json["clean"], true, "{name}: {}", json["not_clean_because"]);
+    let steps = json["steps"].as_u64().unwrap();
+    assert!(
+        steps >= (2.5 * 4096.0 * 0.99) as u64,
+        "{name}: {steps} steps"
+    );
+    let rel = json["fidelity"]["displacement_rel_rms"].as_f64().unwrap();
+    assert!(rel < 0.02, "{name}: displacement relative RMS error {rel}");
+    assert!(json["rig"]["kind"] == "external");
+    replay_is_bit_for_bit(&report);
+    assert_nothing_left(&json);
+    std::fs::remove_dir_all(&dir).ok();
+    json
+}
+
+fn replay_is_bit_for_bit(report: &Path) {
+    let out = Command::new(FASTEMU)
+        .arg("replay")
+        .arg("--record")
+        .arg(report.join("records.mcap"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success() && text.contains(" 0 forces differ"),
+        "{text}"
+    );
+}
+
+#[test]
+fn an_external_rig_written_from_the_header_completes_sessions_over_iceoryx2_and_udp() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let run_id = format!("feit{}ext", std::process::id());
+    let json = external_session("external-ipc", &["--run-id", &run_id], &["--ipc", &run_id]);
+    assert_eq!(json["run_id"], run_id.as_str());
+    assert!(json["link"].is_null());
+
+    let (link, rig) = free_loopback_pair().unwrap();
+    let (link, rig) = (link.to_string(), rig.to_string());
+    let json = external_session(
+        "external-udp",
+        &[
+            "--rig-link",
+            "udp",
+            "--link-bind",
+            &link,
+            "--link-peer",
+            &rig,
+        ],
+        &["--udp", &rig, &link],
+    );
+    let l = &json["link"];
+    assert_eq!(l["rejected_total"], 0, "{l}");
+    assert_eq!(l["rig_finished"], true, "{l}");
+    assert!(l["received"]["sample"].as_u64().unwrap() >= json["steps"].as_u64().unwrap());
+}
