@@ -532,7 +532,8 @@ fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
     let mut command: Option<Command> = None;
     let mut last_command_k: Option<u64> = None;
     let (mut state, mut fault) = (RIG_RUNNING, 0u32);
-    let (mut hold_x, mut hold_force, mut hold_since) = (0.0, 0.0, 0u64);
+    // Until the first command the rig holds its starting position (displacement control).
+    let (mut hold_x, mut hold_force, mut hold_since) = (x, force, 0u64);
     let mut unload = false;
     let mut programme_t = 0.0;
     let mut programme_held_n = 0.0;
@@ -607,7 +608,8 @@ fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
             }
         }
         // d. the rig's own interlock on stale commands.
-        if last_command_k.is_some_and(|l| k - l > o.stale_periods) && fault == 0 {
+        // Armed from sample 0: a first command that never comes is stale too.
+        if k.saturating_sub(last_command_k.unwrap_or(0)) > o.stale_periods && fault == 0 {
             let was_operator = state == RIG_OPERATOR_HOLD;
             entered_hold |= latch(
                 &mut state,
@@ -673,6 +675,7 @@ fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
                 Some(c) if c.mode == MODE_FORCE => {
                     c.law.force_n.max(c.force_min_n).min(c.force_max_n)
                 }
+                None => hold_force + kp * (x - hold_x) + kd * v,
                 _ => force,
             }
         };

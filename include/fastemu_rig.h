@@ -48,6 +48,9 @@
  *     command with mode HOLD or HOLD_UNLOAD latches the interlock (fault 22
  *     hold-requested) and is never left in this session.
  *  c. Output, by the newest command's mode:
+ *     (none yet: from sample 0 until the first command) position control: hold the
+ *            starting position with the load programme's change fed forward (a servo
+ *            controller starts in displacement control), the programme running.
  *     FORCE  F = clamp(law.force_n, force_min_n, force_max_n), held until the next one.
  *     LAW    F = clamp(fastemu_law_evaluate(&law, z_L, v_L, since_s), force_min_n,
  *            force_max_n), re-evaluated every period with the rig's own measurement:
@@ -63,10 +66,11 @@
  *            programme held; HOLD_UNLOAD: once the specimen is at rest, ramp the load
  *            programme to zero while holding position. Never a constant force on a free
  *            mass.
- *  d. The rig's own interlock: once a first command has arrived, more than N periods
- *     without a new command (any mode; keep-alive repeats count: fastemu repeats the last
- *     command every 8 periods when it has nothing new) latch fault 20 commands-stale
- *     and hold (as HOLD). N = [rig] command_stale_periods (205 = 50 ms by default). The
+ *  d. The rig's own interlock: more than N periods without a new command, counted from
+ *     sample 0 until the first command and from the newest command after it (any mode;
+ *     keep-alive repeats count: fastemu repeats the last command every 8 periods when it
+ *     has nothing new; its first command follows sample 0 within a few periods) latch
+ *     fault 20 commands-stale and hold (as HOLD). N = [rig] command_stale_periods (205 = 50 ms by default). The
  *     rig detects this itself: it holds even when every fastemu process is dead, the
  *     link is cut, or the network is flooded.
  *  e. Run control: STOP ends the session now; HOLD (operator) holds position and pauses

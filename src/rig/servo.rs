@@ -136,6 +136,10 @@ pub enum ProgrammeRequest {
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Phase {
+    /// From the start until the first command: position hold at the starting position
+    /// (a servo controller starts in displacement control), the programme running; the
+    /// first force or law command hands over to force control.
+    Awaiting,
     Force,
     Holding {
         since_step: u64,
@@ -184,8 +188,8 @@ pub struct Servo {
 }
 
 impl Servo {
-    /// A servo at rest at measured displacement `z0_m`, applying `force0_n` until the first
-    /// command arrives.
+    /// A servo at rest at measured displacement `z0_m` under the load `force0_n`, holding
+    /// that position (with `force0_n` fed forward) until the first command arrives.
     pub fn new(cfg: ServoConfig, z0_m: f64, force0_n: f64) -> Servo {
         let (value_weights, slope_weights) =
             lead_weights(cfg.law_lead_order, cfg.period_s, cfg.law_lead_s);
@@ -200,7 +204,7 @@ impl Servo {
             last_command_step: None,
             law_setpoint_seq: u64::MAX,
             law_since_step: 0,
-            phase: Phase::Force,
+            phase: Phase::Awaiting,
             hold_position_m: z0_m,
             hold_feedforward_n: force0_n,
             hold_load_at_start_n: force0_n,
@@ -274,7 +278,12 @@ impl Servo {
                 };
                 self.latch(Fault::HoldRequested, cmd.fault_code, step_idx, age, action);
             }
-            _ => self.command = Some(*cmd),
+            _ => {
+                self.command = Some(*cmd);
+                if matches!(self.phase, Phase::Awaiting) {
+                    self.phase = Phase::Force;
+                }
+            }
         }
     }
 
@@ -456,16 +465,22 @@ impl Servo {
         ];
         self.push_rest(z_measured_m);
         self.step_idx = step_idx;
-        let command_age = self
-            .last_command_step
-            .map_or(0, |s| step_idx.saturating_sub(s));
         // The rig's own interlock: commands stopped (controller dead or stalled, link
-        // lost). Armed by the first command, so a slow start is not a fault.
-        if self.last_command_step.is_some() && command_age > self.cfg.command_stale_periods {
+        // lost), or never came. Armed from sample 0 (the run's start): the loop was ready
+        // before the start, so its first command is due within a few periods, and a rig
+        // whose link dies before it must not run its programme against a constant force.
+        let command_age = step_idx.saturating_sub(self.last_command_step.unwrap_or(0));
+        if command_age > self.cfg.command_stale_periods {
             let action = self.cfg.commands_stale_action;
             self.latch(Fault::CommandsStale, 0, step_idx, command_age, action);
         }
         let (command_n, state, mode, request) = match self.phase {
+            Phase::Awaiting => (
+                self.hold_force_n(z_measured_m),
+                rig_state::RUNNING,
+                command_mode::HOLD,
+                ProgrammeRequest::Run,
+            ),
             Phase::Force => {
                 let (f, mode) = self.force_control_n();
                 (f, rig_state::RUNNING, mode, ProgrammeRequest::Run)

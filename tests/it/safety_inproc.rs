@@ -286,6 +286,15 @@ fn death_or_long_stall_of_the_controller_trips_the_rigs_own_interlock() {
                 ..script(6.0)
             },
         ),
+        // No first command ever (a link that died right after the start): the interlock
+        // is armed from sample 0, so the programme never runs against a constant force.
+        (
+            "controller dead from the start",
+            InProcessScript {
+                controller_dies_at: Some(0),
+                ..script(6.0)
+            },
+        ),
     ] {
         let run = run_in_process(&cfg, &s);
         let f = faults(&run);
