@@ -21,7 +21,7 @@ use std::time::Duration;
 use hdrhistogram::Histogram;
 use serde::Serialize;
 
-use super::protocol::{CommandDatagram, ControlDatagram, Datagram, Side};
+use super::protocol::{CommandDatagram, ControlDatagram, Datagram, Reject, Side};
 use super::socket::{open_link, LinkReceiver, LinkSender, Receive, ReceiveCounts};
 use crate::hil::config::HilConfig;
 use crate::hil::process::{
@@ -159,6 +159,12 @@ fn receive_loop(
     while !shared.stop.load(Ordering::Relaxed) {
         let r = match receiver.receive() {
             Receive::Accepted(r) => r,
+            Receive::Rejected(Reject::BadContent) if receiver.wrong_period_ns != 0 => {
+                shared
+                    .wrong_period_ns
+                    .store(receiver.wrong_period_ns, Ordering::Relaxed);
+                continue;
+            }
             _ => continue,
         };
         shared
@@ -166,11 +172,6 @@ fn receive_loop(
             .store(r.arrival_ns, Ordering::Relaxed);
         match r.datagram {
             Datagram::Status(s) => {
-                if !super::protocol::same_period(s.period_ns, period_ns) {
-                    receiver.reject_content(&r);
-                    shared.wrong_period_ns.store(s.period_ns, Ordering::Relaxed);
-                    continue;
-                }
                 shared.rig_state.store(s.rig_state, Ordering::Relaxed);
                 shared
                     .rig_fault_code
@@ -254,9 +255,10 @@ pub fn run_link(
 ) -> Result<LinkSummary, ProcessError> {
     install_termination_handler();
     std::fs::create_dir_all(out_dir)?;
-    let (mut sender, receiver) =
+    let (mut sender, mut receiver) =
         open_link(plan.bind, plan.peer, Side::Fastemu, Some(RECEIVE_TIMEOUT))
             .map_err(|e| ProcessError(e.to_string()))?;
+    receiver.expect_period(cfg.loop_.period_ns);
     let node = IpcNode::new(&plan.run_id, "link")?;
     let ports = MainPorts {
         commands: node.command_in()?,

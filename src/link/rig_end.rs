@@ -54,7 +54,28 @@ impl UdpRigEnd {
         start_timeout: Duration,
     ) -> Result<UdpRigEnd, LinkError> {
         let (sender, receiver) = open_link(bind, peer, Side::Rig, None)?;
-        Ok(UdpRigEnd {
+        Ok(UdpRigEnd::on(sender, receiver, period_ns, start_timeout))
+    }
+
+    /// The rig's end on a socket already bound (see `open_link_socket`).
+    pub fn open_socket(
+        socket: std::net::UdpSocket,
+        peer: SocketAddr,
+        period_ns: u64,
+        start_timeout: Duration,
+    ) -> Result<UdpRigEnd, LinkError> {
+        let (sender, receiver) = super::socket::open_link_socket(socket, peer, Side::Rig, None)?;
+        Ok(UdpRigEnd::on(sender, receiver, period_ns, start_timeout))
+    }
+
+    fn on(
+        sender: LinkSender,
+        mut receiver: LinkReceiver,
+        period_ns: u64,
+        start_timeout: Duration,
+    ) -> UdpRigEnd {
+        receiver.expect_period(period_ns);
+        UdpRigEnd {
             sender,
             receiver,
             period_ns,
@@ -64,7 +85,7 @@ impl UdpRigEnd {
             control_seen: None,
             pending: ControlRequests::default(),
             bound_reached: 0,
-        })
+        }
     }
 
     /// Reads what is waiting (at most `MAX_DATAGRAMS_PER_PERIOD`): commands go to
@@ -90,21 +111,7 @@ impl UdpRigEnd {
                     if self.control_seen.is_some_and(|s| c.control_sequence <= s) {
                         continue; // a repeat of a message already acted on
                     }
-                    let known = matches!(
-                        c.command,
-                        run_command::START
-                            | run_command::STOP
-                            | run_command::HOLD
-                            | run_command::RESUME
-                            | run_command::END
-                    );
-                    if !known
-                        || (c.command == run_command::START
-                            && !super::protocol::same_period(c.period_ns, self.period_ns))
-                    {
-                        self.receiver.reject_content(&received);
-                        continue;
-                    }
+                    // The receiver checked the command and START's period.
                     self.control_seen = Some(c.control_sequence);
                     match c.command {
                         run_command::START => start = Some((received.arrival_ns, c)),

@@ -19,10 +19,11 @@ use std::time::Duration;
 use serde::Serialize;
 
 use super::protocol::{
-    decode, encode_command, encode_control, encode_sample, encode_status, kind, CommandDatagram,
-    ControlDatagram, Datagram, Header, Reject, SampleDatagram, Side, StatusDatagram,
-    MAX_DATAGRAM_BYTES,
+    decode, encode_command, encode_control, encode_sample, encode_status, kind, same_period,
+    CommandDatagram, ControlDatagram, Datagram, Header, Reject, SampleDatagram, Side,
+    StatusDatagram, MAX_DATAGRAM_BYTES,
 };
+use crate::ipc::messages::{command_mode, run_command, ActuatorCommand};
 use crate::rt::clock::monotonic_now_ns;
 
 /// A link setup error: which address and what is wrong.
@@ -160,6 +161,10 @@ pub struct LinkReceiver {
     side: Side,
     windows: [SequenceWindow; 5],
     pub counts: ReceiveCounts,
+    /// The loop period status and START datagrams must name, ns (`expect_period`).
+    expected_period_ns: Option<u64>,
+    /// The period named by the newest datagram rejected for naming another, ns (0 none).
+    pub wrong_period_ns: u64,
     buf: [u8; MAX_DATAGRAM_BYTES + 1],
 }
 
@@ -184,6 +189,25 @@ pub fn open_link(
     }
     let socket = UdpSocket::bind(bind)
         .map_err(|e| LinkError(format!("cannot bind the link's UDP socket to {bind}: {e}")))?;
+    open_link_socket(socket, peer, side, receive_timeout)
+}
+
+/// `open_link` on a socket already bound (e.g. to port 0 by whoever needs its address
+/// first, so no other process can take the port in between).
+pub fn open_link_socket(
+    socket: UdpSocket,
+    peer: SocketAddr,
+    side: Side,
+    receive_timeout: Option<Duration>,
+) -> Result<(LinkSender, LinkReceiver), LinkError> {
+    let bind = socket
+        .local_addr()
+        .map_err(|e| LinkError(format!("link socket: {e}")))?;
+    if peer.ip().is_unspecified() || peer.port() == 0 {
+        return Err(LinkError(format!(
+            "link peer address {peer}: expected the rig's IP:PORT"
+        )));
+    }
     let receive_socket = socket
         .try_clone()
         .map_err(|e| LinkError(format!("link socket {bind}: {e}")))?;
@@ -207,6 +231,8 @@ pub fn open_link(
             side,
             windows: [SequenceWindow::default(); 5],
             counts: ReceiveCounts::default(),
+            expected_period_ns: None,
+            wrong_period_ns: 0,
             buf: [0; MAX_DATAGRAM_BYTES + 1],
         },
     ))
@@ -336,6 +362,11 @@ impl LinkReceiver {
             Ok(x) => x,
             Err(reason) => return self.reject(reason),
         };
+        // Content before sequence: a rejected datagram moves no window and counts as no
+        // sign of life.
+        if !self.content_ok(&datagram) {
+            return self.reject(Reject::BadContent);
+        }
         let window = &mut self.windows[usize::from(header.kind).min(4)];
         match window.accept(header.sequence) {
             Ok(gap) => {
@@ -351,22 +382,111 @@ impl LinkReceiver {
         }
     }
 
-    /// Rejects an accepted datagram after all, for its content (`BadContent`): moves it
-    /// from the accepted to the rejected counts.
-    pub fn reject_content(&mut self, received: &Received) {
-        match received.header.kind {
-            kind::SAMPLE => self.counts.accepted.sample -= 1,
-            kind::COMMAND => self.counts.accepted.command -= 1,
-            kind::CONTROL => self.counts.accepted.control -= 1,
-            _ => self.counts.accepted.status -= 1,
+    /// Status and START datagrams must name this loop period (up to rounding), ns.
+    pub fn expect_period(&mut self, period_ns: u64) {
+        self.expected_period_ns = Some(period_ns);
+    }
+
+    /// Whether a well-framed datagram's content may be used (else `BadContent`): a
+    /// status or START names the loop's period; run control a known command; a command a
+    /// known mode and, to be applied, a finite law inside finite, ordered limits.
+    #[inline]
+    fn content_ok(&mut self, datagram: &Datagram) -> bool {
+        let period = match datagram {
+            Datagram::Sample(_) => return true,
+            Datagram::Command(c) => return command_ok(&c.command),
+            Datagram::Control(c) => match c.command {
+                run_command::START => c.period_ns,
+                run_command::STOP | run_command::HOLD | run_command::RESUME | run_command::END => {
+                    return true
+                }
+                _ => return false,
+            },
+            Datagram::Status(s) => s.period_ns,
+        };
+        match self.expected_period_ns {
+            Some(expected) if !same_period(period, expected) => {
+                self.wrong_period_ns = period;
+                false
+            }
+            _ => true,
         }
-        self.counts.rejected[Reject::BadContent.index()] += 1;
+    }
+}
+
+/// A command a rig may act on: a known mode, ordered finite limits, and for force and law
+/// commands a finite law (a hold needs no law).
+#[inline]
+fn command_ok(c: &ActuatorCommand) -> bool {
+    let limits =
+        c.force_min_n.is_finite() && c.force_max_n.is_finite() && c.force_min_n <= c.force_max_n;
+    let l = &c.law;
+    let law = [
+        l.force_n,
+        l.displacement_m,
+        l.velocity_m_per_s,
+        l.stiffness_n_per_m,
+        l.damping_ns_per_m,
+        l.force_rate_n_per_s,
+        l.stiffness_slope_n_per_m2,
+    ]
+    .iter()
+    .all(|x| x.is_finite());
+    match c.mode {
+        command_mode::FORCE | command_mode::LAW => limits && law,
+        command_mode::HOLD | command_mode::HOLD_UNLOAD => true,
+        _ => false,
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::ipc::messages::LocalLaw;
+
+    #[test]
+    fn commands_a_rig_must_not_act_on_are_bad_content() {
+        let good = ActuatorCommand {
+            sequence: 0,
+            setpoint_sequence: 0,
+            sample_sequence: 0,
+            sample_publish_time_ns: 0,
+            law: LocalLaw::constant(2e4),
+            force_min_n: -5e3,
+            force_max_n: 1.2e5,
+            mode: command_mode::LAW,
+            controller_state: 1,
+            fault_code: 0,
+            reserved: 0,
+        };
+        assert!(command_ok(&good));
+        assert!(command_ok(&ActuatorCommand {
+            mode: command_mode::FORCE,
+            ..good
+        }));
+        let mut nan_law = good;
+        nan_law.law.damping_ns_per_m = f64::NAN;
+        let bad = [
+            ActuatorCommand { mode: 7, ..good },
+            nan_law,
+            ActuatorCommand {
+                force_min_n: 2e5,
+                ..good
+            },
+            ActuatorCommand {
+                force_max_n: f64::INFINITY,
+                ..good
+            },
+        ];
+        for c in bad {
+            assert!(!command_ok(&c), "{c:?}");
+        }
+        // A hold is acted on whatever its law says.
+        assert!(command_ok(&ActuatorCommand {
+            mode: command_mode::HOLD,
+            ..nan_law
+        }));
+    }
 
     #[test]
     fn sequence_window_counts_gaps_and_refuses_old_numbers() {

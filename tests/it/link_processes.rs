@@ -23,7 +23,7 @@ use fastemu::link::protocol::{
     Reject, SampleDatagram, Side, StatusDatagram, MAX_DATAGRAM_BYTES, SAMPLE_BYTES,
 };
 use fastemu::link::rig_end::UdpRigEnd;
-use fastemu::link::socket::{free_loopback_pair, open_link, LinkReceiver, Receive};
+use fastemu::link::socket::{free_loopback_pair, open_link_socket, LinkReceiver, Receive};
 use fastemu::rig::core::RigCore;
 use fastemu::rig::process::RigTransport;
 use fastemu::rt::CycleStats;
@@ -67,16 +67,21 @@ fn drain_samples(rx: &mut LinkReceiver) -> Vec<u64> {
 
 #[test]
 fn link_counts_loss_duplicates_reordering_and_garbage_by_reason_and_uses_none_of_them() {
-    let (fastemu_addr, rig_addr) = free_loopback_pair().unwrap();
-    let (_tx, mut rx) = open_link(
-        fastemu_addr,
+    // Both ends bound here and kept: no other test can take a port in between.
+    let fastemu_socket = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let fastemu_addr = fastemu_socket.local_addr().unwrap();
+    let rig = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let rig_addr = rig.local_addr().unwrap();
+    let (_tx, mut rx) = open_link_socket(
+        fastemu_socket,
         rig_addr,
         Side::Fastemu,
         Some(Duration::from_millis(100)),
     )
     .unwrap();
-    // The rig's address, sending whatever the script says; and a stranger.
-    let rig = UdpSocket::bind(rig_addr).unwrap();
+    const PERIOD_NS: u64 = 244_141;
+    rx.expect_period(PERIOD_NS);
+    // The rig's address (`rig`), sending whatever the script says; and a stranger.
     let stranger = UdpSocket::bind("127.0.0.1:0").unwrap();
     let mut buf = [0u8; MAX_DATAGRAM_BYTES];
     let mut send_sample = |seq: u64, from: &UdpSocket| {
@@ -120,19 +125,21 @@ fn link_counts_loss_duplicates_reordering_and_garbage_by_reason_and_uses_none_of
     ] {
         rig.send_to(d, fastemu_addr).unwrap();
     }
-    // A status with another period is refused by the link process (bad content); here the
-    // socket accepts its framing, and the content check is the process's.
-    let n = encode_status(
-        &mut buf,
-        0,
-        0,
-        &StatusDatagram {
-            rig_state: 100,
-            rig_fault_code: 0,
-            period_ns: 1,
-        },
-    );
-    rig.send_to(&buf[..n], fastemu_addr).unwrap();
+    // A status with another period is refused for its content; though its sequence number
+    // is high, it moves no window: the good status after it, with a lower one, is taken.
+    for (seq, period_ns) in [(50, 1), (1, PERIOD_NS)] {
+        let n = encode_status(
+            &mut buf,
+            seq,
+            0,
+            &StatusDatagram {
+                rig_state: 100,
+                rig_fault_code: 0,
+                period_ns,
+            },
+        );
+        rig.send_to(&buf[..n], fastemu_addr).unwrap();
+    }
     // Random garbage from the peer's address: every datagram rejected, none used.
     let mut x: u64 = 0x2545_f491_4f6c_dd1d;
     let mut random = |n: usize| -> Vec<u8> {
@@ -157,7 +164,8 @@ fn link_counts_loss_duplicates_reordering_and_garbage_by_reason_and_uses_none_of
     );
     let c = rx.counts;
     assert_eq!(c.lost.sample, 2, "3 and 5 never accepted");
-    assert_eq!(c.accepted.status, 1);
+    assert_eq!(c.accepted.status, 1, "the good status only");
+    assert_eq!(rx.wrong_period_ns, 1);
     // The random garbage: lengths below 4 are truncated, the rest have no magic (of 200
     // datagrams cycling through 14 lengths, 30 have length 0 or 1).
     for (reason, n) in [
@@ -170,11 +178,11 @@ fn link_counts_loss_duplicates_reordering_and_garbage_by_reason_and_uses_none_of
         (Reject::BadVersion, 1),
         (Reject::UnknownKind, 1),
         (Reject::WrongDirection, 1),
-        (Reject::BadContent, 0),
+        (Reject::BadContent, 1),
     ] {
         assert_eq!(c.rejected_of(reason), n, "{reason}: {c:?}");
     }
-    assert_eq!(c.rejected_total(), 9 + 200, "{c:?}");
+    assert_eq!(c.rejected_total(), 10 + 200, "{c:?}");
 }
 
 fn example_command() -> fastemu::ipc::messages::ActuatorCommand {
@@ -233,10 +241,16 @@ impl EmulatorIo for LinkIo<'_> {
 fn a_cut_link_leaves_the_rig_holding_and_trips_the_emulator() {
     let cfg: HilConfig = default_hil_config().unwrap();
     let period_ns = cfg.loop_.period_ns;
-    let (fastemu_addr, rig_addr) = free_loopback_pair().unwrap();
-    let (mut tx, mut rx) = open_link(fastemu_addr, rig_addr, Side::Fastemu, None).unwrap();
+    let fastemu_socket = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let rig_socket = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let (fastemu_addr, rig_addr) = (
+        fastemu_socket.local_addr().unwrap(),
+        rig_socket.local_addr().unwrap(),
+    );
+    let (mut tx, mut rx) = open_link_socket(fastemu_socket, rig_addr, Side::Fastemu, None).unwrap();
     let mut rig_end =
-        UdpRigEnd::open(rig_addr, fastemu_addr, period_ns, Duration::from_secs(5)).unwrap();
+        UdpRigEnd::open_socket(rig_socket, fastemu_addr, period_ns, Duration::from_secs(5))
+            .unwrap();
     tx.send_control(&ControlDatagram {
         command: run_command::START,
         control_sequence: 1,
