@@ -80,7 +80,7 @@ fn run_command(
         None => config.augmented.clone(),
     };
     let history = prepare_history(record.dt_s, &record.displacement_m, &record.applied_force_n)
-        .with_context(|| format!("{}: the rig record", run_dir.display()))?;
+        .with_context(|| format!("{}: {}", run_dir.display(), record.used))?;
     let unit = CycleData::from_history(
         "the run's rig record",
         history,
@@ -95,7 +95,7 @@ fn run_command(
     write_run_outputs(
         run_dir,
         &model_label,
-        &record.used,
+        &record,
         &args.out,
         &diagnosis,
         &config,

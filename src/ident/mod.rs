@@ -17,7 +17,7 @@
 //!   test order, repeated tests); `diagnose::run` diagnoses a HIL run's record;
 //!   `diagnose::report` writes report.md, plots and the `--json` object.
 //! - `plots`: k_eq/c_eq (paper Fig. 6 style), loops, history-test force plots.
-//! - `synth`: seeded synthetic campaigns for a first run (`fastemu campaign synth`).
+//! - `synth`: seeded synthetic campaigns for a first run (`fastemu synth-campaign`).
 //!
 //! Must not: touch the real-time loop (`hil/`, `rig/`, `ipc/`, `rt/`): `runrec` only reads
 //! the files a run left, and parses its config with `hil::config::parse_hil_config`. Only

@@ -20,6 +20,7 @@ use std::path::{Path, PathBuf};
 
 use crate::csvio::read_columns;
 use crate::hil::config::{parse_hil_config, CommandMode, HilConfig};
+use crate::hil::emulator::EmulatorRecord;
 use crate::ipc::messages::rig_state;
 use crate::records::RecordSet;
 use crate::rig::core::RigRecord;
@@ -38,6 +39,9 @@ pub struct RunHistory {
     pub config_base_dir: Option<PathBuf>,
     /// Which part of the record was used, in words (for the report).
     pub used: String,
+    /// The run's rig was external: its samples stand in for the rig's records, and the
+    /// law lead is the rig's own.
+    pub external_rig: bool,
 }
 
 impl RunHistory {
@@ -73,17 +77,28 @@ impl std::error::Error for RunRecordError {}
 /// Reads the rig record and the config of the run in `run_dir` (a report directory, its
 /// `records.mcap`, or a directory written by `fastemu export`).
 pub fn load_run_history(run_dir: &Path) -> Result<RunHistory, RunRecordError> {
+    // The records when there are any (a report directory may also hold `hil --csv`'s
+    // CSVs); an exported directory otherwise.
     let rig_csv = run_dir.join("rig.csv");
-    let raw = if run_dir.is_dir() && rig_csv.is_file() {
-        read_exported(run_dir, &rig_csv)?
-    } else {
-        read_records(run_dir)?
+    let raw = match RecordSet::open(run_dir) {
+        Ok(set) => read_records(&set)?,
+        Err(_) if run_dir.is_dir() && rig_csv.is_file() => read_exported(run_dir, &rig_csv)?,
+        Err(e) => {
+            return Err(RunRecordError {
+                path: run_dir.display().to_string(),
+                message: format!(
+                    "{}; expected the report directory of a `fastemu hil` run, its records.mcap, or a directory written by `fastemu export`",
+                    e.message
+                ),
+            })
+        }
     };
-    let (first, last) = running_stretch(&raw.state).ok_or_else(|| RunRecordError {
+    let (first, last) = usable_stretch(&raw.usable).ok_or_else(|| RunRecordError {
         path: raw.origin.clone(),
         message: format!(
-            "{} rig periods, none in force control (rig state RUNNING): nothing to diagnose",
-            raw.time_s.len()
+            "{} {}, none in force control (rig state RUNNING) with a finite, published sample and no fault: nothing to diagnose",
+            raw.time_s.len(),
+            raw.rows
         ),
     })?;
     let range = first..last + 1;
@@ -96,21 +111,27 @@ pub fn load_run_history(run_dir: &Path) -> Result<RunHistory, RunRecordError> {
         path: raw.origin.clone(),
         message,
     })?;
-    let used = if first == 0 && last + 1 == raw.time_s.len() {
+    let rows = raw.rows;
+    let mut used = if first == 0 && last + 1 == raw.time_s.len() {
         format!(
-            "all {} rig periods ({:.3} s to {:.3} s), in force control throughout",
+            "all {} {rows} ({:.3} s to {:.3} s), in force control throughout",
             raw.time_s.len(),
             raw.time_s[first],
             raw.time_s[last]
         )
     } else {
         format!(
-            "rig periods {first} to {last} of {} ({:.3} s to {:.3} s): the run's first stretch in force control (a hold or the end follows)",
+            "{rows} {first} to {last} of {} ({:.3} s to {:.3} s): the run's first stretch in force control on good samples (a hold, a fault, a bad or dropped sample, or the end follows)",
             raw.time_s.len(),
             raw.time_s[first],
             raw.time_s[last]
         )
     };
+    if raw.external_rig {
+        used.push_str(
+            "; an external rig (no /rig records): its samples as the emulator recorded them (measured displacement, the rig's measured force, its state)",
+        );
+    }
     Ok(RunHistory {
         dt_s,
         displacement_m,
@@ -119,53 +140,95 @@ pub fn load_run_history(run_dir: &Path) -> Result<RunHistory, RunRecordError> {
         config_origin: raw.config_origin,
         config_base_dir: raw.config_base_dir,
         used,
+        external_rig: raw.external_rig,
     })
 }
 
 /// The rig's columns and the run's config, as read.
 struct RawRun {
     origin: String,
+    /// What a row is, in words ("rig periods", "samples of the external rig").
+    rows: &'static str,
+    external_rig: bool,
     time_s: Vec<f64>,
     z_m: Vec<f64>,
     force_n: Vec<f64>,
-    state: Vec<u32>,
+    /// Per row: the rig in force control (RUNNING), no fault latched, the sample
+    /// published and finite, the force finite.
+    usable: Vec<bool>,
     config_text: String,
     config_origin: String,
     config_base_dir: Option<PathBuf>,
 }
 
-/// First and last index of the first run of RUNNING rows.
-fn running_stretch(state: &[u32]) -> Option<(usize, usize)> {
-    let first = state.iter().position(|&s| s == rig_state::RUNNING)?;
-    let len = state[first..]
-        .iter()
-        .take_while(|&&s| s == rig_state::RUNNING)
-        .count();
+/// Whether a row may enter the diagnosis (see `RawRun::usable`).
+fn usable_row(state: u32, fault_code: u32, published: bool, z_m: f64, force_n: f64) -> bool {
+    state == rig_state::RUNNING
+        && fault_code == 0
+        && published
+        && z_m.is_finite()
+        && force_n.is_finite()
+}
+
+/// First and last index of the first run of usable rows.
+fn usable_stretch(usable: &[bool]) -> Option<(usize, usize)> {
+    let first = usable.iter().position(|&u| u)?;
+    let len = usable[first..].iter().take_while(|&&u| u).count();
     Some((first, first + len - 1))
 }
 
-fn read_records(run_dir: &Path) -> Result<RawRun, RunRecordError> {
+fn read_records(set: &RecordSet) -> Result<RawRun, RunRecordError> {
     let rec_err = |e: crate::records::reader::RecordsError| RunRecordError {
         path: e.path,
         message: e.message,
     };
-    let set = RecordSet::open(run_dir).map_err(|e| RunRecordError {
-        path: run_dir.display().to_string(),
-        message: format!(
-            "{}; expected the report directory of a `fastemu hil` run, its records.mcap, or a directory written by `fastemu export`",
-            e.message
-        ),
-    })?;
     let origin = set.files[0].display().to_string();
-    let (mut time_s, mut z_m, mut force_n, mut state) = (vec![], vec![], vec![], vec![]);
-    let stats = set
+    let (mut time_s, mut z_m, mut force_n, mut usable) = (vec![], vec![], vec![], vec![]);
+    let mut stats = set
         .for_each::<RigRecord>(|_, r| {
             time_s.push(r.t_s);
             z_m.push(r.z_measured_m);
             force_n.push(r.actuator_force_n);
-            state.push(r.state);
+            usable.push(usable_row(
+                r.state,
+                r.fault_code,
+                r.published != 0,
+                r.z_measured_m,
+                r.actuator_force_n,
+            ));
         })
         .map_err(rec_err)?;
+    // An external rig's own records are not fastemu's: the emulator recorded what its
+    // samples said (measured displacement and force, state, fault). Interpolated steps
+    // stand for a missing sample and are not data.
+    let external_rig = time_s.is_empty();
+    let mut measured_force = false;
+    if external_rig {
+        stats = set
+            .for_each::<EmulatorRecord>(|_, r| {
+                time_s.push(r.t_s);
+                z_m.push(r.z_used_m);
+                force_n.push(r.rig_force_n);
+                measured_force |= r.rig_force_n.is_finite();
+                usable.push(usable_row(
+                    r.rig_state,
+                    r.rig_fault_code,
+                    r.interpolated == 0,
+                    r.z_used_m,
+                    r.rig_force_n,
+                ));
+            })
+            .map_err(rec_err)?;
+        if !time_s.is_empty() && !measured_force {
+            return Err(RunRecordError {
+                path: origin,
+                message: format!(
+                    "an external rig's session (no /rig records): of its {} samples none carried a measured actuator force (actuator_force_n NaN throughout), so there is no applied force to compare the emulated one with",
+                    time_s.len()
+                ),
+            });
+        }
+    }
     for (path, e) in &stats.truncated {
         eprintln!(
             "diagnose: {} ends early ({e}): read up to its last closed chunk",
@@ -185,10 +248,16 @@ fn read_records(run_dir: &Path) -> Result<RawRun, RunRecordError> {
         })?;
     Ok(RawRun {
         origin,
+        rows: if external_rig {
+            "samples of the external rig"
+        } else {
+            "rig periods"
+        },
+        external_rig,
         time_s,
         z_m,
         force_n,
-        state,
+        usable,
         config_text: meta.config_text.clone(),
         config_origin: meta.config_origin.clone(),
         config_base_dir: meta.config_base_dir.clone(),
@@ -202,13 +271,31 @@ fn read_exported(dir: &Path, rig_csv: &Path) -> Result<RawRun, RunRecordError> {
     };
     let cols = read_columns(
         rig_csv,
-        &["t_s", "z_measured_m", "actuator_force_n", "state"],
+        &[
+            "t_s",
+            "z_measured_m",
+            "actuator_force_n",
+            "state",
+            "fault_code",
+            "published",
+        ],
     )
     .map_err(csv_err)?;
     let mut columns = cols.data.into_iter();
     let mut next = || columns.next().unwrap_or_default();
     let (time_s, z_m, force_n) = (next(), next(), next());
-    let state = next().into_iter().map(|s| s as u32).collect();
+    let (state, fault_code, published) = (next(), next(), next());
+    let usable = (0..time_s.len())
+        .map(|i| {
+            usable_row(
+                state[i] as u32,
+                fault_code[i] as u32,
+                published[i] != 0.0,
+                z_m[i],
+                force_n[i],
+            )
+        })
+        .collect();
     let meta_path = dir.join("meta.json");
     let config_path = dir.join("config.toml");
     let read = |path: &Path| {
@@ -238,10 +325,12 @@ fn read_exported(dir: &Path, rig_csv: &Path) -> Result<RawRun, RunRecordError> {
     };
     Ok(RawRun {
         origin: rig_csv.display().to_string(),
+        rows: "rig periods",
+        external_rig: false,
         time_s,
         z_m,
         force_n,
-        state,
+        usable,
         config_text,
         config_origin,
         config_base_dir,
@@ -295,23 +384,28 @@ fn uniform_series(
 /// in the words of the run's config. `force_lag_s` > 0: the applied force lags. The knob
 /// is the rig's law lead in law mode (`[rig] law_lead_us`, the default), the
 /// controller's compensation delay in force mode (`[controller] compensation_delay_us`).
-pub fn delay_knob_advice(config: &HilConfig, force_lag_s: f64) -> String {
+/// With an external rig in law mode the lead is the rig's own (its L in the rig ABI); the
+/// configuration's value is only what the rig was told to use.
+pub fn delay_knob_advice(config: &HilConfig, force_lag_s: f64, external_rig: bool) -> String {
     let us = (force_lag_s * 1e6).abs();
-    let (knob, knob_s) = match config.controller.command_mode {
-        CommandMode::Law => ("[rig] law_lead_us", config.rig.law_lead_s),
-        CommandMode::Force => (
-            "[controller] compensation_delay_us",
-            config.controller.compensation_delay_s,
+    let knob = match config.controller.command_mode {
+        CommandMode::Law if external_rig => format!(
+            "the external rig's own law lead L (the configuration's [rig] law_lead_us says {:.0} us)",
+            config.rig.law_lead_s * 1e6
+        ),
+        CommandMode::Law => format!("[rig] law_lead_us ({:.0} us)", config.rig.law_lead_s * 1e6),
+        CommandMode::Force => format!(
+            "[controller] compensation_delay_us ({:.0} us)",
+            config.controller.compensation_delay_s * 1e6
         ),
     };
-    let knob_us = knob_s * 1e6;
     if force_lag_s < 0.0 {
         format!(
-            "applied force leads the emulated force by {us:.0} us: {knob} ({knob_us:.0} us) is about {us:.0} us too long"
+            "applied force leads the emulated force by {us:.0} us: {knob} is about {us:.0} us too long"
         )
     } else {
         format!(
-            "applied force lags the emulated force by {us:.0} us: {knob} ({knob_us:.0} us) is about {us:.0} us too short (or the loop's delay grew)"
+            "applied force lags the emulated force by {us:.0} us: {knob} is about {us:.0} us too short (or the loop's delay grew)"
         )
     }
 }

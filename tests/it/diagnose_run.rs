@@ -1,14 +1,15 @@
 //! `fastemu diagnose --run`: a run of the deterministic in-process loop with the rig's
 //! law lead mis-set, written as a `fastemu hil` run writes its records and diagnosed from
-//! them against the run's own model; the same run with the lead right as the control.
+//! them against the run's own model; the same with plain force commands and the
+//! controller's compensation delay mis-set; the run with the lead right as the control.
 //! (In process, so that the loop's delay is the configured one: a real run on a loaded
 //! machine adds its own, which is the diagnosis' business to report but not this test's.)
 
 use std::path::Path;
 use std::process::Command;
 
-use fastemu::hil::config::parse_hil_config;
-use fastemu::hil::inproc::{run_in_process, InProcessScript};
+use fastemu::hil::config::{parse_hil_config, HilConfig};
+use fastemu::hil::inproc::{run_in_process, InProcessRun, InProcessScript};
 use fastemu::records::event::event_kind;
 
 use crate::common::TempDir;
@@ -19,9 +20,28 @@ const KNOB: &str = "law_lead_us = 252.0";
 
 /// Runs the default passage in process with `law_lead_us` and writes its records to
 /// `run_dir`.
-fn recorded_run(run_dir: &Path, law_lead_us: f64) {
-    assert!(DEFAULT.contains(KNOB), "default config lacks `{KNOB}`");
-    let text = DEFAULT.replace(KNOB, &format!("law_lead_us = {law_lead_us:.1}"));
+fn recorded_run(run_dir: &Path, law_lead_us: f64) -> Recorded {
+    recorded_run_with(
+        run_dir,
+        &[(KNOB, &format!("law_lead_us = {law_lead_us:.1}"))],
+    )
+}
+
+/// An in-process run with the configuration it ran.
+struct Recorded {
+    run: InProcessRun,
+    cfg: HilConfig,
+    text: String,
+}
+
+/// Runs the default passage in process with the given replacements of the default
+/// configuration's text and writes its records to `run_dir`.
+fn recorded_run_with(run_dir: &Path, replacements: &[(&str, &str)]) -> Recorded {
+    let mut text = DEFAULT.to_string();
+    for (from, to) in replacements {
+        assert!(text.contains(from), "default config lacks `{from}`");
+        text = text.replace(from, to);
+    }
     let cfg = parse_hil_config(&text, "lead.toml", None).unwrap();
     let script = InProcessScript {
         // 6 s passage, then the end and the unload.
@@ -39,6 +59,7 @@ fn recorded_run(run_dir: &Path, law_lead_us: f64) {
         .collect();
     assert!(faults.is_empty(), "{faults:?}");
     run.write_records(run_dir, &cfg, &text).unwrap();
+    Recorded { run, cfg, text }
 }
 
 fn diagnose(run_dir: &Path, out: &Path) -> serde_json::Value {
@@ -70,7 +91,7 @@ fn effects(json: &serde_json::Value) -> Vec<String> {
 fn a_law_lead_set_125_us_too_long_is_named_from_the_run_records() {
     let dir = TempDir::new("diagnose-run");
     let run_dir = dir.path.join("run");
-    recorded_run(&run_dir, 377.0);
+    let recorded = recorded_run(&run_dir, 377.0);
     assert!(run_dir.join("records.mcap").is_file());
     let json = diagnose(&run_dir, &dir.path.join("diagnosis"));
     eprintln!("{json:#}");
@@ -114,6 +135,100 @@ fn a_law_lead_set_125_us_too_long_is_named_from_the_run_records() {
     assert_eq!(from_csv["effects"], json["effects"]);
     let lag_csv = from_csv["force_lag_s"].as_f64().unwrap();
     assert!((lag_csv - lag_s).abs() < 1e-6, "{lag_csv} vs {lag_s}");
+
+    // The same session as an external rig's (no /rig records): the emulator's record of
+    // its samples (measured displacement and force) tells the same, and the advice names
+    // the rig's own lead.
+    let external_dir = dir.path.join("external");
+    let external = InProcessRun {
+        rig: Vec::new(),
+        ..recorded.run.clone()
+    };
+    external
+        .write_records(&external_dir, &recorded.cfg, &recorded.text)
+        .unwrap();
+    let from_samples = diagnose(&external_dir, &dir.path.join("diagnosis-external"));
+    assert_eq!(from_samples["effects"], json["effects"], "{from_samples}");
+    let lag_ext = from_samples["force_lag_s"].as_f64().unwrap();
+    assert!((lag_ext - lag_s).abs() < 2e-6, "{lag_ext} vs {lag_s}");
+    assert!(
+        from_samples["record_used"]
+            .as_str()
+            .unwrap()
+            .contains("an external rig (no /rig records)"),
+        "{from_samples}"
+    );
+    assert!(
+        from_samples["advice"].as_array().unwrap().iter().any(|a| a
+            .as_str()
+            .unwrap()
+            .contains("the external rig's own law lead L")),
+        "{from_samples}"
+    );
+}
+
+#[test]
+fn injected_bad_samples_end_the_stretch_that_is_diagnosed() {
+    // A NaN sample injected at 3 s: the emulator trips and the rig holds; the diagnosis
+    // uses the periods before the bad sample only, never the sample itself.
+    let dir = TempDir::new("diagnose-run-nan");
+    let run_dir = dir.path.join("run");
+    let mut text = DEFAULT.to_string();
+    text.push_str("\n[[inject]]\nprocess = \"rig\"\nkind = \"nan\"\nat_s = 3.0\n");
+    let cfg = parse_hil_config(&text, "nan.toml", None).unwrap();
+    let script = InProcessScript {
+        max_steps: (8.0 * cfg.loop_.rate_hz) as u64,
+        command_delay_periods: 1,
+        ..InProcessScript::default()
+    };
+    let run = run_in_process(&cfg, &script);
+    let bad = run
+        .rig
+        .iter()
+        .position(|r| !r.z_measured_m.is_finite())
+        .expect("the injected NaN in the rig's record");
+    run.write_records(&run_dir, &cfg, &text).unwrap();
+    let json = diagnose(&run_dir, &dir.path.join("diagnosis"));
+    let used = json["record_used"].as_str().unwrap();
+    assert!(
+        used.starts_with(&format!("rig periods 0 to {} of ", bad - 1)),
+        "{used} (bad sample at row {bad})"
+    );
+    assert!(json["gap_before"].as_f64().unwrap().is_finite(), "{json}");
+}
+
+#[test]
+fn plain_force_commands_with_a_compensation_delay_125_us_too_long_are_named() {
+    let dir = TempDir::new("diagnose-run-force");
+    let run_dir = dir.path.join("run");
+    recorded_run_with(
+        &run_dir,
+        &[
+            ("command_mode = \"law\"", "command_mode = \"force\""),
+            (
+                "compensation_delay_us = 252.0",
+                "compensation_delay_us = 377.0",
+            ),
+        ],
+    );
+    let json = diagnose(&run_dir, &dir.path.join("diagnosis"));
+    eprintln!("{json:#}");
+    assert!(effects(&json).contains(&"channel-delay".into()), "{json}");
+    let lag_s = json["force_lag_s"].as_f64().expect("a fitted lag");
+    // The controller's extrapolation (order 3) of the force over 125 us too many.
+    assert!((-160e-6..-90e-6).contains(&lag_s), "lag {lag_s}");
+    let advice = json["advice"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|a| a.as_str())
+        .find(|a| a.contains("compensation_delay_us"))
+        .expect("advice on the controller's delay knob");
+    assert!(
+        advice.contains("[controller] compensation_delay_us (377 us) is about")
+            && advice.ends_with("too long"),
+        "{advice}"
+    );
 }
 
 #[test]

@@ -708,7 +708,7 @@ pub fn specimen_sentence(d: &Diagnosis) -> String {
 pub fn write_run_outputs(
     run_dir: &std::path::Path,
     model_label: &str,
-    record_used: &str,
+    record: &crate::ident::runrec::RunHistory,
     out: &std::path::Path,
     d: &super::run::RunDiagnosis,
     config: &crate::hil::config::HilConfig,
@@ -716,7 +716,8 @@ pub fn write_run_outputs(
 ) -> anyhow::Result<serde_json::Value> {
     use anyhow::Context;
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let advice = run_advice(d, config);
+    let advice = run_advice(d, config, record.external_rig);
+    let record_used = record.used.as_str();
     let named: Vec<&str> = d.named.iter().map(|k| k.name()).collect();
     let model_path = out.join("augmented_model.toml");
     let header = format!(
@@ -831,14 +832,22 @@ pub fn write_run_outputs(
 }
 
 /// What the named artefacts mean for the run, in the words of its config.
-fn run_advice(d: &super::run::RunDiagnosis, config: &crate::hil::config::HilConfig) -> Vec<String> {
+fn run_advice(
+    d: &super::run::RunDiagnosis,
+    config: &crate::hil::config::HilConfig,
+    external_rig: bool,
+) -> Vec<String> {
     let mut out = Vec::new();
     for effect in &d.final_model.effects {
         match *effect {
             crate::model::effects::Effect::ChannelDelay { force_lag_s }
                 if d.named.contains(&EffectKind::ChannelDelay) =>
             {
-                out.push(crate::ident::runrec::delay_knob_advice(config, force_lag_s));
+                out.push(crate::ident::runrec::delay_knob_advice(
+                    config,
+                    force_lag_s,
+                    external_rig,
+                ));
             }
             crate::model::effects::Effect::MovingMass { mass_kg }
                 if d.named.contains(&EffectKind::MovingMass) =>
