@@ -3,7 +3,7 @@
 
 Written from SPEC 2, 4, 5, issue 5 ("How it will be checked") and the paper
 (Li et al. 2021, Sec. 2 and 3.1) only, independently of the project's own test
-generator (tests/it/gen.rs) and of src/diagnose.rs / src/model/effects.rs.
+generator (tests/it/gen.rs) and of src/ident/ / src/model/effects.rs.
 
 Physics (truth), all independent implementations:
   * consistent-form Zener element (SPEC 2.1): F = Fs(z) + Fm,

@@ -267,12 +267,10 @@ fn null_campaigns_with_passages_name_nothing_and_leave_nothing_unexplained() {
 /// only the baseline's parameters are off): 24 campaigns, white noise alone, the typical
 /// white + coloured + drifting noise, and loud coloured noise, half of them with passages.
 /// A false alarm is any named effect, an unexplained residual, or a changed specimen.
-/// Opt-in (`FASTEMU_SOAK`): about four minutes on two cores.
+/// Opt-in (`--ignored`): about four minutes on two cores.
 #[test]
+#[ignore = "soak (minutes): cargo test --release --test it soak_ -- --ignored"]
 fn soak_false_alarm_rate_on_null_campaigns() {
-    if std::env::var_os("FASTEMU_SOAK").is_none() {
-        return;
-    }
     let white = Noise {
         coloured_force: 0.0,
         drift_force: 0.0,

@@ -16,6 +16,8 @@ use fastemu::ipc::messages::{
 use fastemu::link::protocol::{self, CommandDatagram, ControlDatagram, SampleDatagram};
 use fastemu::rig::servo::lead_weights;
 
+use crate::common::TempDir;
+
 const FIELDS: &[(&str, &[&str])] = &[
     (
         "fastemu_displacement_sample",
@@ -138,8 +140,9 @@ const FIELDS: &[(&str, &[&str])] = &[
 /// offset, plus the helpers' numbers under "law" and "lead.*".
 fn probe() -> BTreeMap<String, f64> {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let dir = std::env::temp_dir().join(format!("fastemu-it-{}-header", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    // One directory per call: the tests calling this run in parallel.
+    let temp = TempDir::new("header");
+    let dir = temp.path.clone();
     let mut c = String::from(
         "#include <stdio.h>\n#include <stddef.h>\n#include \"fastemu_rig.h\"\nint main(void) {\n",
     );
@@ -196,7 +199,6 @@ fn probe() -> BTreeMap<String, f64> {
             map.insert(key, values[0]);
         }
     }
-    std::fs::remove_dir_all(&dir).ok();
     map
 }
 
