@@ -426,6 +426,163 @@ impl Supervisor {
     }
 }
 
+impl Supervisor {
+    fn new(plan: &RunPlan) -> Supervisor {
+        Supervisor {
+            children: Vec::new(),
+            child_process: Vec::new(),
+            outcome: RunOutcome::default(),
+            finished: Vec::new(),
+            rig_lost: false,
+            last_heartbeat: [None; 3],
+            ready: [false; 3],
+            started_at: None,
+            first_fault_at: None,
+            stop_sent_at: None,
+            end_sent_at: None,
+            interrupts_seen: 0,
+            sequence: 0,
+            link_summary_error: Some(plan.out_dir.join("link-summary.json")),
+        }
+    }
+
+    /// Sends STOP once (the processes end now).
+    fn stop_once(&mut self, control: &Out<RunControl>, now: Instant) {
+        if self.stop_sent_at.is_none() {
+            self.send(control, run_command::STOP, 0, 0);
+            self.stop_sent_at = Some(now);
+        }
+    }
+
+    /// Before the start: START once every process is ready; a signal, or a process not
+    /// ready within 20 s, is a fault that stops the run.
+    fn before_start(
+        &mut self,
+        plan: &RunPlan,
+        control: &Out<RunControl>,
+        interrupts: u32,
+        start_wait: Instant,
+        now: Instant,
+        progress: bool,
+    ) {
+        if interrupts > 0 {
+            self.outcome.operator_stop = true;
+            self.push_fault(format!(
+                "hil: interrupted by signal {} before the start",
+                INTERRUPT_SIGNAL.load(Ordering::SeqCst)
+            ));
+        } else if self.ready.iter().all(|&r| r) {
+            let t0 = monotonic_now_ns() + 100_000_000;
+            let unix_now = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_nanos() as u64);
+            self.send(control, run_command::START, t0, unix_now + 100_000_000);
+            self.started_at = Some(now);
+            if progress {
+                eprintln!(
+                    "hil: all processes ready, starting ({} s of scenario)",
+                    plan.duration_s
+                );
+            }
+        } else if now.duration_since(start_wait) > Duration::from_secs(20)
+            && self.first_fault_at.is_none()
+        {
+            let missing: Vec<&str> = (0..3)
+                .filter(|&i| !self.ready[i])
+                .map(|i| PROCESS_NAMES[i])
+                .collect();
+            self.push_fault(format!(
+                "hil: not ready within 20 s: {}",
+                missing.join(", ")
+            ));
+        }
+        if self.first_fault_at.is_some() {
+            self.stop_once(control, now);
+        }
+    }
+
+    /// While running: silence checks, the operator's signals and live requests relayed
+    /// to the rig, STOP once the rig ended the run.
+    fn while_running(
+        &mut self,
+        control: &Out<RunControl>,
+        live: Option<&crate::live::LiveHandle>,
+        interrupts: u32,
+        now: Instant,
+        progress: bool,
+    ) {
+        self.check_silence(now);
+        // Operator stop: an orderly end (hold, unload, finish); a second signal stops at
+        // once.
+        if interrupts > self.interrupts_seen {
+            self.interrupts_seen = interrupts;
+            self.outcome.operator_stop = true;
+            if self.end_sent_at.is_none() {
+                if progress {
+                    eprintln!("hil: operator stop: the rig holds, unloads and finishes (signal again to stop at once)");
+                }
+                self.send(control, run_command::END, 0, 0);
+                self.end_sent_at = Some(now);
+            } else {
+                self.stop_once(control, now);
+            }
+        }
+        if let Some(command) = live.and_then(|l| l.take_request()) {
+            if progress {
+                eprintln!(
+                    "hil: operator request from the live view: {}",
+                    match command {
+                        run_command::HOLD => "hold",
+                        run_command::RESUME => "resume",
+                        _ => "stop",
+                    }
+                );
+            }
+            self.send(control, command, 0, 0);
+        }
+        // The rig ended the run (or died): the others stop now.
+        if self.process_finished(process_id::RIG) {
+            self.stop_once(control, now);
+        }
+    }
+
+    /// Whether the supervision is over: every child reaped, or the grace after STOP has
+    /// passed (the simulated rig behind a link that died holds on its own until at rest:
+    /// it gets as long as a hold may take; the others 3 s).
+    fn supervision_over(&self, plan: &RunPlan, now: Instant) -> bool {
+        if self.finished.iter().all(|&f| f) {
+            return true;
+        }
+        let far_rig_holding = self
+            .child_process
+            .iter()
+            .zip(&self.finished)
+            .any(|(p, f)| p.is_none() && !f);
+        let grace = if far_rig_holding {
+            Duration::from_secs_f64(plan.hold_max_s + 3.0)
+        } else {
+            Duration::from_secs(3)
+        };
+        self.stop_sent_at
+            .is_some_and(|s| now.duration_since(s) > grace)
+    }
+
+    /// The run's outcome; children still running are killed and reaped (their guards).
+    fn into_outcome(mut self) -> RunOutcome {
+        self.outcome.completed = self.first_fault_at.is_none() && self.outcome.rig_finished;
+        let mut outcome = self.outcome;
+        for (name, mut child) in self.children.drain(..) {
+            if let Ok(None) = child.try_wait() {
+                outcome
+                    .exit_statuses
+                    .insert(name.clone(), "killed by hil (did not stop)".into());
+            }
+            drop(child);
+        }
+        outcome
+    }
+}
+
 /// Spawns the three processes and runs the scenario until the rig ends it; operator
 /// requests from the live view's services (`live`) are relayed to the rig.
 pub fn run_processes(
@@ -443,29 +600,13 @@ pub fn run_processes(
     let heartbeats = node.heartbeat_in()?;
     let control = node.control_out()?;
     let (first, after_rig) = child_specs(plan)?;
-    let mut sup = Supervisor {
-        children: Vec::new(),
-        child_process: Vec::new(),
-        outcome: RunOutcome::default(),
-        finished: Vec::new(),
-        rig_lost: false,
-        last_heartbeat: [None; 3],
-        ready: [false; 3],
-        started_at: None,
-        first_fault_at: None,
-        stop_sent_at: None,
-        end_sent_at: None,
-        interrupts_seen: 0,
-        sequence: 0,
-        link_summary_error: Some(plan.out_dir.join("link-summary.json")),
-    };
+    let mut sup = Supervisor::new(plan);
     spawn_children(plan, first, &mut sup)?;
     if let Some(wait) = plan.rig.external_wait() {
         if wait_for_external_rig(&mut sup, &heartbeats, wait)? {
             spawn_children(plan, after_rig, &mut sup)?;
-        } else if sup.stop_sent_at.is_none() {
-            sup.send(&control, run_command::STOP, 0, 0);
-            sup.stop_sent_at = Some(Instant::now());
+        } else {
+            sup.stop_once(&control, Instant::now());
         }
     }
     let start_wait = Instant::now();
@@ -479,80 +620,9 @@ pub fn run_processes(
         sup.check_heartbeats(&heartbeats);
         let interrupts = INTERRUPTS.load(Ordering::SeqCst);
         match sup.started_at {
-            None => {
-                if interrupts > 0 {
-                    sup.outcome.operator_stop = true;
-                    sup.push_fault(format!(
-                        "hil: interrupted by signal {} before the start",
-                        INTERRUPT_SIGNAL.load(Ordering::SeqCst)
-                    ));
-                } else if sup.ready.iter().all(|&r| r) {
-                    let t0 = monotonic_now_ns() + 100_000_000;
-                    let unix_now = std::time::SystemTime::now()
-                        .duration_since(std::time::UNIX_EPOCH)
-                        .map_or(0, |d| d.as_nanos() as u64);
-                    sup.send(&control, run_command::START, t0, unix_now + 100_000_000);
-                    sup.started_at = Some(now);
-                    if progress {
-                        eprintln!(
-                            "hil: all processes ready, starting ({} s of scenario)",
-                            plan.duration_s
-                        );
-                    }
-                } else if now.duration_since(start_wait) > Duration::from_secs(20)
-                    && sup.first_fault_at.is_none()
-                {
-                    let missing: Vec<&str> = (0..3)
-                        .filter(|&i| !sup.ready[i])
-                        .map(|i| PROCESS_NAMES[i])
-                        .collect();
-                    sup.push_fault(format!(
-                        "hil: not ready within 20 s: {}",
-                        missing.join(", ")
-                    ));
-                }
-                if sup.first_fault_at.is_some() && sup.stop_sent_at.is_none() {
-                    sup.send(&control, run_command::STOP, 0, 0);
-                    sup.stop_sent_at = Some(now);
-                }
-            }
+            None => sup.before_start(plan, &control, interrupts, start_wait, now, progress),
             Some(t) => {
-                sup.check_silence(now);
-                // Operator stop: an orderly end (hold, unload, finish); a second signal
-                // stops at once.
-                if interrupts > sup.interrupts_seen {
-                    sup.interrupts_seen = interrupts;
-                    sup.outcome.operator_stop = true;
-                    if sup.end_sent_at.is_none() {
-                        if progress {
-                            eprintln!("hil: operator stop: the rig holds, unloads and finishes (signal again to stop at once)");
-                        }
-                        sup.send(&control, run_command::END, 0, 0);
-                        sup.end_sent_at = Some(now);
-                    } else if sup.stop_sent_at.is_none() {
-                        sup.send(&control, run_command::STOP, 0, 0);
-                        sup.stop_sent_at = Some(now);
-                    }
-                }
-                if let Some(command) = live.and_then(|l| l.take_request()) {
-                    if progress {
-                        eprintln!(
-                            "hil: operator request from the live view: {}",
-                            match command {
-                                run_command::HOLD => "hold",
-                                run_command::RESUME => "resume",
-                                _ => "stop",
-                            }
-                        );
-                    }
-                    sup.send(&control, command, 0, 0);
-                }
-                // The rig ended the run (or died): the others stop now.
-                let rig_done = sup.process_finished(process_id::RIG);
-                if rig_done && sup.stop_sent_at.is_none() {
-                    sup.send(&control, run_command::STOP, 0, 0);
-                    sup.stop_sent_at = Some(now);
-                }
+                sup.while_running(&control, live, interrupts, now, progress);
                 if progress && now.duration_since(last_progress) > Duration::from_secs(1) {
                     last_progress = now;
                     eprintln!(
@@ -568,38 +638,11 @@ pub fn run_processes(
                 }
             }
         }
-        if sup.finished.iter().all(|&f| f) {
-            break;
-        }
-        // The simulated rig behind a link that died holds on its own until at rest: it
-        // gets as long as a hold may take; the others 3 s.
-        let far_rig_holding = sup
-            .child_process
-            .iter()
-            .zip(&sup.finished)
-            .any(|(p, f)| p.is_none() && !f);
-        let grace = if far_rig_holding {
-            Duration::from_secs_f64(plan.hold_max_s + 3.0)
-        } else {
-            Duration::from_secs(3)
-        };
-        if sup
-            .stop_sent_at
-            .is_some_and(|s| now.duration_since(s) > grace)
-        {
+        if sup.supervision_over(plan, now) {
             break;
         }
     }
-    sup.outcome.completed = sup.first_fault_at.is_none() && sup.outcome.rig_finished;
-    let mut outcome = sup.outcome;
-    for (name, mut child) in sup.children.drain(..) {
-        if let Ok(None) = child.try_wait() {
-            outcome
-                .exit_statuses
-                .insert(name.clone(), "killed by hil (did not stop)".into());
-        }
-        drop(child);
-    }
+    let mut outcome = sup.into_outcome();
     drop(heartbeats);
     drop(control);
     drop(rig_services);
