@@ -105,9 +105,12 @@ fn check_run_id(id: &str) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The rig setup the arguments ask for (checked).
-fn rig_setup(rig: &RigArgs) -> anyhow::Result<RigSetup> {
-    use crate::link::socket::{free_loopback_pair, parse_link_address};
+/// The rig setup the arguments ask for (checked), and the sockets bound for the link ends
+/// `hil` starts itself.
+fn rig_setup(
+    rig: &RigArgs,
+) -> anyhow::Result<(RigSetup, Vec<std::sync::Arc<std::net::UdpSocket>>)> {
+    use crate::link::socket::{bound_loopback_pair, parse_link_address};
     anyhow::ensure!(
         rig.rig_wait_s > 0.0 && rig.rig_wait_s.is_finite(),
         "--rig-wait-s {}: expected a number of seconds > 0",
@@ -120,29 +123,39 @@ fn rig_setup(rig: &RigArgs) -> anyhow::Result<RigSetup> {
                 rig.link_bind.is_none() && rig.link_peer.is_none(),
                 "--link-bind and --link-peer need --rig-link udp"
             );
-            Ok(if rig.external() {
-                RigSetup::External { wait }
-            } else {
-                RigSetup::Simulated
-            })
+            Ok((
+                if rig.external() {
+                    RigSetup::External { wait }
+                } else {
+                    RigSetup::Simulated
+                },
+                vec![],
+            ))
         }
         (false, true) => {
             anyhow::ensure!(
                 rig.link_bind.is_none() && rig.link_peer.is_none(),
                 "--rig sim --rig-link udp puts the simulated rig on a loopback link that hil sets up; --link-bind and --link-peer are for --rig external"
             );
-            let (link, rig) = free_loopback_pair()?;
-            Ok(RigSetup::SimulatedUdp { link, rig })
+            let (link, rig) = bound_loopback_pair()?;
+            let setup = RigSetup::SimulatedUdp {
+                link: link.local_addr()?,
+                rig: rig.local_addr()?,
+            };
+            Ok((setup, vec![link.into(), rig.into()]))
         }
         (true, true) => {
             let (Some(bind), Some(peer)) = (&rig.link_bind, &rig.link_peer) else {
                 anyhow::bail!("--rig external --rig-link udp needs --link-bind IP:PORT (this machine's interface facing the rig) and --link-peer IP:PORT (the rig)");
             };
-            Ok(RigSetup::ExternalUdp {
-                link: parse_link_address("--link-bind", bind)?,
-                rig: parse_link_address("--link-peer", peer)?,
-                wait,
-            })
+            Ok((
+                RigSetup::ExternalUdp {
+                    link: parse_link_address("--link-bind", bind)?,
+                    rig: parse_link_address("--link-peer", peer)?,
+                    wait,
+                },
+                vec![],
+            ))
         }
     }
 }
@@ -411,7 +424,7 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
             stale.join(", ")
         );
     }
-    let rig_setup = rig_setup(&args.rig)?;
+    let (rig_setup, handed_sockets) = rig_setup(&args.rig)?;
     let run_id = match &args.rig.run_id {
         Some(id) => {
             check_run_id(id)?;
@@ -434,6 +447,7 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         bin_dir,
         hold_max_s: cfg.safety.hold_max_s,
         rig: rig_setup.clone(),
+        handed_sockets,
     };
     eprintln!(
         "hil: run {run_id}: {} s at {} Hz, {} commands, report in {}",

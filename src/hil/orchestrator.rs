@@ -99,6 +99,9 @@ pub struct RunPlan {
     /// The longest hold the rig may take before it ends the run, s.
     pub hold_max_s: f64,
     pub rig: RigSetup,
+    /// Sockets `hil` bound for the link ends it starts (`RigSetup::SimulatedUdp`): each
+    /// is handed to the child that binds its address.
+    pub handed_sockets: Vec<std::sync::Arc<std::net::UdpSocket>>,
 }
 
 /// How the run ended.
@@ -147,6 +150,8 @@ struct ChildSpec {
     exe: PathBuf,
     args: Vec<String>,
     process: Option<u32>,
+    /// The link address the child binds (its socket is handed over if `hil` holds it).
+    binds: Option<SocketAddr>,
 }
 
 /// The processes of `plan`, in start order; with an external rig, the emulator and the
@@ -167,6 +172,7 @@ fn child_specs(plan: &RunPlan) -> Result<(Vec<ChildSpec>, Vec<ChildSpec>), Proce
         exe: exe.clone(),
         args: sub.into_iter().chain(extra).collect(),
         process,
+        binds: None,
     };
     let link = |link: &SocketAddr, rig: &SocketAddr, wait: Option<Duration>| {
         let mut extra = vec![
@@ -178,13 +184,16 @@ fn child_specs(plan: &RunPlan) -> Result<(Vec<ChildSpec>, Vec<ChildSpec>), Proce
         if let Some(w) = wait {
             extra.extend(["--rig-wait-s".to_string(), w.as_secs_f64().to_string()]);
         }
-        spec(
-            "link",
-            &fastemu,
-            vec!["link".into()],
-            extra,
-            Some(process_id::RIG),
-        )
+        ChildSpec {
+            binds: Some(*link),
+            ..spec(
+                "link",
+                &fastemu,
+                vec!["link".into()],
+                extra,
+                Some(process_id::RIG),
+            )
+        }
     };
     let loop_processes = || {
         vec![
@@ -221,7 +230,10 @@ fn child_specs(plan: &RunPlan) -> Result<(Vec<ChildSpec>, Vec<ChildSpec>), Proce
                 "--link-peer".to_string(),
                 l.to_string(),
             ];
-            first.push(spec(PROCESS_NAMES[0], &rig_exe, rig_sub, far, None));
+            first.push(ChildSpec {
+                binds: Some(*rig),
+                ..spec(PROCESS_NAMES[0], &rig_exe, rig_sub, far, None)
+            });
         }
         RigSetup::External { .. } => {}
         RigSetup::ExternalUdp { link: l, rig, wait } => first.push(link(l, rig, Some(*wait))),
@@ -256,14 +268,30 @@ fn spawn_children(
         cmd.stdin(Stdio::null())
             .stdout(Stdio::null())
             .stderr(Stdio::inherit());
+        // The link socket bound for this child, left open across its exec.
+        let handed_fd = spec.binds.and_then(|addr| {
+            use std::os::fd::AsRawFd;
+            plan.handed_sockets
+                .iter()
+                .find(|s| s.local_addr().ok() == Some(addr))
+                .map(|s| s.as_raw_fd())
+        });
+        if let Some(fd) = handed_fd {
+            cmd.env(crate::link::socket::HANDED_SOCKET_ENV, fd.to_string());
+        }
         // If the orchestrator itself is killed (SIGKILL cannot be handled), the kernel
         // sends the children SIGTERM: the rig holds, the others flush and end.
-        // SAFETY: prctl is async-signal-safe and touches no memory of the parent.
+        // SAFETY: prctl and fcntl are async-signal-safe and touch no memory of the parent.
         unsafe {
             use std::os::unix::process::CommandExt;
-            cmd.pre_exec(|| {
+            cmd.pre_exec(move || {
                 if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
                     return Err(std::io::Error::last_os_error());
+                }
+                if let Some(fd) = handed_fd {
+                    if libc::fcntl(fd, libc::F_SETFD, 0) != 0 {
+                        return Err(std::io::Error::last_os_error());
+                    }
                 }
                 Ok(())
             });

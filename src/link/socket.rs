@@ -55,13 +55,50 @@ pub fn parse_link_address(what: &str, text: &str) -> Result<SocketAddr, LinkErro
     Ok(addr)
 }
 
-/// Two loopback addresses with ports that were free a moment ago, for a link whose two
-/// ends `hil` starts on this machine (released here for the processes that bind them).
+/// Two loopback addresses with ports that were free a moment ago (released here for
+/// whoever binds them; `bound_loopback_pair` keeps them).
 pub fn free_loopback_pair() -> Result<(SocketAddr, SocketAddr), LinkError> {
+    let (a, b) = bound_loopback_pair()?;
+    let err = |e: io::Error| LinkError(format!("cannot find free UDP ports on 127.0.0.1: {e}"));
+    Ok((a.local_addr().map_err(err)?, b.local_addr().map_err(err)?))
+}
+
+/// Two sockets bound to free loopback ports, for a link whose two ends `hil` starts on
+/// this machine: `hil` hands each to the process that uses it (`HANDED_SOCKET_ENV`), so
+/// no other process can take a port between the choice and its use.
+pub fn bound_loopback_pair() -> Result<(UdpSocket, UdpSocket), LinkError> {
     let err = |e: io::Error| LinkError(format!("cannot find free UDP ports on 127.0.0.1: {e}"));
     let a = UdpSocket::bind("127.0.0.1:0").map_err(err)?;
     let b = UdpSocket::bind("127.0.0.1:0").map_err(err)?;
-    Ok((a.local_addr().map_err(err)?, b.local_addr().map_err(err)?))
+    Ok((a, b))
+}
+
+/// Environment variable through which `hil` hands a child the link socket it bound for
+/// it: an inherited descriptor number. `open_link` takes it when its address is the one
+/// asked for.
+pub const HANDED_SOCKET_ENV: &str = "FASTEMU_LINK_SOCKET_FD";
+
+/// The socket the parent handed this process for `bind`, if it did (taken once).
+fn handed_socket(bind: SocketAddr) -> Option<UdpSocket> {
+    use std::os::fd::{FromRawFd, IntoRawFd};
+    use std::sync::atomic::{AtomicBool, Ordering};
+    static TAKEN: AtomicBool = AtomicBool::new(false);
+    let fd: i32 = std::env::var(HANDED_SOCKET_ENV).ok()?.parse().ok()?;
+    if fd < 3 || TAKEN.swap(true, Ordering::SeqCst) {
+        return None;
+    }
+    // SAFETY: `hil` names under this variable a UDP socket it bound for this process and
+    // left open across exec; anything else (no socket, another address) is given back
+    // untouched (not closed) below.
+    let socket = unsafe { UdpSocket::from_raw_fd(fd) };
+    match socket.local_addr() {
+        Ok(addr) if addr == bind => Some(socket),
+        _ => {
+            let _ = socket.into_raw_fd();
+            TAKEN.store(false, Ordering::SeqCst);
+            None
+        }
+    }
 }
 
 /// Sequence numbers per kind of the datagrams one end receives.
@@ -187,8 +224,11 @@ pub fn open_link(
             "link peer address {peer}: expected the rig's IP:PORT"
         )));
     }
-    let socket = UdpSocket::bind(bind)
-        .map_err(|e| LinkError(format!("cannot bind the link's UDP socket to {bind}: {e}")))?;
+    let socket = match handed_socket(bind) {
+        Some(socket) => socket,
+        None => UdpSocket::bind(bind)
+            .map_err(|e| LinkError(format!("cannot bind the link's UDP socket to {bind}: {e}")))?,
+    };
     open_link_socket(socket, peer, side, receive_timeout)
 }
 
