@@ -245,7 +245,38 @@ fn a_load_cell_nonlinearity_is_not_passed_off_as_explained() {
     );
     // Whatever the library names, its parameters are physical, and what it cannot
     // explain is said.
+    assert_physical(&d);
     assert!(d.verdict.unexplained.is_some(), "named {:?}", names(&d));
+}
+
+/// Every effect of the final model inside what physics allows (checked here from the
+/// physics, not with the library's own ranges): no negative mass, stiffness, slip force
+/// or damping; exponents in (0, 1]; a delay of at most a few ms; relaxation that speeds
+/// up as the elastomer warms.
+fn assert_physical(d: &Diagnosis) {
+    use fastemu::model::effects::Effect;
+    for e in &d.final_model.effects {
+        let ok = match *e {
+            Effect::MovingMass { mass_kg } => mass_kg >= 0.0,
+            Effect::ChannelDelay { force_lag_s } => force_lag_s.abs() <= 5e-3,
+            Effect::AmplitudeFriction {
+                stiffness_n_per_m,
+                slip_force_n,
+                ..
+            } => stiffness_n_per_m >= 0.0 && slip_force_n >= 0.0,
+            Effect::FractionalDamping {
+                coefficient_ns_alpha_per_m,
+                alpha,
+                ..
+            } => coefficient_ns_alpha_per_m >= 0.0 && alpha > 0.0 && alpha <= 1.0,
+            Effect::TemperatureShift {
+                log10_time_shift_per_c,
+                ..
+            } => log10_time_shift_per_c >= 0.0,
+            Effect::PreloadStiffening { chi, p0_n } => chi >= 0.0 && p0_n.is_finite(),
+        };
+        assert!(ok, "unphysical {e:?}");
+    }
 }
 
 #[test]
