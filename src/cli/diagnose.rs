@@ -37,10 +37,11 @@ pub struct DiagnoseArgs {
     #[arg(long)]
     pub json: bool,
     /// Cross-validation folds (at least 2; more than the tests gives leave-one-out).
-    #[arg(long, default_value_t = 5)]
+    /// Campaigns only.
+    #[arg(long, default_value_t = 5, conflicts_with = "run")]
     pub folds: usize,
-    /// Worker threads.
-    #[arg(long, default_value_t = 2)]
+    /// Worker threads. Campaigns only.
+    #[arg(long, default_value_t = 2, conflicts_with = "run")]
     pub threads: usize,
 }
 
