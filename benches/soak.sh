@@ -3,7 +3,8 @@
 # programme, each process's resident memory sampled every 10 s, then the report's
 # deadline misses, stalls, transients and the record size per hour.
 #
-#   benches/soak.sh [DURATION_S] [OUT_DIR]      (default: 3600 s, out/soak)
+#   benches/soak.sh [DURATION_S] [OUT_DIR] [CONFIG]
+#   (default: 3600 s, out/soak, configs/hil-durability.toml)
 #
 # Needs a release build (cargo build --release). Timings stay out of pass/fail tests:
 # this prints figures; it fails only if the run itself fails.
@@ -11,10 +12,11 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 DURATION=${1:-3600}
 OUT=${2:-out/soak}
+CONFIG=${3:-configs/hil-durability.toml}
 EXE=target/release/fastemu
 [ -x "$EXE" ] || { echo "build first: cargo build --release" >&2; exit 1; }
 rm -rf "$OUT"; mkdir -p "$OUT"
-"$EXE" hil --config configs/hil-durability.toml --duration-s "$DURATION" --json --out "$OUT/report" \
+"$EXE" hil --config "$CONFIG" --duration-s "$DURATION" --json --out "$OUT/report" \
     > "$OUT/summary.json" 2> "$OUT/hil.err" &
 HIL=$!
 echo "soak: $DURATION s, report in $OUT/report; memory samples in $OUT/rss.tsv" >&2
@@ -39,7 +41,7 @@ s = json.load(open(os.path.join(out, "summary.json")))
 rss = collections.defaultdict(list)
 for line in open(os.path.join(out, "rss.tsv")).read().splitlines()[1:]:
     t, p, kb = line.split("\t"); rss[p].append((int(t), int(kb)))
-print(f"soak: {duration:.0f} s requested, exit {'clean' if s.get('clean') else 'not clean: ' + '; '.join(s.get('not_clean_because', []))}")
+print(f"soak: {duration:.0f} s requested, ran {s.get('programme', {}).get('programme_time_s') or 0:.0f} s of programme, exit {'clean' if s.get('clean') else 'not clean: ' + '; '.join(s.get('not_clean_because', []))}")
 for p, v in sorted(rss.items()):
     first = next((kb for t, kb in v if t >= 60), v[0][1]); last = v[-1][1]
     print(f"  {p:22s} RSS at 1 min {first/1024:6.1f} MB, at the end ({v[-1][0]} s) {last/1024:6.1f} MB, change {(last-first)/1024:+.1f} MB")

@@ -336,7 +336,24 @@ impl Udp {
             };
             let seq = u64_at(8);
             let k = kind as usize;
-            if len != size || self.newest[k].is_some_and(|n| seq <= n) {
+            // Content nobody may act on is dropped before its sequence counts (header,
+            // section 3): an unknown mode or run command, a non-finite law, bad limits.
+            let content_ok = len == size
+                && match kind {
+                    2 => match u32_at(120) {
+                        MODE_HOLD | MODE_HOLD_UNLOAD => true,
+                        MODE_FORCE | MODE_LAW => {
+                            let (lo, hi) = (f64_at(104), f64_at(112));
+                            (0..7).all(|i| f64_at(48 + 8 * i).is_finite())
+                                && lo.is_finite()
+                                && hi.is_finite()
+                                && lo <= hi
+                        }
+                        _ => false,
+                    },
+                    _ => (1..=5).contains(&u32_at(24)),
+                };
+            if !content_ok || self.newest[k].is_some_and(|n| seq <= n) {
                 self.rejected += 1;
                 continue;
             }

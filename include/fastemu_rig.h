@@ -90,8 +90,11 @@
  * fields little-endian, no padding: on a little-endian machine the structs below are the
  * datagrams byte for byte. Every datagram: the 24-byte header, then its kind's payload;
  * its length is exactly its kind's size. A receiver drops (and counts) datagrams with a
- * wrong length, magic, version or kind, from any other address, or whose sequence is not
- * newer than the newest accepted one of its kind (duplicates, reordering).
+ * wrong length, magic, version or kind, from any other address, with content nobody may
+ * act on (a START or STATUS with another period, an unknown run-control command, a
+ * COMMAND with an unknown mode, a non-finite law or non-finite or unordered force limits;
+ * checked before the sequence, so a dropped datagram moves nothing), or whose sequence is
+ * not newer than the newest accepted one of its kind (duplicates, reordering).
  *
  *   kind 1 SAMPLE   rig -> fastemu   88 bytes, one per period
  *   kind 2 COMMAND  fastemu -> rig  144 bytes, one per command
