@@ -87,6 +87,23 @@ fn effects(json: &serde_json::Value) -> Vec<String> {
         .collect()
 }
 
+/// A named channel delay whose applied force leads by about 125 us (-160..-90 us), and
+/// the advice that names `knob`.
+fn named_lead_and_advice(json: &serde_json::Value, knob: &str) -> (f64, String) {
+    eprintln!("{json:#}");
+    assert!(effects(json).contains(&"channel-delay".into()), "{json}");
+    let lag_s = json["force_lag_s"].as_f64().expect("a fitted lag");
+    assert!((-160e-6..-90e-6).contains(&lag_s), "lag {lag_s}");
+    let advice = json["advice"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|a| a.as_str())
+        .find(|a| a.contains(knob))
+        .unwrap_or_else(|| panic!("no advice on {knob}: {json}"));
+    (lag_s, advice.to_string())
+}
+
 #[test]
 fn a_law_lead_set_125_us_too_long_is_named_from_the_run_records() {
     let dir = TempDir::new("diagnose-run");
@@ -94,19 +111,9 @@ fn a_law_lead_set_125_us_too_long_is_named_from_the_run_records() {
     let recorded = recorded_run(&run_dir, 377.0);
     assert!(run_dir.join("records.mcap").is_file());
     let json = diagnose(&run_dir, &dir.path.join("diagnosis"));
-    eprintln!("{json:#}");
-    assert!(effects(&json).contains(&"channel-delay".into()), "{json}");
-    let lag_s = json["force_lag_s"].as_f64().expect("a fitted lag");
     // The applied force leads by the 125 us the lead is too long (the law's extrapolation
     // is second order, so not exactly).
-    assert!((-160e-6..-90e-6).contains(&lag_s), "lag {lag_s}");
-    let advice = json["advice"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter_map(|a| a.as_str())
-        .find(|a| a.contains("law_lead_us"))
-        .expect("advice on the delay knob");
+    let (lag_s, advice) = named_lead_and_advice(&json, "law_lead_us");
     assert!(
         advice.starts_with("applied force leads the emulated force by")
             && advice.contains("[rig] law_lead_us (377 us) is about")
@@ -212,18 +219,8 @@ fn plain_force_commands_with_a_compensation_delay_125_us_too_long_are_named() {
         ],
     );
     let json = diagnose(&run_dir, &dir.path.join("diagnosis"));
-    eprintln!("{json:#}");
-    assert!(effects(&json).contains(&"channel-delay".into()), "{json}");
-    let lag_s = json["force_lag_s"].as_f64().expect("a fitted lag");
     // The controller's extrapolation (order 3) of the force over 125 us too many.
-    assert!((-160e-6..-90e-6).contains(&lag_s), "lag {lag_s}");
-    let advice = json["advice"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter_map(|a| a.as_str())
-        .find(|a| a.contains("compensation_delay_us"))
-        .expect("advice on the controller's delay knob");
+    let (_, advice) = named_lead_and_advice(&json, "compensation_delay_us");
     assert!(
         advice.contains("[controller] compensation_delay_us (377 us) is about")
             && advice.ends_with("too long"),
