@@ -18,6 +18,14 @@
 //! Options: --rate-hz 4096 --duration-s 6 --mass-kg 60.16 --damping-ns-per-m 3600
 //! --preload-n 0 --amplitude-n 4000 --frequency-hz 2 --stale-periods 205.
 
+const USAGE: &str = "\
+usage: example_rig (--ipc RUN_ID | --udp BIND_IP:PORT PEER_IP:PORT) [options]
+  an external rig from include/fastemu_rig.h: a mass on an ideal actuator
+  --ipc RUN_ID          the run's iceoryx2 services (fastemu hil --rig external --run-id RUN_ID)
+  --udp BIND PEER       the UDP rig link (hil's --link-peer is BIND, its --link-bind PEER)
+  --rate-hz 4096  --duration-s 6  --mass-kg 60.16  --damping-ns-per-m 3600
+  --preload-n 0  --amplitude-n 4000  --frequency-hz 2  --stale-periods 205";
+
 use std::net::{SocketAddr, UdpSocket};
 use std::time::Duration;
 
@@ -804,6 +812,10 @@ fn main() -> std::process::ExitCode {
                 .map_err(|_| format!("{}: not a number: `{}`", args[i], value(n)))
         };
         let r: Result<usize, String> = match args[i].as_str() {
+            "--help" | "-h" => {
+                println!("{USAGE}");
+                std::process::exit(0);
+            }
             "--ipc" => Ipc::open(&value(1)).map(|t| {
                 transport = Some(Box::new(t));
                 2
@@ -847,9 +859,7 @@ fn main() -> std::process::ExitCode {
                 o.stale_periods = x as u64;
                 2
             }),
-            other => Err(format!(
-                "unknown argument `{other}` (see the file's header)"
-            )),
+            other => Err(format!("unknown argument `{other}`\n{USAGE}")),
         };
         match r {
             Ok(n) => i += n,

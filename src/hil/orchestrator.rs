@@ -444,9 +444,14 @@ impl Supervisor {
             .collect();
         if !quiet_ok {
             for p in silent {
-                let name = PROCESS_NAMES[p as usize];
+                let external = p == process_id::RIG && !self.child_process.contains(&Some(p));
+                let name = if external {
+                    "rig (external)"
+                } else {
+                    PROCESS_NAMES[p as usize]
+                };
                 self.push_fault(format!("{name}: heartbeat lost (no heartbeat for 1 s)"));
-                if p == process_id::RIG && !self.child_process.contains(&Some(p)) {
+                if external {
                     self.rig_lost = true;
                 }
             }
