@@ -98,6 +98,34 @@ struct Command {
     reserved: u32,
 }
 
+impl Command {
+    /// Header, section 2b: a known mode; for FORCE and LAW a finite law and finite,
+    /// ordered force limits.
+    fn content_ok(&self) -> bool {
+        let l = &self.law;
+        match self.mode {
+            MODE_HOLD | MODE_HOLD_UNLOAD => true,
+            MODE_FORCE | MODE_LAW => {
+                [
+                    l.force_n,
+                    l.displacement_m,
+                    l.velocity_m_per_s,
+                    l.stiffness_n_per_m,
+                    l.damping_ns_per_m,
+                    l.force_rate_n_per_s,
+                    l.stiffness_slope_n_per_m2,
+                    self.force_min_n,
+                    self.force_max_n,
+                ]
+                .iter()
+                .all(|x| x.is_finite())
+                    && self.force_min_n <= self.force_max_n
+            }
+            _ => false,
+        }
+    }
+}
+
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[type_name("fastemu::Heartbeat")]
 #[repr(C)]
@@ -599,9 +627,11 @@ fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
             rig_fault_code: fault,
             reserved: 0,
         });
-        // b. commands; HOLD commands latch the interlock.
+        // b. commands; HOLD commands latch the interlock; a command nobody may act on is
+        // dropped as if it had not arrived (it does not count for the interlock either).
         commands.clear();
         transport.commands(&mut commands);
+        commands.retain(Command::content_ok);
         let latch =
             |state: &mut u32, fault: &mut u32, code: u32, unload_now: &mut bool, u: bool| {
                 if *fault == 0 {

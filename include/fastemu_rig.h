@@ -46,7 +46,10 @@
  *     its state and latched fault code}.
  *  b. Take every command that arrived since the last period; the newest counts. A
  *     command with mode HOLD or HOLD_UNLOAD latches the interlock (fault 22
- *     hold-requested) and is never left in this session.
+ *     hold-requested) and is never left in this session. Drop, as if it had not
+ *     arrived, a command with an unknown mode, or a FORCE/LAW command with a non-finite
+ *     law or force limits that are not finite and ordered: it neither drives the output
+ *     nor counts for the interlock (d).
  *  c. Output, by the newest command's mode:
  *     (none yet: from sample 0 until the first command) position control: hold the
  *            starting position with the load programme's change fed forward (a servo

@@ -171,10 +171,18 @@ pub fn run_rig_command(args: RigArgs) -> anyhow::Result<ExitCode> {
     )
     .context("bench_rig")?;
     eprintln!(
-        "bench_rig: {} steps, {} missed deadlines, {} periods without a new command{}",
+        "bench_rig: {} steps, {} missed deadlines, {} periods without a new command{}{}",
         s.steps,
         s.missed_deadlines,
         s.periods_without_command,
+        if s.rejected_commands > 0 {
+            format!(
+                ", {} commands dropped for their content",
+                s.rejected_commands
+            )
+        } else {
+            String::new()
+        },
         s.fault.as_ref().map_or(String::new(), |f| format!(
             ", interlock: {f} (held{})",
             if s.at_rest {

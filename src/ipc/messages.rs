@@ -214,6 +214,36 @@ pub struct ActuatorCommand {
     pub reserved: u32,
 }
 
+impl ActuatorCommand {
+    /// Whether a rig may act on this command: a known mode, ordered finite limits, and
+    /// for force and law commands a finite law (a hold needs no law). A rig drops any
+    /// other command as if it had not arrived, so a stream of them ends in its own
+    /// commands-stale hold. One check for every transport (iceoryx2 and the UDP link).
+    #[inline]
+    pub fn content_ok(&self) -> bool {
+        let limits = self.force_min_n.is_finite()
+            && self.force_max_n.is_finite()
+            && self.force_min_n <= self.force_max_n;
+        let l = &self.law;
+        let law = [
+            l.force_n,
+            l.displacement_m,
+            l.velocity_m_per_s,
+            l.stiffness_n_per_m,
+            l.damping_ns_per_m,
+            l.force_rate_n_per_s,
+            l.stiffness_slope_n_per_m2,
+        ]
+        .iter()
+        .all(|x| x.is_finite());
+        match self.mode {
+            command_mode::FORCE | command_mode::LAW => limits && law,
+            command_mode::HOLD | command_mode::HOLD_UNLOAD => true,
+            _ => false,
+        }
+    }
+}
+
 /// Any process -> orchestrator: liveness and state.
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("fastemu::Heartbeat")]

@@ -23,7 +23,7 @@ use super::protocol::{
     CommandDatagram, ControlDatagram, Datagram, Header, Reject, SampleDatagram, Side,
     StatusDatagram, MAX_DATAGRAM_BYTES,
 };
-use crate::ipc::messages::{command_mode, run_command, ActuatorCommand};
+use crate::ipc::messages::run_command;
 use crate::rt::clock::monotonic_now_ns;
 
 /// A link setup error: which address and what is wrong.
@@ -434,7 +434,7 @@ impl LinkReceiver {
     fn content_ok(&mut self, datagram: &Datagram) -> bool {
         let period = match datagram {
             Datagram::Sample(_) => return true,
-            Datagram::Command(c) => return command_ok(&c.command),
+            Datagram::Command(c) => return c.command.content_ok(),
             Datagram::Control(c) => match c.command {
                 run_command::START => c.period_ns,
                 run_command::STOP | run_command::HOLD | run_command::RESUME | run_command::END => {
@@ -454,35 +454,10 @@ impl LinkReceiver {
     }
 }
 
-/// A command a rig may act on: a known mode, ordered finite limits, and for force and law
-/// commands a finite law (a hold needs no law).
-#[inline]
-fn command_ok(c: &ActuatorCommand) -> bool {
-    let limits =
-        c.force_min_n.is_finite() && c.force_max_n.is_finite() && c.force_min_n <= c.force_max_n;
-    let l = &c.law;
-    let law = [
-        l.force_n,
-        l.displacement_m,
-        l.velocity_m_per_s,
-        l.stiffness_n_per_m,
-        l.damping_ns_per_m,
-        l.force_rate_n_per_s,
-        l.stiffness_slope_n_per_m2,
-    ]
-    .iter()
-    .all(|x| x.is_finite());
-    match c.mode {
-        command_mode::FORCE | command_mode::LAW => limits && law,
-        command_mode::HOLD | command_mode::HOLD_UNLOAD => true,
-        _ => false,
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ipc::messages::LocalLaw;
+    use crate::ipc::messages::{command_mode, ActuatorCommand, LocalLaw};
 
     #[test]
     fn commands_a_rig_must_not_act_on_are_bad_content() {
@@ -499,11 +474,12 @@ mod tests {
             fault_code: 0,
             reserved: 0,
         };
-        assert!(command_ok(&good));
-        assert!(command_ok(&ActuatorCommand {
+        assert!(good.content_ok());
+        assert!(ActuatorCommand {
             mode: command_mode::FORCE,
             ..good
-        }));
+        }
+        .content_ok());
         let mut nan_law = good;
         nan_law.law.damping_ns_per_m = f64::NAN;
         let bad = [
@@ -519,13 +495,14 @@ mod tests {
             },
         ];
         for c in bad {
-            assert!(!command_ok(&c), "{c:?}");
+            assert!(!c.content_ok(), "{c:?}");
         }
         // A hold is acted on whatever its law says.
-        assert!(command_ok(&ActuatorCommand {
+        assert!(ActuatorCommand {
             mode: command_mode::HOLD,
             ..nan_law
-        }));
+        }
+        .content_ok());
     }
 
     #[test]

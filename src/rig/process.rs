@@ -103,6 +103,8 @@ pub struct RigSummary {
     pub missed_deadlines: u64,
     /// Periods in which no new command arrived.
     pub periods_without_command: u64,
+    /// Commands dropped for their content (unknown mode, non-finite law or limits).
+    pub rejected_commands: u64,
     pub fault: Option<String>,
     pub held: bool,
     pub at_rest: bool,
@@ -343,6 +345,7 @@ fn run_rig_loop(
         steps: core.step_idx(),
         missed_deadlines: missed,
         periods_without_command: without_command,
+        rejected_commands: core.servo().rejected_commands(),
         fault: core.servo().trip().map(|t| t.fault.name().to_string()),
         held: core.servo().holding(),
         at_rest: core.servo().at_rest(),

@@ -185,6 +185,8 @@ pub struct Servo {
     at_rest_since_step: Option<u64>,
     unload_done: bool,
     finished: bool,
+    /// Commands dropped for their content (`ActuatorCommand::content_ok`).
+    rejected_commands: u64,
 }
 
 impl Servo {
@@ -221,7 +223,13 @@ impl Servo {
             at_rest_since_step: None,
             unload_done: false,
             finished: false,
+            rejected_commands: 0,
         }
+    }
+
+    /// Commands dropped so far because the rig must not act on their content.
+    pub fn rejected_commands(&self) -> u64 {
+        self.rejected_commands
     }
 
     pub fn config(&self) -> &ServoConfig {
@@ -258,9 +266,15 @@ impl Servo {
         matches!(self.phase, Phase::Holding { .. })
     }
 
-    /// A command arrived in period `step_idx`.
+    /// A command arrived in period `step_idx`. One the rig must not act on (unknown
+    /// mode, non-finite law or limits) is dropped and counted: it neither drives the
+    /// actuator nor refreshes the interlock, so a stream of them ends in commands-stale.
     #[inline]
     pub fn on_command(&mut self, cmd: &ActuatorCommand, step_idx: u64) {
+        if !cmd.content_ok() {
+            self.rejected_commands += 1;
+            return;
+        }
         let age = self
             .last_command_step
             .map_or(0, |s| step_idx.saturating_sub(s));

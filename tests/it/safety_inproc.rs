@@ -513,3 +513,69 @@ fn an_operator_hold_and_resume_mid_passage_is_bumpless() {
         assert_eq!(run.rig.last().unwrap().state, rig_state::RUNNING, "{label}");
     }
 }
+
+/// Commands a rig must not act on (unknown mode, a non-finite law, limits out of order)
+/// neither drive the actuator nor keep the interlock fed: after the last good command the
+/// servo latches commands-stale exactly `command_stale_periods` later and holds, as if
+/// nothing had arrived. The same check guards the iceoryx2 path and the UDP link.
+#[test]
+fn commands_with_bad_content_are_dropped_and_end_in_commands_stale() {
+    use fastemu::ipc::messages::{command_mode, ActuatorCommand, LocalLaw};
+    use fastemu::rig::Servo;
+    let cfg = cfg();
+    let servo_cfg = cfg.servo_config();
+    let stale = servo_cfg.command_stale_periods;
+    let (z0, f0) = (4.0e-4, 2.0e4);
+    let mut servo = Servo::new(servo_cfg, z0, f0);
+    let good = ActuatorCommand {
+        sequence: 0,
+        setpoint_sequence: 0,
+        sample_sequence: 0,
+        sample_publish_time_ns: 0,
+        law: LocalLaw::constant(2.5e4),
+        force_min_n: -5e3,
+        force_max_n: 1.2e5,
+        mode: command_mode::FORCE,
+        controller_state: 1,
+        fault_code: 0,
+        reserved: 0,
+    };
+    let mut nan_law = good;
+    nan_law.law.force_n = f64::NAN;
+    let bad = [
+        ActuatorCommand { mode: 9, ..good },
+        nan_law,
+        ActuatorCommand {
+            force_min_n: 1e5,
+            force_max_n: 0.0,
+            ..good
+        },
+    ];
+    // Period 0: the good command is taken; its force is what the actuator is told.
+    servo.on_command(&good, 0);
+    let (out, _) = servo.update(0, z0, f0);
+    assert_eq!(out.command_n, 2.5e4);
+    assert_eq!(out.mode, command_mode::FORCE);
+    let mut tripped_at = None;
+    for step in 1..=stale + 10 {
+        let mut c = bad[(step % 3) as usize];
+        c.sequence = step;
+        c.setpoint_sequence = step;
+        servo.on_command(&c, step);
+        let (out, _) = servo.update(step, z0, f0);
+        if tripped_at.is_none() {
+            if let Some(trip) = servo.trip() {
+                tripped_at = Some(trip.step_idx);
+                assert_eq!(trip.fault, Fault::CommandsStale);
+                assert_eq!(trip.detection_latency_periods, stale + 1);
+            } else {
+                // Until the trip the last good command stands: never a bad one.
+                assert_eq!(out.command_n, 2.5e4, "step {step}");
+                assert_eq!(out.command_age_periods, step, "step {step}");
+            }
+        }
+    }
+    assert_eq!(tripped_at, Some(stale + 1));
+    assert!(servo.holding());
+    assert_eq!(servo.rejected_commands(), stale + 10);
+}
