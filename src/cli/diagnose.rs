@@ -55,14 +55,23 @@ fn load_model(path: &std::path::Path) -> anyhow::Result<AugmentedModel> {
 
 pub fn run(args: DiagnoseArgs) -> anyhow::Result<ExitCode> {
     let started = Instant::now();
-    // Fail on an unusable --out before the analysis, not after it.
+    if args.campaign.is_none() && args.run.is_none() {
+        bail!("give --campaign DIR or --run RUNDIR");
+    }
+    // Fail on an unusable --out before the analysis, not after it; a directory made here
+    // for an analysis that then fails is taken away again (only if still empty).
+    let created = !args.out.exists();
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let summary = match (&args.campaign, &args.run) {
-        (_, Some(run_dir)) => run_command(&args, run_dir, started)?,
-        (Some(campaign), None) => campaign_command(&args, campaign, started)?,
-        (None, None) => bail!("give --campaign DIR or --run RUNDIR"),
+        (_, Some(run_dir)) => run_command(&args, run_dir, started),
+        (Some(campaign), _) => campaign_command(&args, campaign, started),
+        (None, None) => unreachable!("checked above"),
     };
+    if summary.is_err() && created {
+        let _ = std::fs::remove_dir(&args.out);
+    }
+    let summary = summary?;
     if args.json {
         println!("{summary}");
     }

@@ -300,6 +300,11 @@ fn load_config(args: &HilArgs) -> anyhow::Result<HilConfig> {
 /// Merges the processes' parts into `records.mcap` (after a run; a crashed `hil` leaves
 /// the parts, which every reader accepts).
 fn merge_records(out_dir: &std::path::Path) -> serde_json::Value {
+    if crate::records::reader::list_parts(&out_dir.join("parts")).is_empty() {
+        // No process got as far as recording (e.g. no external rig connected): nothing
+        // to merge, and no warning about it; the run's faults say why.
+        return json!({"file": null, "messages": 0, "parts": 0});
+    }
     match merge_parts(out_dir) {
         Ok(m) => {
             for (p, e) in &m.truncated {
@@ -491,13 +496,18 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
     // Process deaths first: they are the cause; the others' reactions follow from them.
     outcome.faults.sort_by_key(|f| !f.contains("process (pid"));
     let records = merge_records(&out_dir);
-    if args.csv {
+    if args.csv && records["parts"].as_u64() != Some(0) {
         if let Err(e) = crate::cli::export::export_dir(&out_dir, &out_dir) {
             eprintln!("hil: warning: CSV export failed: {e:#}");
         }
     }
+    let recorded = records["parts"].as_u64() != Some(0);
     let analysis: Option<Analysis> = match analyse_run(&cfg, &out_dir) {
         Ok(a) => Some(a),
+        Err(_) if !recorded => {
+            eprintln!("hil: no records and no analysis: the loop never started");
+            None
+        }
         Err(e) => {
             eprintln!("hil: no analysis: {e:#}");
             None

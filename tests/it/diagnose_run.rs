@@ -260,4 +260,6 @@ fn a_directory_without_run_records_is_refused_with_its_name() {
         stderr.contains(&dir.path.display().to_string()) && stderr.contains("no records"),
         "{stderr}"
     );
+    // The --out directory it made for the analysis is gone again.
+    assert!(!dir.path.join("out").exists());
 }

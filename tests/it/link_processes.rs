@@ -583,3 +583,35 @@ fn an_external_rig_written_from_the_header_completes_sessions_over_iceoryx2_and_
     assert_eq!(l["rig_finished"], true, "{l}");
     assert!(l["received"]["sample"].as_u64().unwrap() >= json["steps"].as_u64().unwrap());
 }
+
+#[test]
+fn an_external_rig_that_never_connects_is_a_named_fault_that_leaves_nothing() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = scratch_dir("external-none");
+    let config = write_config(&dir, &[], "");
+    let run_id = format!("feit{}none", std::process::id());
+    let mut hil = spawn_hil_with(
+        &config,
+        &dir.join("report"),
+        2.0,
+        &[
+            "--rig",
+            "external",
+            "--run-id",
+            &run_id,
+            "--rig-wait-s",
+            "1",
+        ],
+    );
+    let (code, json) = hil.finish(Duration::from_secs(30));
+    let stderr = hil.stderr();
+    assert_ne!(code, 0, "{stderr}");
+    assert_eq!(json["clean"], false, "{json}");
+    assert!(stderr.contains("no rig connected within 1 s"), "{stderr}");
+    // Nothing was recorded, and that is said once, without a warning about merging.
+    assert!(stderr.contains("the loop never started"), "{stderr}");
+    assert!(!stderr.contains("not merged"), "{stderr}");
+    assert_eq!(json["records"]["parts"], 0, "{json}");
+    assert_eq!(json["run_id"], run_id.as_str());
+    assert_nothing_left(&json);
+}
