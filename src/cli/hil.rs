@@ -632,15 +632,15 @@ fn summarise(
         );
         for f in &a.safety.faults {
             eprintln!(
-                "hil: fault {}: {}{} at {:.3} s (after {} periods) -> {}; largest excursion {:.1} um ({:.1} um beyond the pre-fault range), {}",
+                "hil: fault {}: {}{} at {:.3} s (after {} periods) -> {}; largest excursion {} ({} beyond the pre-fault range), {}",
                 f.process,
                 f.fault,
                 f.cause.as_ref().map_or(String::new(), |c| format!(" ({c})")),
                 f.detected_at_s,
                 f.detection_latency_periods,
                 f.action.as_deref().unwrap_or("the controller acts"),
-                f.largest_excursion_m * 1e6,
-                f.beyond_prefault_range_m * 1e6,
+                micrometres(f.largest_excursion_m),
+                micrometres(f.beyond_prefault_range_m),
                 f.time_to_rest_s.map_or("never at rest".to_string(), |t| format!("at rest after {t:.3} s"))
             );
         }
@@ -666,4 +666,9 @@ mod tests {
         assert_eq!(super::utc_timestamp(0), "19700101T000000Z");
         assert_eq!(super::utc_timestamp(1_700_000_000), "20231114T221320Z");
     }
+}
+
+/// "12.3 um", or "unknown" when the rig recorded nothing after the fault.
+fn micrometres(m: Option<f64>) -> String {
+    m.map_or("unknown".into(), |m| format!("{:.1} um", m * 1e6))
 }

@@ -332,6 +332,7 @@ fn closed_loop_is_clean_faithful_replayable_exportable_and_leaves_nothing_behind
     assert_eq!(json["clean"], true);
     assert!(faults(&json).is_empty());
     assert!(json["safety"]["faults"].as_array().unwrap().is_empty());
+    assert_eq!(json["safety"]["final_state"], "finished", "{json}");
     for key in ["count", "longest_ms", "largest_transient_um"] {
         assert!(
             json["stalls"][key].is_number(),
@@ -490,6 +491,7 @@ fn sigkill_of_the_emulator_or_controller_at_the_first_axle_ends_in_a_hold() {
             "{name}: never at rest: {safety}"
         );
         assert!(safety["beyond_prefault_range_m"].as_f64().unwrap() < 0.5e-3);
+        assert_eq!(json["safety"]["final_state"], "hold", "{name}");
         assert_hold_in_records(&report, AXLE_S, name);
         assert_nothing_left(&json);
     }
@@ -670,6 +672,7 @@ fn an_operator_stop_holds_unloads_and_ends_the_run() {
         .read_all::<EventRecord>()
         .unwrap();
     assert!(events.iter().any(|e| e.kind == event_kind::OPERATOR_STOP));
+    assert_eq!(json["safety"]["final_state"], "unload", "{json}");
     assert_nothing_left(&json);
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -24,14 +24,15 @@ pub struct FaultReport {
     pub action: Option<String>,
     /// When the rig left force control for the position hold, s.
     pub hold_started_at_s: Option<f64>,
-    /// Specimen displacement at the detection, m.
-    pub position_at_fault_m: f64,
-    /// Largest |x - x(fault)| after the detection, m.
-    pub largest_excursion_m: f64,
+    /// Specimen displacement at the detection, m (none: no rig record at or after it).
+    pub position_at_fault_m: Option<f64>,
+    /// Largest |x - x(fault)| after the detection, m (none: no rig record at or after it).
+    pub largest_excursion_m: Option<f64>,
     /// Range of the displacement before the fault, m.
     pub prefault_range_m: [f64; 2],
-    /// How far the specimen went outside the pre-fault range after the fault, m (0: within).
-    pub beyond_prefault_range_m: f64,
+    /// How far the specimen went outside the pre-fault range after the fault, m (0: within;
+    /// none: no rig record before and after it).
+    pub beyond_prefault_range_m: Option<f64>,
     /// From the detection to the rig's at-rest event, s (none: never at rest).
     pub time_to_rest_s: Option<f64>,
 }
@@ -46,7 +47,9 @@ pub struct Safety {
     pub operator_actions: Vec<String>,
     /// Seconds the rig spent in a hold (fault or operator).
     pub held_s: f64,
-    /// The rig's state in its last record.
+    /// How the run ended for the specimen: `finished` when the rig ended its programme
+    /// while running (its end-of-run event), else the rig's state in its last record
+    /// (`hold`, `unload`, `operator-hold`, ...).
     pub final_state: String,
     /// Whether the rig reported the specimen at rest in its hold.
     pub at_rest: bool,
@@ -82,6 +85,8 @@ pub struct SafetyTracker {
     held_periods: u64,
     dt_s: f64,
     last_state: u32,
+    /// The rig recorded its end-of-run event.
+    rig_finished: bool,
     pub safety: Safety,
 }
 
@@ -90,6 +95,7 @@ impl SafetyTracker {
         let mut safety = Safety::default();
         let mut faults = Vec::new();
         let mut rest_times = Vec::new();
+        let mut rig_finished = false;
         for e in events {
             match e.kind {
                 event_kind::FAULT => faults.push(Tracked {
@@ -102,10 +108,10 @@ impl SafetyTracker {
                         detection_latency_periods: e.detection_latency_periods,
                         action: e.action_name().map(String::from),
                         hold_started_at_s: None,
-                        position_at_fault_m: f64::NAN,
-                        largest_excursion_m: 0.0,
+                        position_at_fault_m: None,
+                        largest_excursion_m: None,
                         prefault_range_m: [f64::NAN, f64::NAN],
-                        beyond_prefault_range_m: 0.0,
+                        beyond_prefault_range_m: None,
                         time_to_rest_s: None,
                     },
                     seen: false,
@@ -117,6 +123,7 @@ impl SafetyTracker {
                 | event_kind::OPERATOR_RESUME
                 | event_kind::OPERATOR_STOP => safety.operator_actions.push(e.describe()),
                 event_kind::AT_REST => rest_times.push(e.t_s),
+                event_kind::FINISHED => rig_finished = true,
                 _ => {}
             }
         }
@@ -130,6 +137,7 @@ impl SafetyTracker {
             held_periods: 0,
             dt_s,
             last_state: rig_state::STARTING,
+            rig_finished,
             safety,
         }
     }
@@ -154,18 +162,20 @@ impl SafetyTracker {
             if r.t_s + 0.5 * self.dt_s < f.report.detected_at_s {
                 continue;
             }
+            let at_fault = *f.report.position_at_fault_m.get_or_insert(r.x_m);
             if !f.seen {
                 f.seen = true;
-                f.report.position_at_fault_m = r.x_m;
                 f.report.prefault_range_m = [pre_min, pre_max];
             }
             if holding && f.report.hold_started_at_s.is_none() {
                 f.report.hold_started_at_s = Some(r.t_s);
             }
-            f.report.largest_excursion_m = f
-                .report
-                .largest_excursion_m
-                .max((r.x_m - f.report.position_at_fault_m).abs());
+            let excursion = (r.x_m - at_fault).abs();
+            f.report.largest_excursion_m = Some(
+                f.report
+                    .largest_excursion_m
+                    .map_or(excursion, |e| e.max(excursion)),
+            );
             f.after_min = f.after_min.min(r.x_m);
             f.after_max = f.after_max.max(r.x_m);
         }
@@ -184,7 +194,7 @@ impl SafetyTracker {
             let [lo, hi] = f.report.prefault_range_m;
             if f.seen && lo.is_finite() {
                 f.report.beyond_prefault_range_m =
-                    (f.after_max - hi).max(lo - f.after_min).max(0.0);
+                    Some((f.after_max - hi).max(lo - f.after_min).max(0.0));
             }
             f.report.time_to_rest_s = self
                 .rest_times
@@ -194,8 +204,116 @@ impl SafetyTracker {
         }
         self.safety.faults = self.faults.into_iter().map(|f| f.report).collect();
         self.safety.held_s = self.held_periods as f64 * self.dt_s;
-        self.safety.final_state = rig_state_name(self.last_state).to_string();
+        // The last record is the last period run; a programme that reached its end while
+        // running finished, a hold or unload stays what it was.
+        let ended_running = self.last_state == rig_state::RUNNING && self.rig_finished;
+        self.safety.final_state = if ended_running {
+            "finished"
+        } else {
+            rig_state_name(self.last_state)
+        }
+        .to_string();
         self.safety.at_rest = !self.rest_times.is_empty();
         self.safety
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::records::event::action_code;
+
+    const DT: f64 = 0.01;
+
+    fn event(t_s: f64, kind: u32) -> EventRecord {
+        EventRecord {
+            t_s,
+            process: 2,
+            kind,
+            fault_code: 0,
+            remote_fault_code: 0,
+            action: action_code::HOLD,
+            detection_latency_periods: 3,
+            step_idx: 0,
+            value: 0.0,
+        }
+    }
+
+    fn record(step: u64, x_m: f64, state: u32) -> RigRecord {
+        RigRecord {
+            t_s: step as f64 * DT,
+            step_idx: step,
+            x_m,
+            v_m_per_s: 0.0,
+            z_measured_m: x_m,
+            command_n: 0.0,
+            actuator_force_n: 0.0,
+            external_force_n: 0.0,
+            programme_time_s: 0.0,
+            programme_cycle: 0,
+            programme_block: 0,
+            command_sample_seq: step,
+            command_age_periods: 0,
+            law_age_periods: 0,
+            mode: 0,
+            state,
+            fault_code: 0,
+            wake_late_ns: 0,
+            catch_up: 0,
+            published: 1,
+        }
+    }
+
+    fn track(events: &[EventRecord], records: &[RigRecord]) -> Safety {
+        let mut tracker = SafetyTracker::new(events, DT);
+        for r in records {
+            tracker.push(r);
+        }
+        tracker.finish()
+    }
+
+    #[test]
+    fn a_programme_that_reached_its_end_running_finished_and_a_cut_one_did_not() {
+        let running: Vec<_> = (0..10)
+            .map(|i| record(i, 0.0, rig_state::RUNNING))
+            .collect();
+        let ended = track(&[event(0.1, event_kind::FINISHED)], &running);
+        assert_eq!(ended.final_state, "finished");
+        // No end-of-run event: the records stop in the middle of the programme.
+        assert_eq!(track(&[], &running).final_state, "running");
+        // A run that ended in its hold stays a hold, end-of-run event or not.
+        let mut held = running.clone();
+        held.push(record(10, 0.0, rig_state::HOLD));
+        let ended_held = track(&[event(0.11, event_kind::FINISHED)], &held);
+        assert_eq!(ended_held.final_state, "hold");
+        assert!((ended_held.held_s - DT).abs() < 1e-12);
+    }
+
+    #[test]
+    fn excursion_is_measured_from_the_position_at_the_fault_and_unknown_without_records() {
+        // x rises 1 um per period; the fault at 0.05 s, the hold from 0.07 s.
+        let records: Vec<_> = (0..10)
+            .map(|i| {
+                let state = if i >= 7 {
+                    rig_state::HOLD
+                } else {
+                    rig_state::RUNNING
+                };
+                record(i, i as f64 * 1e-6, state)
+            })
+            .collect();
+        let s = track(&[event(0.05, event_kind::FAULT)], &records);
+        let f = &s.faults[0];
+        assert_eq!(f.position_at_fault_m, Some(5.0 * 1e-6));
+        assert!((f.largest_excursion_m.unwrap() - 4e-6).abs() < 1e-15);
+        assert_eq!(f.prefault_range_m, [0.0, 4.0 * 1e-6]);
+        assert!((f.beyond_prefault_range_m.unwrap() - 5e-6).abs() < 1e-15);
+        assert_eq!(f.hold_started_at_s, Some(7.0 * DT));
+        // A fault after the last record: nothing is known of the specimen after it.
+        let s = track(&[event(0.5, event_kind::FAULT)], &records);
+        let f = &s.faults[0];
+        assert_eq!(f.position_at_fault_m, None);
+        assert_eq!(f.largest_excursion_m, None);
+        assert_eq!(f.beyond_prefault_range_m, None);
     }
 }
