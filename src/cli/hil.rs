@@ -659,6 +659,11 @@ fn summarise(
     Ok(ExitCode::SUCCESS)
 }
 
+/// "12.3 um", or "unknown" when the rig recorded nothing after the fault.
+fn micrometres(m: Option<f64>) -> String {
+    m.map_or("unknown".into(), |m| format!("{:.1} um", m * 1e6))
+}
+
 #[cfg(test)]
 mod tests {
     #[test]
@@ -666,9 +671,4 @@ mod tests {
         assert_eq!(super::utc_timestamp(0), "19700101T000000Z");
         assert_eq!(super::utc_timestamp(1_700_000_000), "20231114T221320Z");
     }
-}
-
-/// "12.3 um", or "unknown" when the rig recorded nothing after the fault.
-fn micrometres(m: Option<f64>) -> String {
-    m.map_or("unknown".into(), |m| format!("{:.1} um", m * 1e6))
 }
