@@ -16,4 +16,5 @@ pub mod plot;
 pub mod records;
 pub mod rig;
 pub mod rt;
+pub mod tomlerr;
 pub mod track;

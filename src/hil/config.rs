@@ -14,6 +14,7 @@ use super::fault::{FaultAction, FaultActions, FaultClass};
 use crate::model::effects::AugmentedModel;
 use crate::model::file::{load_model_file, parse_model_toml, ModelSpec};
 use crate::rig::servo::ServoConfig;
+use crate::tomlerr;
 
 /// The default configuration, embedded so `fastemu hil` runs from any directory.
 pub const DEFAULT_CONFIG_TOML: &str = include_str!("../../configs/hil-default.toml");
@@ -617,16 +618,14 @@ pub fn parse_hil_config(
 ) -> Result<HilConfig, ConfigError> {
     let check = Check { origin };
     let raw: RawConfig = toml::from_str(text).map_err(|e| {
-        let line = e
-            .span()
-            .map(|span| text[..span.start].matches('\n').count() + 1)
-            .map_or(String::new(), |l| format!(" at line {l}"));
-        let message = e.message().replace('\n', " ");
         let hint = REMOVED_KEYS
             .iter()
-            .find(|(k, _)| message.contains(&format!("unknown field `{k}`")))
+            .find(|(k, _)| e.message().contains(&format!("unknown field `{k}`")))
             .map_or(String::new(), |(k, h)| format!(" (`{k}` was {h})"));
-        check.err("", format!("invalid config{line}: {message}{hint}"))
+        check.err(
+            "",
+            format!("invalid config {}{hint}", tomlerr::describe(text, &e)),
+        )
     })?;
     let resolve = |p: &str| -> PathBuf {
         let p = PathBuf::from(p);

@@ -209,13 +209,9 @@ pub fn load_campaign(dir: &Path) -> Result<Campaign, CampaignError> {
     let text = std::fs::read_to_string(&toml_path)
         .map_err(|e| err(format!("cannot read campaign file: {e}")))?;
     let table: toml::Table = text.parse().map_err(|e: toml::de::Error| {
-        let line = e
-            .span()
-            .map(|span| text[..span.start].matches('\n').count() + 1)
-            .map_or(String::new(), |l| format!(" at line {l}"));
         err(format!(
-            "not valid TOML{line}: {}",
-            e.message().replace('\n', " ")
+            "not valid TOML {}",
+            crate::tomlerr::describe(&text, &e)
         ))
     })?;
     for key in table.keys() {

@@ -59,13 +59,9 @@ pub fn parse_model_toml(text: &str, origin: &str) -> Result<ModelSpec, ModelFile
         message,
     };
     let table: toml::Table = text.parse().map_err(|e: toml::de::Error| {
-        let line = e
-            .span()
-            .map(|span| text[..span.start].matches('\n').count() + 1)
-            .map_or(String::new(), |l| format!(" at line {l}"));
         err(format!(
-            "not valid TOML{line}: {}",
-            e.message().replace('\n', " ")
+            "not valid TOML {}",
+            crate::tomlerr::describe(&text, &e)
         ))
     })?;
 

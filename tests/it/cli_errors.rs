@@ -571,3 +571,38 @@ fn csv_inputs_from_spreadsheets_read_like_plain_ones() {
         assert_eq!(std::fs::read_to_string(&out).unwrap(), reference, "{label}");
     }
 }
+
+#[test]
+fn a_misspelt_hil_config_key_fails_before_anything_starts_naming_line_table_and_the_key_meant() {
+    let dir = TempDir::new("hil-typo");
+    let default = fastemu::hil::config::DEFAULT_CONFIG_TOML;
+    let line = default
+        .lines()
+        .position(|l| l.starts_with("specimen_mass_kg"))
+        .expect("the default config sets specimen_mass_kg")
+        + 1;
+    let config = dir.write(
+        "typo.toml",
+        &default.replacen("specimen_mass_kg", "specimen_mas_kg", 1),
+    );
+    let out = dir.join("report");
+    assert_fails(
+        &[
+            "hil",
+            "--config",
+            path_str(&config),
+            "--out",
+            path_str(&out),
+        ],
+        &[
+            path_str(&config),
+            &format!("at line {line} in [rig]"),
+            "unknown field `specimen_mas_kg`",
+            "(did you mean `specimen_mass_kg`?)",
+        ],
+    );
+    assert!(
+        !out.exists(),
+        "a report directory for a run that never started"
+    );
+}

@@ -1,0 +1,127 @@
+//! Readable TOML errors for every configuration file: line, table, the line's text and the
+//! closest valid key for a misspelt one; formats only (no I/O, no validation of values).
+
+/// "at line 6 in [loop] (`rat_hz = 4096.0`): unknown field `rat_hz`, expected one of
+/// `rate_hz`, ... (did you mean `rate_hz`?)".
+pub fn describe(text: &str, e: &toml::de::Error) -> String {
+    let message = e.message().trim().replace('\n', " ");
+    let Some(span) = e.span() else {
+        return message;
+    };
+    let start = span.start.min(text.len());
+    let line_no = text[..start].matches('\n').count() + 1;
+    let line = text.lines().nth(line_no - 1).unwrap_or("").trim();
+    let table = text
+        .lines()
+        .take(line_no)
+        .filter_map(|l| {
+            let l = l.trim();
+            (l.starts_with('[') && l.ends_with(']')).then_some(l)
+        })
+        .last();
+    let mut out = format!("at line {line_no}");
+    if let Some(t) = table.filter(|t| *t != line) {
+        out.push_str(&format!(" in {t}"));
+    }
+    if !line.is_empty() {
+        out.push_str(&format!(" (`{line}`)"));
+    }
+    out.push_str(&format!(": {message}"));
+    if let Some(guess) = closest_known_field(&message) {
+        out.push_str(&format!(" (did you mean `{guess}`?)"));
+    }
+    out
+}
+
+/// For serde's "unknown field `x`, expected one of `a`, `b`", the valid key nearest to `x`
+/// when it is near enough to be a misspelling.
+fn closest_known_field(message: &str) -> Option<String> {
+    let rest = message.strip_prefix("unknown field `")?;
+    let (unknown, rest) = rest.split_once('`')?;
+    let candidates: Vec<&str> = rest
+        .split('`')
+        .skip(1)
+        .step_by(2)
+        .filter(|c| !c.is_empty())
+        .collect();
+    let (distance, best) = candidates
+        .iter()
+        .map(|c| (edit_distance(unknown, c), *c))
+        .min_by_key(|(d, _)| *d)?;
+    (distance <= (unknown.len() / 3).max(2)).then(|| best.to_string())
+}
+
+/// Levenshtein distance over chars.
+fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut row: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut diagonal = row[0];
+        row[0] = i + 1;
+        for (j, cb) in b.iter().enumerate() {
+            let substitution = diagonal + usize::from(ca != *cb);
+            diagonal = row[j + 1];
+            row[j + 1] = substitution.min(row[j] + 1).min(diagonal + 1);
+        }
+    }
+    row[b.len()]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Debug, serde::Deserialize)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)]
+    struct Loop {
+        rate_hz: f64,
+        spin_us: f64,
+    }
+
+    #[derive(Debug, serde::Deserialize)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)]
+    struct File {
+        #[serde(rename = "loop")]
+        loop_: Loop,
+    }
+
+    fn error_of(text: &str) -> String {
+        describe(text, &toml::from_str::<File>(text).unwrap_err())
+    }
+
+    #[test]
+    fn a_misspelt_key_names_line_table_text_and_the_closest_key() {
+        let text = "# header\n[loop]\nspin_us = 20.0\nrat_hz = 4096.0\n";
+        let e = error_of(text);
+        assert!(
+            e.starts_with("at line 4 in [loop] (`rat_hz = 4096.0`): unknown field `rat_hz`"),
+            "{e}"
+        );
+        assert!(e.ends_with("(did you mean `rate_hz`?)"), "{e}");
+        // Nothing near: no guess.
+        let e = error_of("[loop]\nrate_hz = 1.0\nspin_us = 1.0\nbandwidth = 3\n");
+        assert!(
+            e.contains("unknown field `bandwidth`") && !e.contains("did you mean"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_wrong_type_names_its_line_and_value() {
+        let e = error_of("[loop]\nrate_hz = \"fast\"\nspin_us = 1.0\n");
+        assert!(
+            e.starts_with("at line 2 in [loop] (`rate_hz = \"fast\"`): invalid type"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn edit_distance_counts_single_edits() {
+        assert_eq!(edit_distance("rate_hz", "rate_hz"), 0);
+        assert_eq!(edit_distance("rat_hz", "rate_hz"), 1);
+        assert_eq!(edit_distance("spin_su", "spin_us"), 2);
+        assert_eq!(edit_distance("", "abc"), 3);
+    }
+}
