@@ -61,7 +61,7 @@ pub fn parse_model_toml(text: &str, origin: &str) -> Result<ModelSpec, ModelFile
     let table: toml::Table = text.parse().map_err(|e: toml::de::Error| {
         err(format!(
             "not valid TOML {}",
-            crate::tomlerr::describe(&text, &e)
+            crate::tomlerr::describe(text, &e)
         ))
     })?;
 
