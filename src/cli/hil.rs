@@ -2,7 +2,7 @@
 //! processes through the orchestrator, analyses their records, writes the report
 //! directory and prints one JSON object with `--json`. Progress goes to stderr.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Context;
@@ -403,22 +403,32 @@ fn start_live(
     Ok(Some(live))
 }
 
+/// Writes the run's configuration to `out_dir/config.toml` (the embedded default, or a
+/// copy of `--config`) and returns the path the processes load it from: the copy for the
+/// default, the given file itself otherwise (paths in it stay relative to where it lives).
+fn write_report_config(args: &HilArgs, out_dir: &Path) -> anyhow::Result<PathBuf> {
+    let copy = out_dir.join("config.toml");
+    let Some(given) = &args.config else {
+        std::fs::write(&copy, DEFAULT_CONFIG_TOML)
+            .with_context(|| format!("cannot write {}", copy.display()))?;
+        return Ok(copy);
+    };
+    let given = given
+        .canonicalize()
+        .with_context(|| format!("cannot resolve {}", given.display()))?;
+    if copy.canonicalize().ok().as_ref() != Some(&given) {
+        std::fs::copy(&given, &copy)
+            .with_context(|| format!("cannot copy {} to {}", given.display(), copy.display()))?;
+    }
+    Ok(given)
+}
+
 pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
     install_signal_handlers();
     quiet_iceoryx2_logs();
     let cfg = load_config(&args)?;
     let out_dir = report_dir(&args)?;
-    let config_path = match &args.config {
-        Some(p) => p
-            .canonicalize()
-            .with_context(|| format!("cannot resolve {}", p.display()))?,
-        None => {
-            let p = out_dir.join("config.toml");
-            std::fs::write(&p, DEFAULT_CONFIG_TOML)
-                .with_context(|| format!("cannot write {}", p.display()))?;
-            p
-        }
-    };
+    let config_path = write_report_config(&args, &out_dir)?;
     let _machine_lock = lock_machine(std::time::Duration::from_secs(300), || {
         eprintln!("hil: waiting for another hil run on this machine to finish")
     })?;

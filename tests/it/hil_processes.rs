@@ -363,6 +363,12 @@ fn closed_loop_is_clean_faithful_replayable_exportable_and_leaves_nothing_behind
     ] {
         assert!(report.join(f).exists(), "{f} missing from the report");
     }
+    // The report keeps the configuration it ran, also when it came from --config.
+    assert_eq!(
+        std::fs::read_to_string(report.join("config.toml")).ok(),
+        std::fs::read_to_string(dir.join("config.toml")).ok(),
+        "report/config.toml is not the --config file"
+    );
     assert!(!report.join("parts").exists(), "parts left after the merge");
     assert_nothing_left(&json);
 
