@@ -15,7 +15,7 @@ use crate::hil::report::safety::rig_state_name;
 use crate::ipc::messages::{command_mode, rig_state};
 use crate::records::{EventRecord, Record};
 use crate::rig::core::RigRecord;
-use crate::rig::reference::ReferenceStepper;
+use crate::rig::reference::{OperatorPause, PauseStep, ReferenceStepper};
 
 /// Live topics.
 pub mod topic {
@@ -78,7 +78,7 @@ pub struct LiveFeed {
     period_ns: u64,
     decimation: u64,
     reference: ReferenceStepper,
-    paused: bool,
+    pause: OperatorPause,
     stopped: bool,
     last_state: Option<(u32, u32)>,
     window: Window,
@@ -104,7 +104,7 @@ impl LiveFeed {
             period_ns: cfg.loop_.period_ns,
             decimation: ((cfg.loop_.rate_hz / rate_hz.max(1.0)).round() as u64).max(1),
             reference: ReferenceStepper::new(cfg, cfg.programme.end_s + cfg.safety.hold_max_s),
-            paused: false,
+            pause: OperatorPause::new(cfg.safety.resume_blend_s, dt_s),
             stopped: false,
             last_state: None,
             window: Window::new(0.0),
@@ -181,13 +181,13 @@ impl LiveFeed {
         if matches!(r.state, rig_state::HOLD | rig_state::UNLOAD) {
             self.stopped = true;
         }
-        if r.state == rig_state::OPERATOR_HOLD {
-            self.paused = true;
-        } else if self.paused && r.state == rig_state::RUNNING {
-            self.paused = false;
-            self.reference.resync(r.x_m, r.v_m_per_s, programme_step);
+        if self.pause.push(r.state) == PauseStep::Restart {
+            // Wholly back on the law: the force the actuator applies is the element's.
+            let element_force = Some(r.actuator_force_n);
+            self.reference
+                .resync(r.x_m, r.v_m_per_s, element_force, programme_step);
         }
-        let comparing = !self.paused && !self.stopped;
+        let comparing = !self.pause.paused() && !self.stopped;
         let x_ref = if comparing {
             Some(self.reference.advance_to(programme_step))
         } else {
@@ -295,7 +295,7 @@ impl LiveFeed {
                 "displacement_rel_rms_last_s": rel(w.err2, w.ref2),
                 "displacement_rel_rms": rel(self.total_err2, self.total_ref2),
                 "resonant_peak_um_last_s": w.resonant_peak_m * 1e6,
-                "comparing": !self.paused && !self.stopped,
+                "comparing": !self.pause.paused() && !self.stopped,
             }),
         });
     }

@@ -177,6 +177,20 @@ impl Oscillator {
         self.element_force_at(self.x_m, self.v_m_per_s, self.q_n).0
     }
 
+    /// Sets position, velocity and the element's internal state such that it exerts
+    /// `element_force_n` there (an element caught moving, its relaxing branch loaded). A
+    /// Kelvin-Voigt element has no such state.
+    pub fn set_state_with_element_force(&mut self, x_m: f64, v_m_per_s: f64, element_force_n: f64) {
+        self.x_m = x_m;
+        self.v_m_per_s = v_m_per_s;
+        self.q_n = match &self.model {
+            ElementModel::Consistent(_) | ElementModel::Paper(_) => {
+                element_force_n - self.element_force_at(x_m, v_m_per_s, 0.0).0
+            }
+            ElementModel::KelvinVoigt(_) => 0.0,
+        };
+    }
+
     #[inline]
     fn element_force_at(&self, x: f64, v: f64, q: f64) -> (f64, bool) {
         match &self.model {
@@ -331,4 +345,30 @@ pub fn simulate_rail(
         out.push(sample(&osc));
     }
     (out, all_flags)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::hil::config::default_hil_config;
+
+    #[test]
+    fn a_state_set_with_an_element_force_exerts_that_force() {
+        let element = default_hil_config().unwrap().model.element;
+        let mut osc = Oscillator::new(element, 200.0, 1.0 / 4096.0, 1e5);
+        let (x, v) = (5.0e-4, 0.02);
+        osc.set_state(x, v);
+        let relaxed = osc.element_force_n();
+        assert!(relaxed > 0.0, "compressed: {relaxed} N");
+        osc.set_state_with_element_force(x, v, relaxed + 3000.0);
+        assert!((osc.element_force_n() - (relaxed + 3000.0)).abs() < 1e-9);
+        assert_eq!((osc.displacement_m(), osc.velocity_m_per_s()), (x, v));
+        // The loaded branch is state: stepping with the force that balances the relaxed
+        // element leaves the mass with 3 kN to spare, towards extension.
+        let mut relaxed_osc = osc;
+        relaxed_osc.set_state(x, v);
+        osc.step(relaxed, relaxed);
+        relaxed_osc.step(relaxed, relaxed);
+        assert!(osc.velocity_m_per_s() < relaxed_osc.velocity_m_per_s());
+    }
 }

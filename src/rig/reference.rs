@@ -67,10 +67,98 @@ impl ReferenceStepper {
 
     /// Restarts the reference from a measured state at programme step `m` (after an
     /// operator hold the rig resumes from where it was held, not where the reference
-    /// would be); the element starts relaxed there, as it is after a hold.
-    pub fn resync(&mut self, x_m: f64, v_m_per_s: f64, m: u64) {
-        self.osc.set_state(x_m, v_m_per_s);
+    /// would be). The element exerts `element_force_n` there when it is known (the force
+    /// the actuator applies once the rig is back on the element's law: moving, the
+    /// element's relaxing branch is loaded); otherwise it starts relaxed, as after a hold.
+    pub fn resync(&mut self, x_m: f64, v_m_per_s: f64, element_force_n: Option<f64>, m: u64) {
+        match element_force_n {
+            Some(f) if f.is_finite() => self.osc.set_state_with_element_force(x_m, v_m_per_s, f),
+            _ => self.osc.set_state(x_m, v_m_per_s),
+        }
         self.k = m;
+    }
+}
+
+/// Where the comparison with the reference stands around operator holds: it pauses at
+/// the hold (the rig restrains the specimen, the programme waits) and restarts from the
+/// measured state once the rig is wholly back on the element's law, i.e. after the resume
+/// blend (the servo's first period after a resume still applies the hold's force, and a
+/// blend mixes the two for `resume_blend_ms`: a reference released at once would not
+/// match a specimen still partly held).
+#[derive(Debug, Clone)]
+pub struct OperatorPause {
+    /// Running periods after a resume before the rig is wholly on the law.
+    handover_periods: u64,
+    paused: bool,
+    /// Running periods seen since the resume.
+    resumed_for: u64,
+}
+
+/// What to do with one rig record ([`OperatorPause::push`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PauseStep {
+    /// Compare it with the reference.
+    Compare,
+    /// The first record of an operator hold: the segment compared before it is complete.
+    HoldBegins,
+    /// Held, or still handing back to the law: not compared.
+    Paused,
+    /// The rig is wholly back on the law: restart the reference from this record's state
+    /// and compare from here.
+    Restart,
+}
+
+impl OperatorPause {
+    /// `resume_blend_s` as configured (the simulated rig); 0 for an external rig, whose
+    /// own handover is unknown here and whose velocity is not recorded (it restarts at
+    /// rest where the rig held it).
+    pub fn new(resume_blend_s: f64, dt_s: f64) -> OperatorPause {
+        OperatorPause {
+            handover_periods: (resume_blend_s.max(dt_s) / dt_s).round().max(1.0) as u64,
+            paused: false,
+            resumed_for: 0,
+        }
+    }
+
+    /// An external rig's: restarts on its first running record after a hold.
+    pub fn immediate() -> OperatorPause {
+        OperatorPause {
+            handover_periods: 0,
+            paused: false,
+            resumed_for: 0,
+        }
+    }
+
+    /// Feeds the rig state of the next record.
+    pub fn push(&mut self, state: u32) -> PauseStep {
+        use crate::ipc::messages::rig_state;
+        if state == rig_state::OPERATOR_HOLD {
+            let begins = !self.paused;
+            self.paused = true;
+            self.resumed_for = 0;
+            return if begins {
+                PauseStep::HoldBegins
+            } else {
+                PauseStep::Paused
+            };
+        }
+        if !self.paused {
+            return PauseStep::Compare;
+        }
+        if state != rig_state::RUNNING {
+            return PauseStep::Paused;
+        }
+        if self.resumed_for < self.handover_periods {
+            self.resumed_for += 1;
+            return PauseStep::Paused;
+        }
+        self.paused = false;
+        PauseStep::Restart
+    }
+
+    /// Whether the comparison is paused.
+    pub fn paused(&self) -> bool {
+        self.paused
     }
 }
 
@@ -90,4 +178,58 @@ pub fn reference_displacement_m(cfg: &HilConfig, n_steps: usize) -> Vec<f64> {
     ReferenceStepper::new(cfg, n_steps as f64 * cfg.loop_.dt_s())
         .take(n_steps + 1)
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ipc::messages::rig_state::{HOLD, OPERATOR_HOLD, RUNNING};
+
+    fn steps(mut pause: OperatorPause, states: &[u32]) -> Vec<PauseStep> {
+        states.iter().map(|&s| pause.push(s)).collect()
+    }
+
+    #[test]
+    fn the_comparison_restarts_only_once_the_resume_blend_is_over() {
+        use PauseStep::*;
+        // 3 periods of blend at dt = 1: the 4th running record is the first on the law.
+        let got = steps(
+            OperatorPause::new(3.0, 1.0),
+            &[
+                RUNNING,
+                OPERATOR_HOLD,
+                OPERATOR_HOLD,
+                RUNNING,
+                RUNNING,
+                RUNNING,
+                RUNNING,
+                RUNNING,
+            ],
+        );
+        assert_eq!(
+            got,
+            [Compare, HoldBegins, Paused, Paused, Paused, Paused, Restart, Compare]
+        );
+        // No blend: the servo's first period after the resume still holds.
+        let got = steps(
+            OperatorPause::new(0.0, 1.0),
+            &[OPERATOR_HOLD, RUNNING, RUNNING],
+        );
+        assert_eq!(got, [HoldBegins, Paused, Restart]);
+        // A hold again during the handover starts over; an external rig restarts at once.
+        let got = steps(
+            OperatorPause::new(2.0, 1.0),
+            &[
+                OPERATOR_HOLD,
+                RUNNING,
+                OPERATOR_HOLD,
+                RUNNING,
+                RUNNING,
+                RUNNING,
+            ],
+        );
+        assert_eq!(got, [HoldBegins, Paused, Paused, Paused, Paused, Restart]);
+        let got = steps(OperatorPause::immediate(), &[OPERATOR_HOLD, RUNNING, HOLD]);
+        assert_eq!(got, [HoldBegins, Restart, Compare]);
+    }
 }

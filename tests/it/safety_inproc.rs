@@ -481,33 +481,40 @@ fn an_operator_hold_and_resume_mid_passage_is_bumpless() {
             held.iter().all(|r| r.programme_time_s == programme_at_hold),
             "{label}: the programme ran on"
         );
-        // After the resume the specimen follows the element again: against the offline
-        // reference restarted from the held state at the paused programme time, the
-        // handover leaves a small transient.
-        let x_hold = held.last().unwrap().x_m;
-        let resumed: Vec<_> = run
-            .rig
-            .iter()
-            .filter(|r| r.t_s >= resume_s && r.t_s < resume_s + 0.3)
-            .collect();
+        // After the resume the programme continues where it paused, and once the rig is
+        // wholly back on the element's law (the blend over) the specimen follows the
+        // element: against the offline reference restarted from the state it is in there,
+        // at that programme time, it stays within a micrometre (the loop's own fidelity).
+        let first_running = run.rig.iter().position(|r| r.t_s >= resume_s).unwrap();
+        let resumed = &run.rig[first_running];
+        assert_eq!(resumed.state, rig_state::RUNNING, "{label}");
         assert!(
-            (resumed[0].programme_time_s - programme_at_hold).abs() < 2.0 / RATE,
+            (resumed.programme_time_s - programme_at_hold).abs() < 2.0 / RATE,
             "{label}"
         );
+        let on_law = first_running + (cfg.safety.resume_blend_s * RATE).round().max(1.0) as usize;
+        let r0 = &run.rig[on_law];
         let mut reference = ReferenceStepper::new(&cfg, 6.0);
-        let m0 = (resumed[0].programme_time_s * RATE).round() as u64;
-        reference.resync(x_hold, 0.0, m0);
-        let deviation = resumed.iter().fold(0.0f64, |m, r| {
-            let x_ref = reference.advance_to((r.programme_time_s * RATE).round() as u64);
-            m.max((r.x_m - x_ref).abs())
-        });
+        reference.resync(
+            r0.x_m,
+            r0.v_m_per_s,
+            Some(r0.actuator_force_n),
+            (r0.programme_time_s * RATE).round() as u64,
+        );
+        let deviation =
+            run.rig[on_law..on_law + (0.5 * RATE) as usize]
+                .iter()
+                .fold(0.0f64, |m, r| {
+                    let x_ref = reference.advance_to((r.programme_time_s * RATE).round() as u64);
+                    m.max((r.x_m - x_ref).abs())
+                });
         eprintln!(
-            "{label}: {:.1} um from the restarted reference",
+            "{label}: {:.2} um from the reference restarted on the law",
             deviation * 1e6
         );
         assert!(
-            deviation < 50e-6,
-            "{label}: {} um from the restarted reference",
+            deviation < 5e-6,
+            "{label}: {} um from the reference restarted on the law",
             deviation * 1e6
         );
         assert_eq!(run.rig.last().unwrap().state, rig_state::RUNNING, "{label}");

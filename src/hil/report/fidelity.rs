@@ -24,12 +24,12 @@ pub struct BandError {
 
 #[derive(Debug, Clone, Serialize, Default)]
 pub struct Fidelity {
-    /// `rms(x_hil - x_ref) / rms(x_ref)` of the specimen displacement (before any hold).
+    /// `rms(x_hil - x_ref) / rms(x_ref)` of the specimen displacement (up to a fault hold; operator holds and their resume blend left out).
     pub displacement_rel_rms: f64,
     /// The same with the means removed (dynamic part only; stricter).
     pub displacement_dynamic_rel_rms: f64,
     pub displacement_error_rms_m: f64,
-    /// Periods compared (up to the first hold).
+    /// Periods compared (up to a fault hold, operator holds left out).
     pub compared_steps: u64,
     /// Seconds of the run the band errors cover (a bounded leading window).
     pub bands_window_s: f64,
@@ -52,7 +52,7 @@ pub struct Stability {
     /// `-growth / omega_0` with `omega_0 = sqrt(k_tangent(preload) / m)`: the net damping
     /// ratio the loop showed (negative: the loop delay's negative damping wins).
     pub equivalent_damping_ratio: f64,
-    /// Rows analysed for the growth (up to the first hold).
+    /// Rows analysed for the growth (up to a fault hold, operator holds left out).
     pub growth_rows: u64,
     /// Median over 10 ms windows of the >100 Hz residual's peak, m.
     pub resonant_residual_median_peak_m: f64,
@@ -194,7 +194,7 @@ impl CentredHighPass {
     }
 }
 
-/// Accumulates fidelity and stability over the residual, before any hold.
+/// Accumulates fidelity and stability over the residual compared (no holds).
 #[derive(Debug, Clone)]
 pub struct ResidualAnalyser {
     rate_hz: f64,

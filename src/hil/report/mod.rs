@@ -24,7 +24,7 @@ use crate::ipc::messages::rig_state;
 use crate::plot::{draw_png, Panel, Series};
 use crate::records::{EventRecord, RecordSet};
 use crate::rig::core::RigRecord;
-use crate::rig::reference::ReferenceStepper;
+use crate::rig::reference::{OperatorPause, PauseStep, ReferenceStepper};
 use decimate::Decimator;
 use fidelity::{CentredHighPass, Fidelity, ResidualAnalyser, Stability};
 use latency::{histogram, log_bins, percentiles, Latency};
@@ -75,7 +75,7 @@ pub struct Analysis {
     pub safety: Safety,
     pub stalls: Stalls,
     pub programme: ProgrammeSummary,
-    /// Largest resonant (>100 Hz) residual before any hold, m: the largest transient.
+    /// Largest resonant (>100 Hz) residual compared (no holds), m: the largest transient.
     pub largest_transient_m: f64,
     pub records: RecordsInfo,
     /// Every event, as one line each.
@@ -264,9 +264,13 @@ fn read_rig_stream(
     let rig_gaps: std::cell::RefCell<Vec<Gap>> = std::cell::RefCell::new(Vec::new());
     let mut catch_up_run: Option<(f64, u64)> = None;
     // A fault hold (or the final unload) ends the comparison; an operator hold pauses it,
-    // and the reference restarts from the measured state when the rig resumes.
+    // and the reference restarts from the measured state once the rig is back on the law.
     let mut held = false;
-    let mut paused = false;
+    let mut pause = if side.rig_records == 0 {
+        OperatorPause::immediate()
+    } else {
+        OperatorPause::new(cfg.safety.resume_blend_s, dt)
+    };
     let mut rig_steps = 0u64;
     let mut programme_at_end = (0u64, 0u32, 0.0f64);
     let mut plots = RigPlots {
@@ -296,9 +300,12 @@ fn read_rig_stream(
         programme_at_end = (r.programme_cycle, r.programme_block, r.programme_time_s);
         // The reference follows programme time (it pauses while the rig holds).
         let programme_step = (r.programme_time_s / dt).round() as u64;
-        if paused && r.state == rig_state::RUNNING {
-            paused = false;
-            reference.resync(r.x_m, r.v_m_per_s, programme_step);
+        let step = pause.push(r.state);
+        if step == PauseStep::Restart {
+            // The simulated rig is wholly on the law here: the force it applies is the
+            // element's. An external rig restarts at rest where it held, element relaxed.
+            let element_force = (side.rig_records > 0).then_some(r.actuator_force_n);
+            reference.resync(r.x_m, r.v_m_per_s, element_force, programme_step);
         }
         let x_ref_now = reference.advance_to(programme_step);
         safety.push(r);
@@ -315,16 +322,15 @@ fn read_rig_stream(
             _ => {}
         }
         held |= matches!(r.state, rig_state::HOLD | rig_state::UNLOAD);
-        if r.state == rig_state::OPERATOR_HOLD && !paused {
+        if step == PauseStep::HoldBegins {
             // The segment before the hold is complete: flush the high-pass.
-            paused = true;
             for out in high_pass.finish() {
                 on_hp(out, &mut hp_steps, &mut residual, &mut stalls);
             }
             hp_steps.clear();
             high_pass = CentredHighPass::new(rate);
         }
-        if !held && !paused {
+        if !held && !pause.paused() {
             residual.push_displacement(r.x_m, x_ref_now);
             stalls.push_law_age(r.step_idx, r.law_age_periods);
             hp_steps.push_back(r.step_idx);
@@ -482,7 +488,7 @@ fn draw_plots(dir: &Path, side: &SideStreams, rig: &RigPass) -> anyhow::Result<(
             )
             .with(Series::line("HIL (rig, true)", t_h, x_h, 0))
             .with(Series::dashed(
-                "offline reference (until a hold)",
+                "offline reference (not during holds)",
                 t_r,
                 x_r,
                 1,
@@ -500,7 +506,7 @@ fn draw_plots(dir: &Path, side: &SideStreams, rig: &RigPass) -> anyhow::Result<(
         600,
         1,
         &[Panel::new(
-            "HIL - reference displacement (until a hold)",
+            "HIL - reference displacement (not during holds)",
             "t (s)",
             "error (um)",
         )
