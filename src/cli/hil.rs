@@ -360,12 +360,9 @@ fn not_clean_because(
     why
 }
 
-/// Starts the live view when asked (before the run, so a client can connect early).
-fn start_live(
-    args: &HilArgs,
-    cfg: &HilConfig,
-    out_dir: &std::path::Path,
-) -> anyhow::Result<Option<crate::live::LiveHandle>> {
+/// Checks the live view's options and binds its address when asked, before anything of
+/// the run exists (a bad or busy address fails here, leaving nothing behind).
+fn bind_live(args: &HilArgs) -> anyhow::Result<Option<crate::live::front::Front>> {
     if !args.live {
         anyhow::ensure!(
             !args.live_control,
@@ -378,22 +375,36 @@ fn start_live(
         "--live-rate-hz {}: expected a number > 0",
         args.live_rate_hz
     );
+    crate::live::front::bind(&args.live_addr).map(Some)
+}
+
+/// Starts the live view behind its bound address (before the run, so a client can
+/// connect early).
+fn start_live(
+    args: &HilArgs,
+    cfg: &HilConfig,
+    out_dir: &std::path::Path,
+    front: Option<crate::live::front::Front>,
+) -> anyhow::Result<Option<crate::live::LiveHandle>> {
+    let Some(front) = front else {
+        return Ok(None);
+    };
+    let loopback = front.addr().ip().is_loopback();
     let live = crate::live::start(
         cfg,
         out_dir,
+        front,
         &crate::live::LiveOptions {
-            addr: args.live_addr.clone(),
             rate_hz: args.live_rate_hz,
             control: args.live_control,
         },
     )?;
     eprintln!(
-        "hil: live view on ws://{} (Foxglove: open a connection to it; layout configs/foxglove-layout.json){}",
+        "hil: live view on ws://{} (Foxglove WebSocket protocol, subprotocol foxglove.sdk.v1 or foxglove.websocket.v1; in the Foxglove app open a connection to it, layout configs/foxglove-layout.json){}",
         live.addr,
         if args.live_control { "; hold/resume/stop offered as services" } else { "" }
     );
-    let host = live.addr.rsplit_once(':').map_or("", |(h, _)| h);
-    if !matches!(host, "127.0.0.1" | "localhost" | "::1" | "[::1]") {
+    if !loopback {
         eprintln!(
             "hil: warning: the live view listens on {}: anyone who can reach this address can watch the run{}",
             live.addr,
@@ -427,6 +438,7 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
     install_signal_handlers();
     quiet_iceoryx2_logs();
     let cfg = load_config(&args)?;
+    let live_front = bind_live(&args)?;
     let out_dir = report_dir(&args)?;
     let config_path = write_report_config(&args, &out_dir)?;
     let _machine_lock = lock_machine(std::time::Duration::from_secs(300), || {
@@ -485,7 +497,7 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
             effect_names.join(", ")
         );
     }
-    let live = start_live(&args, &cfg, &out_dir)?;
+    let live = start_live(&args, &cfg, &out_dir, live_front)?;
     let _registration = crate::hil::registry::register(&crate::hil::registry::RunEntry {
         run_id: run_id.clone(),
         pid: std::process::id(),

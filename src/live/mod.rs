@@ -3,11 +3,12 @@
 //! processes' record parts as they are written (`records::tail`), so the loops never touch
 //! it: data leaves them through their bounded record queues, as it always does. With
 //! `--live-control` the server also offers hold / resume / stop services, relayed to the
-//! rig by the orchestrator like `fastemu ctl`.
+//! rig by the orchestrator like `fastemu ctl`. Clients reach it through `front`.
 //!
 //! Must not: run in a loop process, or block the orchestrator's supervision.
 
 pub mod feed;
+pub mod front;
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
@@ -27,8 +28,6 @@ use feed::{topic, LiveFeed, LiveMessage};
 /// How the live view is served.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LiveOptions {
-    /// `host:port` to bind (127.0.0.1 by default: this machine only).
-    pub addr: String,
     /// Messages per second of the displacement and force channels.
     pub rate_hz: f64,
     /// Offer hold / resume / stop services.
@@ -39,6 +38,7 @@ pub struct LiveOptions {
 pub struct LiveHandle {
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
+    front: Option<JoinHandle<()>>,
     /// An operator request from a service call (`run_command`), 0 when none; the
     /// orchestrator takes it.
     pub requests: Arc<AtomicU32>,
@@ -56,18 +56,18 @@ impl LiveHandle {
     }
 
     /// Stops following the records and the server.
-    pub fn stop(mut self) {
-        self.stop.store(true, Ordering::Release);
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
-        }
+    pub fn stop(self) {
+        drop(self);
     }
 }
 
 impl Drop for LiveHandle {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::Release);
-        if let Some(t) = self.thread.take() {
+        for t in [self.thread.take(), self.front.take()]
+            .into_iter()
+            .flatten()
+        {
             let _ = t.join();
         }
     }
@@ -146,25 +146,19 @@ fn control_service(name: &str, command: u32, requests: &Arc<AtomicU32>) -> Servi
     })
 }
 
-/// Starts the server and the thread that follows the records in `report_dir/parts`.
+/// Starts the server behind `front` (the listener on `--live-addr`) and the thread that
+/// follows the records in `report_dir/parts`.
 pub fn start(
     cfg: &HilConfig,
     report_dir: &Path,
+    front: front::Front,
     options: &LiveOptions,
 ) -> anyhow::Result<LiveHandle> {
-    let (host, port) = options
-        .addr
-        .rsplit_once(':')
-        .and_then(|(h, p)| {
-            p.parse::<u16>()
-                .ok()
-                .map(|p| (h.trim_matches(['[', ']']).to_string(), p))
-        })
-        .ok_or_else(|| anyhow::anyhow!("--live-addr {}: expected host:port", options.addr))?;
     let requests = Arc::new(AtomicU32::new(0));
+    // The SDK's server listens on a private loopback port; clients come through `front`.
     let mut server = WebSocketServer::new()
         .name("fastemu hil")
-        .bind(host.clone(), port);
+        .bind("127.0.0.1", 0);
     if options.control {
         server = server.services([
             control_service("/fastemu/hold", run_command::HOLD, &requests),
@@ -174,8 +168,9 @@ pub fn start(
     }
     let handle = server
         .start_blocking()
-        .map_err(|e| anyhow::anyhow!("live view on {}: {e}", options.addr))?;
-    let addr = format!("{host}:{}", handle.port());
+        .map_err(|e| anyhow::anyhow!("live view server: {e}"))?;
+    let upstream = std::net::SocketAddr::from(([127, 0, 0, 1], handle.port()));
+    let addr = front.addr().to_string();
     let channels: Vec<(&'static str, Arc<RawChannel>)> = topic::ALL
         .iter()
         .map(|t| {
@@ -188,6 +183,7 @@ pub fn start(
         })
         .collect::<Result<_, _>>()?;
     let stop = Arc::new(AtomicBool::new(false));
+    let front = front.serve(upstream, stop.clone())?;
     let thread_stop = stop.clone();
     let parts: PathBuf = report_dir.join("parts");
     let mut feed = LiveFeed::new(cfg, options.rate_hz);
@@ -224,6 +220,7 @@ pub fn start(
     Ok(LiveHandle {
         stop,
         thread: Some(thread),
+        front: Some(front),
         requests,
         addr,
     })

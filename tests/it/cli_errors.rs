@@ -606,3 +606,32 @@ fn a_misspelt_hil_config_key_fails_before_anything_starts_naming_line_table_and_
         "a report directory for a run that never started"
     );
 }
+
+#[test]
+fn a_bad_or_busy_live_address_fails_before_anything_starts_naming_the_reason() {
+    let dir = TempDir::new("live-addr");
+    let out = dir.join("report");
+    let busy = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let busy_addr = busy.local_addr().unwrap().to_string();
+    for (addr, says) in [
+        ("127.0.0.1:99999", "port 99999 is out of range (0-65535)"),
+        ("127.0.0.1", "expected HOST:PORT"),
+        (busy_addr.as_str(), "cannot listen on"),
+    ] {
+        assert_fails(
+            &[
+                "hil",
+                "--live",
+                "--live-addr",
+                addr,
+                "--out",
+                path_str(&out),
+            ],
+            &[&format!("--live-addr `{addr}`"), says],
+        );
+        assert!(
+            !out.exists(),
+            "{addr}: a report directory for a run that never started"
+        );
+    }
+}

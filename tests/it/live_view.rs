@@ -21,45 +21,8 @@ fn a_foxglove_client_receives_the_live_channels_and_can_hold_the_run() {
     let _serial = crate::hil_processes::serial();
     let dir = crate::common::TempDir::new("live");
     let report = dir.join("report");
-    let mut hil = Command::new(FASTEMU)
-        .args([
-            "hil",
-            "--json",
-            "--live",
-            "--live-control",
-            "--live-addr",
-            "127.0.0.1:0",
-            "--duration-s",
-            "6",
-            "--out",
-        ])
-        .arg(&report)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let guard = crate::hil_processes::KillOnDrop(hil.id());
-    // The address comes from hil's own line (port 0: the OS chose one).
-    let mut lines = BufReader::new(hil.stderr.take().unwrap()).lines();
-    let addr = loop {
-        let line = lines
-            .next()
-            .expect("hil ended before the live view started")
-            .unwrap();
-        if let Some(rest) = line.split("live view on ws://").nth(1) {
-            break rest.split_whitespace().next().unwrap().to_string();
-        }
-    };
-    std::thread::spawn(move || for _ in lines {});
-    let mut request = format!("ws://{addr}").into_client_request().unwrap();
-    request
-        .headers_mut()
-        .insert("Sec-WebSocket-Protocol", "foxglove.sdk.v1".parse().unwrap());
-    let (mut ws, _) = tungstenite::connect(request).expect("connect to the live view");
-    if let tungstenite::stream::MaybeTlsStream::Plain(s) = ws.get_mut() {
-        s.set_read_timeout(Some(Duration::from_millis(200)))
-            .unwrap();
-    }
+    let (mut hil, guard, addr) = spawn_live_hil(&report, &["--live-control"], 6.0);
+    let mut ws = connect(&addr, "foxglove.sdk.v1");
     let mut topics = std::collections::HashMap::new(); // subscription id -> topic
     let mut services = std::collections::HashMap::new();
     let mut displacement_t: Vec<f64> = Vec::new();
@@ -177,4 +140,129 @@ fn a_foxglove_client_receives_the_live_channels_and_can_hold_the_run() {
         rig.iter().any(|r| r.state == rig_state::OPERATOR_HOLD),
         "the live view's hold is not in the records"
     );
+}
+
+/// Starts `hil --live` on a port the OS picks; returns it, its guard and the address it
+/// printed.
+fn spawn_live_hil(
+    report: &std::path::Path,
+    extra: &[&str],
+    duration_s: f64,
+) -> (
+    std::process::Child,
+    crate::hil_processes::KillOnDrop,
+    String,
+) {
+    let mut hil = Command::new(FASTEMU)
+        .args(["hil", "--json", "--live", "--live-addr", "127.0.0.1:0"])
+        .args(extra)
+        .args(["--duration-s", &duration_s.to_string(), "--out"])
+        .arg(report)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let guard = crate::hil_processes::KillOnDrop(hil.id());
+    // The address comes from hil's own line (port 0: the OS chose one).
+    let mut lines = BufReader::new(hil.stderr.take().unwrap()).lines();
+    let addr = loop {
+        let line = lines
+            .next()
+            .expect("hil ended before the live view started")
+            .unwrap();
+        if let Some(rest) = line.split("live view on ws://").nth(1) {
+            break rest.split_whitespace().next().unwrap().to_string();
+        }
+    };
+    std::thread::spawn(move || for _ in lines {});
+    (hil, guard, addr)
+}
+
+type Socket = tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<std::net::TcpStream>>;
+
+/// A WebSocket client offering `subprotocol`; checks the server chose it.
+fn connect(addr: &str, subprotocol: &str) -> Socket {
+    let mut request = format!("ws://{addr}").into_client_request().unwrap();
+    request
+        .headers_mut()
+        .insert("Sec-WebSocket-Protocol", subprotocol.parse().unwrap());
+    let (mut ws, response) = tungstenite::connect(request).expect("connect to the live view");
+    assert_eq!(
+        response.headers().get("sec-websocket-protocol").unwrap(),
+        subprotocol
+    );
+    if let tungstenite::stream::MaybeTlsStream::Plain(s) = ws.get_mut() {
+        s.set_read_timeout(Some(Duration::from_millis(200)))
+            .unwrap();
+    }
+    ws
+}
+
+/// The Foxglove WebSocket protocol under its published name (`foxglove.websocket.v1`, the
+/// specification's and older Foxglove apps') gets the same channels as under the SDK's;
+/// a client offering neither is refused with the names to offer.
+#[test]
+fn a_client_offering_the_published_subprotocol_name_gets_in_and_one_offering_none_is_told_which() {
+    let _serial = crate::hil_processes::serial();
+    let dir = crate::common::TempDir::new("live-spec");
+    let report = dir.join("report");
+    let (mut hil, guard, addr) = spawn_live_hil(&report, &[], 3.0);
+    let mut ws = connect(&addr, "foxglove.websocket.v1");
+    let mut displacement = None;
+    let mut received = 0u32;
+    let t = Instant::now();
+    while received < 50 && t.elapsed() < Duration::from_secs(20) {
+        match ws.read() {
+            Ok(Message::Text(text)) => {
+                let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+                if v["op"] == "advertise" {
+                    for c in v["channels"].as_array().unwrap() {
+                        if c["topic"] == "/live/displacement" {
+                            displacement = c["id"].as_u64();
+                            ws.send(Message::text(
+                                serde_json::json!({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": c["id"]}]})
+                                    .to_string(),
+                            ))
+                            .unwrap();
+                        }
+                    }
+                }
+            }
+            Ok(Message::Binary(data)) if data[0] == 1 => {
+                assert_eq!(u32::from_le_bytes(data[1..5].try_into().unwrap()), 7);
+                let v: serde_json::Value = serde_json::from_slice(&data[13..]).unwrap();
+                assert!(v["measured_um"].is_number(), "{v}");
+                received += 1;
+            }
+            Ok(_) => {}
+            Err(tungstenite::Error::Io(e))
+                if e.kind() == std::io::ErrorKind::WouldBlock
+                    || e.kind() == std::io::ErrorKind::TimedOut => {}
+            Err(e) => panic!("live view: {e}"),
+        }
+    }
+    assert!(displacement.is_some(), "/live/displacement not advertised");
+    assert_eq!(received, 50, "displacement messages received");
+    drop(ws);
+    // No subprotocol offered: an HTTP 400 that names the ones to offer.
+    let mut plain = std::net::TcpStream::connect(&addr).unwrap();
+    plain
+        .set_read_timeout(Some(Duration::from_secs(10)))
+        .unwrap();
+    std::io::Write::write_all(
+        &mut plain,
+        format!("GET / HTTP/1.1\r\nHost: {addr}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n").as_bytes(),
+    )
+    .unwrap();
+    let mut answer = String::new();
+    std::io::Read::read_to_string(&mut plain, &mut answer).unwrap();
+    assert!(
+        answer.starts_with("HTTP/1.1 400")
+            && answer.contains("foxglove.sdk.v1")
+            && answer.contains("foxglove.websocket.v1"),
+        "{answer}"
+    );
+    let status = hil.wait().unwrap();
+    drop(guard);
+    assert_eq!(status.code(), Some(0));
 }
