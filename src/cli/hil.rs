@@ -652,6 +652,7 @@ fn summarise(
             a.latency_ns.end_to_end.p50 / 1000,
             a.latency_ns.end_to_end.p99 / 1000
         );
+        print_programme_and_operator(a, summary["operator_stop"] == true);
         for f in &a.safety.faults {
             eprintln!(
                 "hil: fault {}: {}{} at {:.3} s (after {} periods) -> {}; largest excursion {} ({} beyond the pre-fault range), {}",
@@ -679,6 +680,30 @@ fn summarise(
     }
     eprintln!("hil: clean run; report in {}", out_dir.display());
     Ok(ExitCode::SUCCESS)
+}
+
+/// The programme's progress and how it ended, and every operator action with its time.
+fn print_programme_and_operator(a: &Analysis, operator_stop: bool) {
+    let p = &a.programme;
+    let ended = if operator_stop {
+        "ended by an operator stop (orderly unload)".to_string()
+    } else if p.completed {
+        "ran to its end".to_string()
+    } else if !a.safety.faults.is_empty() {
+        "ended by a fault hold".to_string()
+    } else {
+        format!(
+            "stopped at the run's duration ({:.1} s of {:.1} s)",
+            p.programme_time_s, p.end_s
+        )
+    };
+    eprintln!(
+        "hil: programme: {:.1} s, cycles completed {}, last block {} `{}`; {ended}",
+        p.programme_time_s, p.cycles_completed, p.last_block, p.last_block_name
+    );
+    if !a.safety.operator_actions.is_empty() {
+        eprintln!("hil: operator: {}", a.safety.operator_actions.join("; "));
+    }
 }
 
 /// "12.3 um", or "unknown" when the rig recorded nothing after the fault.

@@ -128,7 +128,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayCounts> {
 pub fn run(args: ReplayArgs) -> anyhow::Result<ExitCode> {
     let c = replay(&args)?;
     println!(
-        "replay: {} rows, {} model steps replayed, {} forces differ{}",
+        "replay: {} rows, {} model steps replayed, {} forces differ{} (each step's force and local law compared bit for bit)",
         c.rows,
         c.replayed,
         c.mismatches,

@@ -408,9 +408,34 @@ fn closed_loop_is_clean_faithful_replayable_exportable_and_leaves_nothing_behind
         "events.csv",
         "meta.json",
         "config.toml",
+        "columns.txt",
     ] {
         assert!(csv.join(f).exists(), "export lacks {f}");
     }
+    // Every column of every CSV is described, the event codes and fault names with it.
+    let columns = std::fs::read_to_string(csv.join("columns.txt")).unwrap();
+    for (file, name) in [
+        ("rig.csv", "rig.csv"),
+        ("emulator.csv", "emulator.csv"),
+        ("controller.csv", "controller.csv"),
+        ("events.csv", "events.csv"),
+    ] {
+        let header = std::fs::read_to_string(csv.join(file)).unwrap();
+        let section = columns
+            .split(&format!("[{name}]\n"))
+            .nth(1)
+            .unwrap_or_else(|| panic!("no [{name}] in columns.txt"));
+        let section = section.split("\n\n").next().unwrap();
+        for column in header.lines().next().unwrap().split(',') {
+            assert!(
+                section
+                    .lines()
+                    .any(|l| l.split_whitespace().nth(1) == Some(column)),
+                "{file}: column {column} not described"
+            );
+        }
+    }
+    assert!(columns.contains("8 finished") && columns.contains("20 commands-stale"));
     let record = csv.join("emulator.csv");
     let (ok, text) = replay(&record);
     assert!(ok && text.contains(" 0 forces differ"), "{text}");
@@ -679,6 +704,14 @@ fn an_operator_stop_holds_unloads_and_ends_the_run() {
         .unwrap();
     assert!(events.iter().any(|e| e.kind == event_kind::OPERATOR_STOP));
     assert_eq!(json["safety"]["final_state"], "unload", "{json}");
+    // The console says how the run ended, with the stop's time.
+    let stderr = hil.stderr();
+    assert!(
+        stderr.contains("ended by an operator stop (orderly unload)")
+            && stderr.contains("hil: operator: ")
+            && stderr.contains("operator stop"),
+        "{stderr}"
+    );
     assert_nothing_left(&json);
     std::fs::remove_dir_all(&dir).ok();
 }
