@@ -658,12 +658,14 @@ pub fn run_processes(
                 sup.while_running(&control, live, interrupts, now, progress);
                 if progress && now.duration_since(last_progress) > Duration::from_secs(1) {
                     last_progress = now;
+                    let elapsed_s = now.duration_since(t).as_secs_f64();
                     eprintln!(
-                        "hil: t = {:.1} s of {:.1} s{}",
-                        now.duration_since(t).as_secs_f64(),
+                        "hil: t = {elapsed_s:.1} s of {:.1} s{}",
                         plan.duration_s,
                         if sup.first_fault_at.is_some() {
                             " (fault: holding)"
+                        } else if elapsed_s > plan.duration_s {
+                            " of programme (it paused while the rig held, or is unloading)"
                         } else {
                             ""
                         }
