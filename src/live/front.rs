@@ -9,7 +9,7 @@
 
 use std::io::{self, Read, Write};
 use std::net::{Shutdown, SocketAddr, TcpListener, TcpStream, ToSocketAddrs};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::Duration;
@@ -23,6 +23,9 @@ pub const SPEC_SUBPROTOCOL: &str = "foxglove.websocket.v1";
 const MAX_HEAD: usize = 16 * 1024;
 /// A client must finish its handshake within this.
 const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(5);
+/// Connections relayed at once (two threads each); more are refused, so a flood of
+/// connections cannot starve the orchestrator that supervises the run.
+const MAX_CLIENTS: usize = 16;
 
 /// The bound front listener.
 pub struct Front {
@@ -78,15 +81,10 @@ impl Front {
         std::thread::Builder::new()
             .name("live-front".into())
             .spawn(move || {
+                let active = Arc::new(AtomicUsize::new(0));
                 while !stop.load(Ordering::Acquire) {
                     match self.listener.accept() {
-                        Ok((client, _)) => {
-                            let _ = std::thread::Builder::new().name("live-relay".into()).spawn(
-                                move || {
-                                    let _ = relay(client, upstream);
-                                },
-                            );
-                        }
+                        Ok((client, _)) => take(client, upstream, &active),
                         Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
                             std::thread::sleep(Duration::from_millis(20));
                         }
@@ -94,6 +92,29 @@ impl Front {
                     }
                 }
             })
+    }
+}
+
+/// Relays one accepted connection on its own thread, or refuses it when `MAX_CLIENTS`
+/// are relayed already.
+fn take(mut client: TcpStream, upstream: SocketAddr, active: &Arc<AtomicUsize>) {
+    if active.load(Ordering::Acquire) >= MAX_CLIENTS {
+        let busy = format!(
+            "fastemu live view: {MAX_CLIENTS} clients connected already; try again later\n"
+        );
+        let _ = refuse(&mut client, "503 Service Unavailable", &busy);
+        return;
+    }
+    active.fetch_add(1, Ordering::AcqRel);
+    let done = active.clone();
+    let spawned = std::thread::Builder::new()
+        .name("live-relay".into())
+        .spawn(move || {
+            let _ = relay(client, upstream);
+            done.fetch_sub(1, Ordering::AcqRel);
+        });
+    if spawned.is_err() {
+        active.fetch_sub(1, Ordering::AcqRel);
     }
 }
 
@@ -171,6 +192,18 @@ pub fn refusal_text(offered: &[String]) -> String {
     )
 }
 
+/// Answers with an HTTP error status and a plain-text reason, then closes.
+fn refuse(client: &mut TcpStream, status: &str, body: &str) -> io::Result<()> {
+    client.set_nonblocking(false)?;
+    let head = format!(
+        "HTTP/1.1 {status}\r\nContent-Type: text/plain; charset=utf-8\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
+        body.len()
+    );
+    client.write_all(head.as_bytes())?;
+    client.write_all(body.as_bytes())?;
+    client.shutdown(Shutdown::Both)
+}
+
 fn relay(mut client: TcpStream, upstream: SocketAddr) -> io::Result<()> {
     client.set_nonblocking(false)?;
     client.set_read_timeout(Some(HANDSHAKE_TIMEOUT))?;
@@ -181,13 +214,7 @@ fn relay(mut client: TcpStream, upstream: SocketAddr) -> io::Result<()> {
         .any(|p| SDK_SUBPROTOCOLS.contains(&p.as_str()));
     let spec = offered.iter().any(|p| p == SPEC_SUBPROTOCOL);
     if !sdk && !spec {
-        let body = refusal_text(&offered);
-        let response = format!(
-            "HTTP/1.1 400 Bad Request\r\nContent-Type: text/plain; charset=utf-8\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
-            body.len()
-        );
-        client.write_all(response.as_bytes())?;
-        return client.shutdown(Shutdown::Both);
+        return refuse(&mut client, "400 Bad Request", &refusal_text(&offered));
     }
     // A client that offers only the published name is handed to the SDK under its own.
     let alias = !sdk;
@@ -266,5 +293,41 @@ mod tests {
         assert!(offered("GET / HTTP/1.1\r\nHost: x\r\n\r\n").is_empty());
         let text = refusal_text(&["chat".to_string()]);
         assert!(text.contains("foxglove.sdk.v1") && text.contains("offered: chat"));
+    }
+
+    #[test]
+    fn past_the_client_limit_a_connection_is_refused_with_the_reason() {
+        // An upstream that takes connections and never answers: each relay stays busy.
+        let upstream = TcpListener::bind("127.0.0.1:0").unwrap();
+        let upstream_addr = upstream.local_addr().unwrap();
+        let (taken_tx, taken_rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let mut held = Vec::new();
+            for c in upstream.incoming().flatten() {
+                held.push(c);
+                let _ = taken_tx.send(());
+            }
+        });
+        let front = bind("127.0.0.1:0").unwrap();
+        let addr = front.addr();
+        let stop = Arc::new(AtomicBool::new(false));
+        let server = front.serve(upstream_addr, stop.clone()).unwrap();
+        let head = "GET / HTTP/1.1\r\nHost: x\r\nSec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n";
+        let mut clients = Vec::new();
+        for _ in 0..MAX_CLIENTS {
+            let mut c = TcpStream::connect(addr).unwrap();
+            c.write_all(head.as_bytes()).unwrap();
+            clients.push(c);
+            taken_rx.recv().unwrap(); // relayed: upstream has it
+        }
+        let mut extra = TcpStream::connect(addr).unwrap();
+        let mut answer = String::new();
+        extra.read_to_string(&mut answer).unwrap();
+        assert!(
+            answer.starts_with("HTTP/1.1 503") && answer.contains("16 clients connected already"),
+            "{answer}"
+        );
+        stop.store(true, Ordering::Release);
+        server.join().unwrap();
     }
 }
