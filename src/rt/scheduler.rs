@@ -34,6 +34,25 @@ pub struct CycleStats {
     pub missed_deadlines: u64,
 }
 
+/// Waits until `deadline_ns` on `clock` as `mode` says (returns at once if it has passed).
+#[inline]
+pub fn wait_until<C: Clock>(clock: &C, deadline_ns: u64, mode: WaitMode) {
+    match mode {
+        WaitMode::Sleep => clock.sleep_until_ns(deadline_ns),
+        WaitMode::SleepSpin { spin_ns } => {
+            if deadline_ns > spin_ns {
+                let coarse = deadline_ns - spin_ns;
+                if clock.now_ns() < coarse {
+                    clock.sleep_until_ns(coarse);
+                }
+            }
+            while clock.now_ns() < deadline_ns {
+                std::hint::spin_loop();
+            }
+        }
+    }
+}
+
 /// Fixed-step scheduler on an absolute deadline grid.
 #[derive(Debug, Clone)]
 pub struct Scheduler {
@@ -70,20 +89,7 @@ impl Scheduler {
     pub fn wait_next<C: Clock>(&mut self, clock: &C) -> CycleStats {
         let idx = self.next_idx;
         let deadline = self.deadline_ns(idx);
-        match self.mode {
-            WaitMode::Sleep => clock.sleep_until_ns(deadline),
-            WaitMode::SleepSpin { spin_ns } => {
-                if deadline > spin_ns {
-                    let coarse = deadline - spin_ns;
-                    if clock.now_ns() < coarse {
-                        clock.sleep_until_ns(coarse);
-                    }
-                }
-                while clock.now_ns() < deadline {
-                    std::hint::spin_loop();
-                }
-            }
-        }
+        wait_until(clock, deadline, self.mode);
         let woke = clock.now_ns();
         let late = woke.saturating_sub(deadline);
         // Deadlines that passed entirely while we were late are skipped, not replayed.

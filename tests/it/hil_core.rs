@@ -16,7 +16,7 @@ use fastemu::ipc::messages::{
 use fastemu::model::effects::{ModelStepper, StepperMode};
 use fastemu::records::RecorderBuilder;
 use fastemu::rig::core::RigCore;
-use fastemu::rt::{MockClock, Scheduler, WaitMode};
+use fastemu::rt::{wait_until, Clock, CycleTurn, MockClock, Scheduler, WaitMode};
 
 /// A mock transport: the samples that arrive in each cycle (empty = nothing new).
 struct MockIo {
@@ -152,6 +152,35 @@ fn emulator_cycle_does_not_allocate() {
     assert_eq!(core.counts.model_steps, n, "one model step per sample");
     assert_eq!(result.counts[0].1.dropped, 0);
     assert_eq!(result.counts[0].1.written, n);
+}
+
+#[test]
+fn the_loop_turn_shared_with_the_standby_does_not_allocate() {
+    // What the emulator's two loop threads add around each cycle: wait, claim, release;
+    // every 5th cycle claimed by the standby after its delay, every 11th the primary late
+    // by three periods (the standby's claim then skips them).
+    let period_ns = config().loop_.period_ns;
+    let turn = CycleTurn::new(period_ns, 1_000);
+    let clock = MockClock::new(0);
+    let mut claimed = 0u64;
+    let mut skipped = 0u64;
+    let allocations = count_allocations(|| {
+        for k in 0..2000u64 {
+            let idx = turn.next_idx().expect("not finished");
+            let after_ns = if k % 5 == 0 { 100_000 } else { 0 };
+            clock.set_wake_lateness_ns(if k % 11 == 0 { 3 * period_ns } else { 0 });
+            wait_until(&clock, turn.deadline_ns(idx) + after_ns, WaitMode::Sleep);
+            let stats = turn.try_claim(idx, clock.now_ns()).expect("free");
+            assert!(turn.try_claim(idx, clock.now_ns()).is_none());
+            claimed += 1;
+            skipped += stats.missed_deadlines;
+            turn.release(&stats);
+        }
+    });
+    assert_eq!(allocations, 0, "the turn allocated");
+    assert_eq!(claimed, 2000);
+    // Each late wake (3 periods, plus the standby's delay on every 55th) skips 3.
+    assert_eq!(skipped, 3 * 2000u64.div_ceil(11));
 }
 
 #[test]
