@@ -584,6 +584,7 @@ fn summarise(
         "deadline_misses": deadline_misses,
         "deadline_misses_emulator": deadline_misses,
         "deadline_misses_rig": u(&rig, "missed_deadlines"),
+        "emulator_standby_cycles": u(&emu, "standby_cycles"),
         "stale_samples": u(&emu, "stale_cycles"),
         "missing_samples": u(&emu, "missing_samples"),
         "records_dropped": records_dropped,

@@ -109,13 +109,21 @@ pub fn run_emulator_command(args: LoopProcessArgs) -> anyhow::Result<ExitCode> {
     )
     .context("emulator")?;
     eprintln!(
-        "emulator: {} cycles, {} model steps, {} stale cycles, {} missing samples, {} missed deadlines (longest stall {:.1} ms), {} records dropped{}",
+        "emulator: {} cycles, {} model steps, {} stale cycles, {} missing samples, {} missed deadlines (longest stall {:.1} ms){}, {} records dropped{}",
         s.cycles,
         s.model_steps,
         s.stale_cycles,
         s.missing_samples,
         s.missed_deadlines,
         s.longest_stall_ms,
+        if s.standby_cpus.is_empty() {
+            String::new()
+        } else {
+            format!(
+                ", {} cycles run by the standby thread on CPU {:?}",
+                s.standby_cycles, s.standby_cpus
+            )
+        },
         s.records.dropped,
         s.fault.as_ref().map_or(String::new(), |f| format!(", tripped: {f}"))
     );

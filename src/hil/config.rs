@@ -112,6 +112,10 @@ struct RawLoop {
     emulator_cpus: Vec<usize>,
     #[serde(default)]
     rig_cpus: Vec<usize>,
+    #[serde(default)]
+    emulator_standby_cpus: Vec<usize>,
+    #[serde(default)]
+    emulator_standby_after_us: Option<f64>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -219,6 +223,16 @@ pub struct LoopConfig {
     pub fifo_priority: Option<i32>,
     pub emulator_cpus: Vec<usize>,
     pub rig_cpus: Vec<usize>,
+    /// The emulator's standby loop thread: `None` = no standby.
+    pub emulator_standby: Option<Standby>,
+}
+
+/// A second loop thread of the emulator on other CPUs: it claims a cycle that the primary
+/// has not begun `after_ns` past its deadline (`rt::CycleTurn`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Standby {
+    pub cpus: Vec<usize>,
+    pub after_ns: u64,
 }
 
 impl LoopConfig {
@@ -387,6 +401,10 @@ impl LoopProcess {
 pub enum InjectKind {
     /// The process's loop thread stops for this long, s.
     Stall { duration_s: f64 },
+    /// The thread that runs the emulator's cycle is kept off its CPU for this long, s, as
+    /// a hypervisor or an interrupt storm does to one CPU: the loop itself is not held,
+    /// so a standby thread on another CPU goes on with it.
+    CpuStall { duration_s: f64 },
     /// The process kills itself with SIGKILL.
     Kill,
     /// The rig publishes no sample for this many periods.
@@ -401,6 +419,7 @@ impl InjectKind {
     pub fn name(self) -> &'static str {
         match self {
             InjectKind::Stall { .. } => "stall",
+            InjectKind::CpuStall { .. } => "cpu-stall",
             InjectKind::Kill => "kill",
             InjectKind::DropSamples { .. } => "drop-samples",
             InjectKind::Nan => "nan",
@@ -422,6 +441,7 @@ impl Injection {
     pub fn describe(&self) -> String {
         let what = match self.kind {
             InjectKind::Stall { duration_s } => format!("stall {} ms", duration_s * 1e3),
+            InjectKind::CpuStall { duration_s } => format!("cpu-stall {} ms", duration_s * 1e3),
             InjectKind::DropSamples { count } => format!("drop-samples {count}"),
             k => k.name().to_string(),
         };
@@ -849,6 +869,7 @@ fn parse_loop(check: &Check, l: &RawLoop) -> Result<LoopConfig, ConfigError> {
             format!("{} is not valid: expected 0 (off) or 1-99", l.fifo_priority),
         ));
     }
+    let emulator_standby = parse_standby(check, l, period_ns)?;
     Ok(LoopConfig {
         rate_hz,
         period_ns,
@@ -861,7 +882,56 @@ fn parse_loop(check: &Check, l: &RawLoop) -> Result<LoopConfig, ConfigError> {
         fifo_priority: (l.fifo_priority > 0).then_some(l.fifo_priority),
         emulator_cpus: l.emulator_cpus.clone(),
         rig_cpus: l.rig_cpus.clone(),
+        emulator_standby,
     })
+}
+
+/// `[loop] emulator_standby_cpus` and `emulator_standby_after_us`: the standby must sit on
+/// CPUs the primary does not use, and claim a cycle within its period.
+fn parse_standby(
+    check: &Check,
+    l: &RawLoop,
+    period_ns: u64,
+) -> Result<Option<Standby>, ConfigError> {
+    if l.emulator_standby_cpus.is_empty() {
+        return Ok(None);
+    }
+    if let Some(cpu) = l
+        .emulator_standby_cpus
+        .iter()
+        .find(|c| l.emulator_cpus.contains(c))
+    {
+        return Err(check.err(
+            "loop.emulator_standby_cpus",
+            format!(
+                "{:?} is not valid: CPU {cpu} is also in emulator_cpus {:?}; the standby covers \
+                 for the primary's CPU only from another one",
+                l.emulator_standby_cpus, l.emulator_cpus
+            ),
+        ));
+    }
+    let after_us = l.emulator_standby_after_us.ok_or_else(|| {
+        check.err(
+            "loop.emulator_standby_after_us",
+            "missing: with emulator_standby_cpus, how long after a deadline the standby \
+             takes a cycle the primary has not begun, us"
+                .into(),
+        )
+    })?;
+    let after_ns = (check.positive("loop.emulator_standby_after_us", after_us)? * 1e3) as u64;
+    if after_ns >= period_ns {
+        return Err(check.err(
+            "loop.emulator_standby_after_us",
+            format!(
+                "{after_us} is not valid: expected less than one period ({} us)",
+                period_ns as f64 / 1e3
+            ),
+        ));
+    }
+    Ok(Some(Standby {
+        cpus: l.emulator_standby_cpus.clone(),
+        after_ns,
+    }))
 }
 
 fn parse_model(
@@ -1113,6 +1183,20 @@ fn parse_injection(
                 duration_s: check.positive(&key("duration_ms"), ms)? * 1e-3,
             }
         }
+        "cpu-stall" => {
+            let ms = r.duration_ms.ok_or_else(|| {
+                check.err(&key("duration_ms"), "missing: a cpu-stall needs its duration in ms".into())
+            })?;
+            if process != LoopProcess::Emulator {
+                return Err(check.err(
+                    &key("process"),
+                    format!("\"{}\" is not valid for kind \"cpu-stall\": only the emulator has a standby thread (process = \"emulator\")", r.process),
+                ));
+            }
+            InjectKind::CpuStall {
+                duration_s: check.positive(&key("duration_ms"), ms)? * 1e-3,
+            }
+        }
         "kill" => InjectKind::Kill,
         "drop-samples" => {
             let count = r.count.ok_or_else(|| {
@@ -1127,7 +1211,7 @@ fn parse_injection(
         other => {
             return Err(check.err(
                 &key("kind"),
-                format!("\"{other}\" is not valid: expected \"stall\", \"kill\", \"drop-samples\", \"nan\" or \"out-of-range\""),
+                format!("\"{other}\" is not valid: expected \"stall\", \"cpu-stall\", \"kill\", \"drop-samples\", \"nan\" or \"out-of-range\""),
             ))
         }
     };
@@ -1169,6 +1253,70 @@ mod tests {
         let c = default_hil_config().unwrap();
         assert_eq!(c.loop_.rate_hz, 4096.0);
         assert_eq!(c.safety.actions, FaultActions::HOLD_ALL);
+    }
+
+    /// The error of the default configuration with `from` replaced by `to`.
+    fn error_with(from: &str, to: &str) -> String {
+        assert!(DEFAULT_CONFIG_TOML.contains(from), "default lacks `{from}`");
+        let text = DEFAULT_CONFIG_TOML.replace(from, to);
+        parse_hil_config(&text, "x.toml", None)
+            .unwrap_err()
+            .to_string()
+    }
+
+    #[test]
+    fn the_standby_sits_on_another_cpu_and_claims_within_a_period() {
+        let c = default_hil_config().unwrap();
+        let standby = c.loop_.emulator_standby.expect("the default has a standby");
+        assert!(!standby
+            .cpus
+            .iter()
+            .any(|c0| c.loop_.emulator_cpus.contains(c0)));
+        assert!(standby.after_ns > 0 && standby.after_ns < c.loop_.period_ns);
+        let same_cpu = error_with("emulator_standby_cpus = [0]", "emulator_standby_cpus = [1]");
+        assert!(
+            same_cpu.contains("loop.emulator_standby_cpus") && same_cpu.contains("CPU 1"),
+            "{same_cpu}"
+        );
+        let too_late = error_with(
+            "emulator_standby_after_us = 100.0",
+            "emulator_standby_after_us = 300.0",
+        );
+        assert!(
+            too_late.contains("loop.emulator_standby_after_us")
+                && too_late.contains("300")
+                && too_late.contains("less than one period"),
+            "{too_late}"
+        );
+        let missing = error_with("emulator_standby_after_us = 100.0", "");
+        assert!(
+            missing.contains("loop.emulator_standby_after_us") && missing.contains("missing"),
+            "{missing}"
+        );
+        let none = DEFAULT_CONFIG_TOML
+            .replace("emulator_standby_cpus = [0]", "emulator_standby_cpus = []");
+        let c = parse_hil_config(&none, "x.toml", None).unwrap();
+        assert_eq!(c.loop_.emulator_standby, None);
+    }
+
+    #[test]
+    fn a_cpu_stall_is_injected_into_the_emulator_only() {
+        let with = |process: &str| {
+            let text = format!(
+                "{DEFAULT_CONFIG_TOML}\n[[inject]]\nprocess = \"{process}\"\nkind = \"cpu-stall\"\nduration_ms = 80.0\nat_s = 1.0\n"
+            );
+            parse_hil_config(&text, "x.toml", None)
+        };
+        let c = with("emulator").unwrap();
+        assert_eq!(
+            c.injections[0].kind,
+            InjectKind::CpuStall { duration_s: 0.08 }
+        );
+        let e = with("rig").unwrap_err().to_string();
+        assert!(
+            e.contains("inject[0].process") && e.contains("cpu-stall"),
+            "{e}"
+        );
     }
 
     #[test]

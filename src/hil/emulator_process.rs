@@ -1,10 +1,14 @@
 //! The emulator process: iceoryx2 ports around `EmulatorCore`, the fixed-step loop on
-//! absolute deadlines, heartbeats, events and records, end-of-run summary.
+//! absolute deadlines (run by its primary thread, and by a standby thread on another CPU
+//! when the primary has not begun a cycle in time), heartbeats, events and records,
+//! end-of-run summary.
 //!
 //! Must not: allocate, log or do I/O inside the loop body (records and events go through
 //! `RecordSink`; progress only before and after the loop).
 
+use std::cell::UnsafeCell;
 use std::path::Path;
+use std::time::Duration;
 
 use super::config::{HilConfig, LoopProcess};
 use super::emulator::{CycleOutcome, EmulatorCore, EmulatorIo, EmulatorRecord};
@@ -15,12 +19,14 @@ use super::process::{
 };
 use crate::ipc::messages::{
     emulator_state, process_id, sample_status, DisplacementSample, ForceSetpoint, Heartbeat,
-    LocalLaw,
+    LocalLaw, RunControl,
 };
 use crate::ipc::{In, IpcNode, Out, Wake};
-use crate::records::{EventRecord, RecorderBuilder, SinkCounts};
+use crate::records::{EventRecord, RecordSink, RecorderBuilder, SinkCounts};
 use crate::rt::clock::monotonic_now_ns;
-use crate::rt::{MonotonicClock, Scheduler, WaitMode};
+use crate::rt::{
+    apply_rt_setup, wait_until, Clock, CycleStats, CycleTurn, MonotonicClock, RtSetup, WaitMode,
+};
 
 struct IpcEmulatorIo<'a> {
     input: &'a In<DisplacementSample>,
@@ -68,10 +74,116 @@ pub struct EmulatorSummary {
     pub missing_samples: u64,
     pub missed_deadlines: u64,
     pub longest_stall_ms: f64,
+    /// CPUs of the standby loop thread (empty: none).
+    pub standby_cpus: Vec<usize>,
+    /// Cycles the standby ran because the primary had not begun them in time.
+    pub standby_cycles: u64,
     pub records: SinkCounts,
     pub events: SinkCounts,
     pub record_error: Option<String>,
     pub fault: Option<String>,
+}
+
+/// Everything a cycle of the emulator's loop touches; owned by the loop thread that holds
+/// the turn.
+struct EmulatorLoop<'a> {
+    core: EmulatorCore,
+    io: IpcEmulatorIo<'a>,
+    injector: Injector,
+    heartbeat: &'a Out<Heartbeat>,
+    control: &'a In<RunControl>,
+    records: &'a RecordSink<EmulatorRecord>,
+    events: &'a RecordSink<EventRecord>,
+    dt: f64,
+    heartbeat_every: u64,
+    /// Ends the loop after this many cycles without a sample (the rig and the
+    /// orchestrator both gone).
+    idle_limit: u64,
+    idle_cycles: u64,
+    last_steps: u64,
+    standby_cycles: u64,
+}
+
+impl EmulatorLoop<'_> {
+    /// One cycle: whether the loop goes on, and a CPU stall injected on the thread that
+    /// ran it (served outside the turn).
+    #[inline]
+    fn cycle(&mut self, stats: &CycleStats, by_standby: bool) -> (bool, Option<Duration>) {
+        self.standby_cycles += u64::from(by_standby);
+        let now_idx = stats.cycle_idx + stats.missed_deadlines;
+        let cpu_stall = self
+            .injector
+            .fire_due(now_idx as f64 * self.dt, now_idx, self.events);
+        let records = self.records;
+        let outcome = self
+            .core
+            .cycle(stats, &mut self.io, &mut |r| records.push(r));
+        if let Some(event) = self.core.take_fault_event(now_idx) {
+            self.events.push(event);
+        }
+        let steps = self.core.counts.model_steps;
+        self.idle_cycles = if steps == self.last_steps {
+            self.idle_cycles + 1
+        } else {
+            0
+        };
+        self.last_steps = steps;
+        if outcome == CycleOutcome::EndOfRun || self.idle_cycles > self.idle_limit {
+            return (false, cpu_stall);
+        }
+        if stats.cycle_idx.is_multiple_of(self.heartbeat_every) {
+            self.heartbeat.publish(Heartbeat {
+                process: process_id::EMULATOR,
+                state: self.core.state(),
+                sequence: stats.cycle_idx,
+                time_ns: stats.woke_ns,
+                fault_code: self.core.fault().map_or(0, Fault::code),
+                reserved: 0,
+            });
+            if poll_control(self.control).stop || termination_requested() {
+                return (false, cpu_stall);
+            }
+        }
+        (true, cpu_stall)
+    }
+}
+
+/// The loop as the primary and the standby thread share it.
+struct SharedLoop<'a> {
+    turn: CycleTurn,
+    state: UnsafeCell<EmulatorLoop<'a>>,
+}
+
+// SAFETY: `state` is reached only in `run_thread`, between a successful
+// `CycleTurn::try_claim` (an acquire) and the `release` or `finish` that ends the cycle (a
+// release): by one thread at a time, each seeing all that the one before it wrote. The
+// iceoryx2 ports it refers to (single-threaded `Rc` inside, hence not `Sync`) are so never
+// used by two threads at once, and both threads end before anything is dropped.
+unsafe impl Sync for SharedLoop<'_> {}
+
+impl SharedLoop<'_> {
+    /// Runs one loop thread until the loop ends: wait until `after_ns` past the next
+    /// cycle's deadline, claim the cycle, run it; a cycle the other thread took is skipped.
+    fn run_thread(&self, mode: WaitMode, after_ns: u64, by_standby: bool) {
+        let clock = MonotonicClock;
+        while let Some(idx) = self.turn.next_idx() {
+            wait_until(&clock, self.turn.deadline_ns(idx) + after_ns, mode);
+            let Some(stats) = self.turn.try_claim(idx, clock.now_ns()) else {
+                continue;
+            };
+            // SAFETY: this thread holds the turn (see `unsafe impl Sync for SharedLoop`).
+            let state = unsafe { &mut *self.state.get() };
+            let (go_on, cpu_stall) = state.cycle(&stats, by_standby);
+            if go_on {
+                self.turn.release(&stats);
+            } else {
+                self.turn.finish();
+            }
+            if let Some(stall) = cpu_stall {
+                std::thread::sleep(stall);
+            }
+        }
+    }
 }
 
 /// Runs the emulator process until end of run, STOP, termination or its time cap.
@@ -109,66 +221,58 @@ pub fn run_emulator(
         ),
     );
 
-    let clock = MonotonicClock;
-    let mut scheduler = Scheduler::new(
-        cfg.loop_.period_ns,
-        start.t0_ns + cfg.loop_.emulator_phase_ns,
-        WaitMode::SleepSpin {
-            spin_ns: cfg.loop_.spin_ns,
-        },
-    );
-    let mut core = EmulatorCore::new(
-        &cfg.augmented,
-        &cfg.loop_,
-        cfg.emulator,
-        cfg.stall_limit_periods(),
-    );
-    let mut io = IpcEmulatorIo {
-        input: &input,
-        output: &output,
-        wake: &wake,
-        sample_wait_ns: cfg.loop_.sample_wait_ns,
+    let shared = SharedLoop {
+        turn: CycleTurn::new(
+            cfg.loop_.period_ns,
+            start.t0_ns + cfg.loop_.emulator_phase_ns,
+        ),
+        state: UnsafeCell::new(EmulatorLoop {
+            core: EmulatorCore::new(
+                &cfg.augmented,
+                &cfg.loop_,
+                cfg.emulator,
+                cfg.stall_limit_periods(),
+            ),
+            io: IpcEmulatorIo {
+                input: &input,
+                output: &output,
+                wake: &wake,
+                sample_wait_ns: cfg.loop_.sample_wait_ns,
+            },
+            injector: Injector::new(cfg, LoopProcess::Emulator, process_id::EMULATOR),
+            heartbeat: &heartbeat,
+            control: &control,
+            records: &records,
+            events: &events,
+            dt: cfg.loop_.dt_s(),
+            heartbeat_every: (HEARTBEAT_PERIOD_NS / cfg.loop_.period_ns).max(1),
+            // Ends on the rig's end-of-run sample, STOP or SIGTERM; as a last resort,
+            // after a minute without any sample.
+            idle_limit: (IDLE_EXIT_S * cfg.loop_.rate_hz) as u64,
+            idle_cycles: 0,
+            last_steps: 0,
+            standby_cycles: 0,
+        }),
     };
-    let mut injector = Injector::new(cfg, LoopProcess::Emulator, process_id::EMULATOR);
-    // Ends on the rig's end-of-run sample, STOP or SIGTERM; as a last resort, after a
-    // minute without any sample (the rig and the orchestrator both gone).
-    let idle_limit = (IDLE_EXIT_S * cfg.loop_.rate_hz) as u64;
-    let mut idle_cycles = 0u64;
-    let mut last_steps = 0u64;
-    let heartbeat_every = (HEARTBEAT_PERIOD_NS / cfg.loop_.period_ns).max(1);
-    let dt = cfg.loop_.dt_s();
-    let mut push = |r: EmulatorRecord| records.push(r);
-    loop {
-        let stats = scheduler.wait_next(&clock);
-        let now_idx = stats.cycle_idx + stats.missed_deadlines;
-        injector.fire_due(now_idx as f64 * dt, now_idx, &events);
-        let outcome = core.cycle(&stats, &mut io, &mut push);
-        if let Some(event) = core.take_fault_event(now_idx) {
-            events.push(event);
-        }
-        idle_cycles = if core.counts.model_steps == last_steps {
-            idle_cycles + 1
-        } else {
-            0
-        };
-        last_steps = core.counts.model_steps;
-        if outcome == CycleOutcome::EndOfRun || idle_cycles > idle_limit {
-            break;
-        }
-        if stats.cycle_idx.is_multiple_of(heartbeat_every) {
-            heartbeat.publish(Heartbeat {
-                process: process_id::EMULATOR,
-                state: core.state(),
-                sequence: stats.cycle_idx,
-                time_ns: stats.woke_ns,
-                fault_code: core.fault().map_or(0, Fault::code),
-                reserved: 0,
+    let primary = WaitMode::SleepSpin {
+        spin_ns: cfg.loop_.spin_ns,
+    };
+    match &cfg.loop_.emulator_standby {
+        None => shared.run_thread(primary, 0, false),
+        Some(standby) => std::thread::scope(|scope| {
+            let shared = &shared;
+            scope.spawn(move || {
+                standby_setup(cfg, &standby.cpus);
+                shared.run_thread(WaitMode::Sleep, standby.after_ns, true);
             });
-            if poll_control(&control).stop || termination_requested() {
-                break;
-            }
-        }
+            shared.run_thread(primary, 0, false);
+        }),
     }
+    let EmulatorLoop {
+        core,
+        standby_cycles,
+        ..
+    } = shared.state.into_inner();
     output.publish(ForceSetpoint {
         sequence: u64::MAX,
         sample_sequence: u64::MAX,
@@ -197,6 +301,12 @@ pub fn run_emulator(
         missing_samples: core.counts.missing_samples,
         missed_deadlines: core.counts.missed_deadlines,
         longest_stall_ms: core.counts.longest_stall_ns as f64 * 1e-6,
+        standby_cpus: cfg
+            .loop_
+            .emulator_standby
+            .as_ref()
+            .map_or(Vec::new(), |s| s.cpus.clone()),
+        standby_cycles,
         records: written.counts_of("/emulator"),
         events: written.counts_of("/events"),
         record_error: written.error,
@@ -204,4 +314,17 @@ pub fn run_emulator(
     };
     write_summary(out_dir, "emulator", &summary)?;
     Ok(summary)
+}
+
+/// The standby thread's real-time setup: its CPUs, one SCHED_FIFO priority below the
+/// loops (it never delays a primary loop on its CPU).
+fn standby_setup(cfg: &HilConfig, cpus: &[usize]) {
+    let setup = RtSetup {
+        lock_memory: false,
+        fifo_priority: cfg.loop_.fifo_priority.map(|p| (p - 1).max(1)),
+        cpus: cpus.to_vec(),
+    };
+    for w in apply_rt_setup(&setup) {
+        eprintln!("emulator standby: warning: {w}");
+    }
 }

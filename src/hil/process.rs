@@ -226,7 +226,12 @@ impl Injector {
             pending: cfg
                 .injections_for(process)
                 .into_iter()
-                .filter(|i| matches!(i.kind, InjectKind::Stall { .. } | InjectKind::Kill))
+                .filter(|i| {
+                    matches!(
+                        i.kind,
+                        InjectKind::Stall { .. } | InjectKind::CpuStall { .. } | InjectKind::Kill
+                    )
+                })
                 .collect(),
             next: 0,
             process_id,
@@ -234,18 +239,24 @@ impl Injector {
     }
 
     /// Fires the injection due at loop time `t_s`, if any: records its event, then stalls
-    /// the calling thread or kills the process. A deliberate fault, not loop work.
+    /// the calling thread or kills the process. A deliberate fault, not loop work. A
+    /// `cpu-stall` is returned instead: the caller serves it after its cycle, outside the
+    /// loop's turn.
     #[inline]
-    pub fn fire_due(&mut self, t_s: f64, step_idx: u64, events: &RecordSink<EventRecord>) {
-        let Some(inj) = self.pending.get(self.next).copied() else {
-            return;
-        };
+    pub fn fire_due(
+        &mut self,
+        t_s: f64,
+        step_idx: u64,
+        events: &RecordSink<EventRecord>,
+    ) -> Option<Duration> {
+        let inj = self.pending.get(self.next).copied()?;
         if t_s < inj.at_s {
-            return;
+            return None;
         }
         self.next += 1;
         let (code, value) = match inj.kind {
             InjectKind::Stall { duration_s } => (injected_kind::STALL, duration_s * 1e3),
+            InjectKind::CpuStall { duration_s } => (injected_kind::CPU_STALL, duration_s * 1e3),
             _ => (injected_kind::KILL, 0.0),
         };
         events.push(EventRecord {
@@ -262,11 +273,14 @@ impl Injector {
         match inj.kind {
             InjectKind::Stall { duration_s } => {
                 std::thread::sleep(Duration::from_secs_f64(duration_s));
+                None
             }
+            InjectKind::CpuStall { duration_s } => Some(Duration::from_secs_f64(duration_s)),
             _ => {
                 std::thread::sleep(KILL_FLUSH_WAIT);
                 // SAFETY: raising a signal on ourselves; SIGKILL cannot be caught.
                 unsafe { libc::raise(libc::SIGKILL) };
+                None
             }
         }
     }

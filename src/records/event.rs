@@ -33,6 +33,7 @@ pub mod injected_kind {
     pub const DROP_SAMPLES: u32 = 3;
     pub const NAN: u32 = 4;
     pub const OUT_OF_RANGE: u32 = 5;
+    pub const CPU_STALL: u32 = 6;
 }
 
 /// `EventRecord::action` (`FaultAction` as a code; `NONE` for events without one).
@@ -121,6 +122,12 @@ impl EventRecord {
             }
             event_kind::INJECTED => match self.fault_code {
                 injected_kind::STALL => format!("injected stall of {} ms", self.value),
+                injected_kind::CPU_STALL => {
+                    format!(
+                        "injected CPU stall of {} ms (the loop thread's CPU)",
+                        self.value
+                    )
+                }
                 injected_kind::KILL => "injected kill".into(),
                 injected_kind::DROP_SAMPLES => format!("injected drop of {} samples", self.value),
                 injected_kind::NAN => "injected NaN sample".into(),

@@ -681,6 +681,51 @@ fn faults_injected_from_the_configuration_are_named_recorded_and_held() {
 }
 
 #[test]
+fn a_cpu_stall_of_the_emulator_thread_is_covered_by_the_standby_and_without_one_is_held() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    // The thread running the emulator's cycle at the axle is kept off its CPU for 150 ms,
+    // three times the ride-through limit, without holding the loop.
+    let inject = format!(
+        "\n[[inject]]\nprocess = \"emulator\"\nkind = \"cpu-stall\"\nduration_ms = 150.0\nat_s = {AXLE_S}\n"
+    );
+    // The default: the standby on the rig's CPU takes the cycles over; no fault.
+    let dir = scratch_dir("cpu-stall-standby");
+    let report = dir.join("report");
+    let mut hil = spawn_hil(&write_config(&dir, &[], &inject), &report, 2.5);
+    let (code, json) = hil.finish(Duration::from_secs(60));
+    assert_eq!(code, 0, "with the standby: {json}\n{}", hil.stderr());
+    assert!(faults(&json).is_empty(), "{:?}", faults(&json));
+    let injected = json["safety"]["injected"].as_array().unwrap();
+    assert_eq!(injected.len(), 1, "{injected:?}");
+    let standby_cycles = json["emulator_standby_cycles"].as_u64().unwrap();
+    assert!(standby_cycles > 0, "the standby ran no cycle");
+    assert_nothing_left(&json);
+    std::fs::remove_dir_all(&dir).ok();
+
+    // Without a standby the same CPU stall is a stall of the loop: held.
+    let dir = scratch_dir("cpu-stall-alone");
+    let report = dir.join("report");
+    let config = write_config(
+        &dir,
+        &[("emulator_standby_cpus = [0]", "emulator_standby_cpus = []")],
+        &inject,
+    );
+    let mut hil = spawn_hil(&config, &report, 2.5);
+    let (code, json) = hil.finish(Duration::from_secs(60));
+    assert_eq!(code, 2, "without the standby: {json}");
+    let f = faults(&json);
+    assert!(
+        f.iter()
+            .any(|x| x.starts_with("controller: setpoints-stale")),
+        "{f:?}"
+    );
+    assert_eq!(json["emulator_standby_cycles"].as_u64(), Some(0));
+    assert_hold_in_records(&report, AXLE_S, "cpu stall without a standby");
+    assert_nothing_left(&json);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
 fn an_operator_stop_holds_unloads_and_ends_the_run() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let dir = scratch_dir("operator-stop");
