@@ -51,7 +51,7 @@ for p, v in sorted(rss.items()):
     report = f"; {max(after)/1024:.1f} MB while it builds the report" if after else ""
     print(f"  {p:22s} RSS at {t_first:4d} s {first/1024:6.1f} MB, at {t_last:4d} s {last/1024:6.1f} MB, change {(last-first)/1024:+.1f} MB{report}")
 steps = s["steps"]; misses = s["deadline_misses"]
-print(f"  model steps {steps}, emulator deadline misses {misses} ({misses/max(steps,1):.1e})")
+print(f"  model steps {steps}, emulator deadline misses {misses} ({misses/max(steps,1):.1e}), cycles run by its standby thread {s.get('emulator_standby_cycles', 0)}; rig deadline misses {s.get('deadline_misses_rig')}")
 st = s.get("stalls") or {}
 print(f"  stalls {st.get('count')}, longest {st.get('longest_ms', 0):.1f} ms, largest transient {st.get('largest_transient_um', 0):.2f} um; largest transient overall {s.get('largest_transient_um', 0):.2f} um")
 print(f"  faults {s['faults']}; displacement error {s['fidelity']['displacement_rel_rms']*100:.3f} %; cycles {s['programme']['cycles_completed']}")
