@@ -20,8 +20,11 @@ use super::{Record, META_TOPIC, PROFILE};
 
 /// Longest time a record waits in memory before its chunk is closed and flushed.
 pub const FLUSH_INTERVAL: Duration = Duration::from_millis(80);
-/// A part file is finished and the next begun after this long.
-pub const ROLL_INTERVAL: Duration = Duration::from_secs(300);
+/// A part file is finished and the next begun after this long. The writer's chunk index
+/// (one entry per `FLUSH_INTERVAL`) grows until then: at 300 s it reached about 1 MB and
+/// left the allocator's high-water mark stepping up at part changes over an hour; at 60 s
+/// each loop process's memory was flat within 0.1 MB from minute 5 to minute 10.
+pub const ROLL_INTERVAL: Duration = Duration::from_secs(60);
 /// The writer thread's poll period.
 const POLL: Duration = Duration::from_millis(2);
 
