@@ -83,9 +83,14 @@ pub struct IoxPingPong {
 
 impl IoxPingPong {
     /// Opens (or creates) the services under `prefix`, which must be unique per run so
-    /// parallel runs and tests never share a service.
+    /// parallel runs and tests never share a service. Every iceoryx2 file of the session is
+    /// named with `file_prefix(prefix)` (as a run's are), so `cleanup::clear_run(prefix)`
+    /// removes them all afterwards, iceoryx2's own management files included.
     pub fn new(prefix: &str, role: IoxRole) -> Result<IoxPingPong, IpcError> {
+        let config =
+            super::transport::run_config(prefix).map_err(|e| setup_err("config")(e.to_string()))?;
         let node = NodeBuilder::new()
+            .config(&config)
             // Ctrl-C must end the benchmark at once, not set a flag nobody polls while
             // a busy-polling round runs.
             .signal_handling_mode(SignalHandlingMode::Disabled)

@@ -226,7 +226,8 @@ fn run_bench(args: &[&str]) -> serde_json::Value {
     // Tests run in parallel with the HIL process tests: no SCHED_FIFO spinners here
     // unless a test asks for pinning or priority itself (then `--no-rt` is moot).
     let explicit_rt = args.iter().any(|a| *a == "--pin" || *a == "--priority");
-    let output = Command::new(env!("CARGO_BIN_EXE_fastemu"))
+    let default_prefix_before = default_prefix_files();
+    let child = Command::new(env!("CARGO_BIN_EXE_fastemu"))
         .args(["bench", "latency", "--json"])
         .args(if explicit_rt {
             &[][..]
@@ -234,10 +235,27 @@ fn run_bench(args: &[&str]) -> serde_json::Value {
             &["--no-rt"][..]
         })
         .args(args)
-        .output()
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
         .unwrap();
+    let pid = child.id();
+    let output = child.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(output.status.success(), "bench latency failed: {stderr}");
+    // Every iceoryx2 file of the bench's ping-pong session (named with its prefix, which
+    // begins with the bench's pid) is gone once it has exited.
+    let left = fastemu::ipc::cleanup::files_with_prefix(&format!("fastemu_latency_{pid}_"));
+    assert!(left.is_empty(), "the bench left iceoryx2 files: {left:?}");
+    // Nor does it create any under iceoryx2's default prefix (no fastemu process does).
+    let new: Vec<_> = default_prefix_files()
+        .difference(&default_prefix_before)
+        .cloned()
+        .collect();
+    assert!(
+        new.is_empty(),
+        "iceoryx2 files under the default prefix appeared: {new:?}"
+    );
     let stdout = String::from_utf8(output.stdout).unwrap();
     assert_eq!(
         stdout.lines().count(),
@@ -245,6 +263,16 @@ fn run_bench(args: &[&str]) -> serde_json::Value {
         "one JSON object expected: {stdout}"
     );
     serde_json::from_str(&stdout).unwrap()
+}
+
+/// `/dev/shm/iox2_*`: iceoryx2's files under its default prefix.
+fn default_prefix_files() -> std::collections::BTreeSet<String> {
+    std::fs::read_dir("/dev/shm")
+        .unwrap()
+        .filter_map(Result::ok)
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with("iox2_"))
+        .collect()
 }
 
 const SUMMARY_KEYS: [&str; 7] = [

@@ -121,9 +121,9 @@ fn iceoryx2_shm_entries() -> BTreeSet<String> {
         .map(|dir| {
             dir.filter_map(Result::ok)
                 .map(|e| e.file_name().to_string_lossy().into_owned())
-                // iceoryx2's machine-wide node counter (`*.global_mgmt`, 16 bytes) is
-                // persistent by design and shared by every iceoryx2 process: not ours.
-                .filter(|n| n.starts_with("iox2_") && !n.ends_with(".global_mgmt"))
+                // The bench's own files carry its prefix and are removed with the session;
+                // anything under iceoryx2's default prefix is another user's, or a leak.
+                .filter(|n| n.starts_with("iox2_") || n.starts_with("fastemu_latency_"))
                 .collect()
         })
         .unwrap_or_default()

@@ -382,6 +382,18 @@ pub struct PeerSession {
     // Dropped after the sockets above: killing the peer last keeps its errors readable.
     peer: ChildGuard,
     _dir: RunDir,
+    // Dropped after both ends' iceoryx2 nodes are gone: removes every file of the session.
+    _iox_files: IoxFiles,
+}
+
+/// The iceoryx2 files of a session (`IoxPingPong` names them with its prefix): removed on
+/// drop, so a bench leaves none behind, iceoryx2's management files included.
+struct IoxFiles(String);
+
+impl Drop for IoxFiles {
+    fn drop(&mut self) {
+        crate::ipc::cleanup::clear_run(&self.0);
+    }
 }
 
 impl PeerSession {
@@ -395,6 +407,7 @@ impl PeerSession {
     ) -> anyhow::Result<PeerSession> {
         let dir = RunDir::create(unique)?;
         let iox_prefix = format!("fastemu_latency_{unique}");
+        let iox_files = IoxFiles(iox_prefix.clone());
         let iox = IoxPingPong::new(&iox_prefix, IoxRole::Pinger)?;
         // The pinger is the rig's end of a UDP rig link, the peer fastemu's end.
         let (parent_udp, peer_udp) = free_loopback_pair()?;
@@ -483,6 +496,7 @@ impl PeerSession {
             peer_warnings,
             peer,
             _dir: dir,
+            _iox_files: iox_files,
         })
     }
 
