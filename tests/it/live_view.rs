@@ -25,6 +25,7 @@ fn a_foxglove_client_receives_the_live_channels_and_can_hold_the_run() {
     let mut ws = connect(&addr, "foxglove.sdk.v1");
     let mut topics = std::collections::HashMap::new(); // subscription id -> topic
     let mut services = std::collections::HashMap::new();
+    let mut schemas = std::collections::HashMap::<String, String>::new(); // topic -> JSON schema
     let mut displacement_t: Vec<f64> = Vec::new();
     let mut counts = std::collections::HashMap::<String, u64>::new();
     let mut held = false;
@@ -49,6 +50,10 @@ fn a_foxglove_client_receives_the_live_channels_and_can_hold_the_run() {
                         for c in v["channels"].as_array().unwrap() {
                             let sub = topics.len() as u64 + 1;
                             topics.insert(sub, c["topic"].as_str().unwrap().to_string());
+                            schemas.insert(
+                                c["topic"].as_str().unwrap().to_string(),
+                                c["schema"].as_str().unwrap().to_string(),
+                            );
                             subs.push(serde_json::json!({"id": sub, "channelId": c["id"]}));
                         }
                         ws.send(Message::text(
@@ -107,6 +112,7 @@ fn a_foxglove_client_receives_the_live_channels_and_can_hold_the_run() {
             "nothing on {topic}: {counts:?}"
         );
     }
+    layout_names_only_what_the_server_offers(&schemas, &services);
     // >= 100 displacement messages per second of loop time, without gaps.
     let span = displacement_t.last().unwrap() - displacement_t.first().unwrap();
     let rate = displacement_t.len() as f64 / span;
@@ -140,6 +146,52 @@ fn a_foxglove_client_receives_the_live_channels_and_can_hold_the_run() {
         rig.iter().any(|r| r.state == rig_state::OPERATOR_HOLD),
         "the live view's hold is not in the records"
     );
+}
+
+/// The shipped Foxglove layout (`configs/foxglove-layout.json`) plots, lists and calls only
+/// what the live view advertised: every `/topic.field` path a field of that topic's
+/// schema, every topic and service one the server offered.
+fn layout_names_only_what_the_server_offers(
+    schemas: &std::collections::HashMap<String, String>,
+    services: &std::collections::HashMap<String, u64>,
+) {
+    let layout_path = concat!(env!("CARGO_MANIFEST_DIR"), "/configs/foxglove-layout.json");
+    let layout: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(layout_path).unwrap()).unwrap();
+    let mut checked = 0;
+    for (panel, config) in layout["configById"].as_object().unwrap() {
+        let paths = config["paths"].as_array().into_iter().flatten();
+        for path in paths.filter_map(|p| p["value"].as_str()) {
+            let (topic, field) = path.split_once('.').expect("a /topic.field path");
+            let schema: serde_json::Value = serde_json::from_str(
+                schemas
+                    .get(topic)
+                    .unwrap_or_else(|| panic!("{panel}: {topic} is not advertised")),
+            )
+            .unwrap();
+            assert!(
+                schema["properties"][field].is_object(),
+                "{panel}: {topic} has no field {field}: {schema}"
+            );
+            checked += 1;
+        }
+        if let Some(topic) = config["topicPath"].as_str() {
+            assert!(
+                schemas.contains_key(topic),
+                "{panel}: {topic} not advertised"
+            );
+            checked += 1;
+        }
+        if let Some(service) = config["serviceName"].as_str() {
+            assert!(
+                services.contains_key(service),
+                "{panel}: service {service} not offered: {services:?}"
+            );
+            checked += 1;
+        }
+    }
+    // Every panel of the layout was looked at (18 plotted fields, a topic, 3 services).
+    assert_eq!(checked, 22);
 }
 
 /// Starts `hil --live` on a port the OS picks; returns it, its guard and the address it
