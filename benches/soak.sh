@@ -16,9 +16,18 @@ CONFIG=${3:-configs/hil-durability.toml}
 EXE=target/release/fastemu
 [ -x "$EXE" ] || { echo "build first: cargo build --release" >&2; exit 1; }
 rm -rf "$OUT"; mkdir -p "$OUT"
-"$EXE" hil --config "$CONFIG" --duration-s "$DURATION" --json --out "$OUT/report" \
+# GNU time, when installed, gives hil's peak resident memory (the report's streaming
+# pass at the end included, which 10 s samples can miss).
+TIME=()
+[ -x /usr/bin/time ] && TIME=(/usr/bin/time -f %M -o "$OUT/hil.maxrss_kb")
+"${TIME[@]}" "$EXE" hil --config "$CONFIG" --duration-s "$DURATION" --json --out "$OUT/report" \
     > "$OUT/summary.json" 2> "$OUT/hil.err" &
-HIL=$!
+WRAPPER=$!
+HIL=$WRAPPER
+if [ ${#TIME[@]} -gt 0 ]; then
+  for _ in $(seq 50); do HIL=$(pgrep -P "$WRAPPER" || true); [ -n "$HIL" ] && break; sleep 0.1; done
+  HIL=${HIL:-$WRAPPER}
+fi
 echo "soak: $DURATION s, report in $OUT/report; memory samples in $OUT/rss.tsv" >&2
 printf 't_s\tprocess\trss_kb\n' > "$OUT/rss.tsv"
 START=$(date +%s)
@@ -33,7 +42,7 @@ while kill -0 "$HIL" 2>/dev/null; do
   [ -n "$rss" ] && printf '%s\thil\t%s\n' "$NOW" "$rss" >> "$OUT/rss.tsv"
   sleep 10
 done
-wait "$HIL" || echo "soak: hil exited with $?" >&2
+wait "$WRAPPER" || echo "soak: hil exited with $?" >&2
 python3 - "$OUT" "$DURATION" <<'PY'
 import json, os, sys, collections
 out, duration = sys.argv[1], float(sys.argv[2])
@@ -50,6 +59,9 @@ for p, v in sorted(rss.items()):
     after = [kb for t, kb in v if t > duration]
     report = f"; {max(after)/1024:.1f} MB while it builds the report" if after else ""
     print(f"  {p:22s} RSS at {t_first:4d} s {first/1024:6.1f} MB, at {t_last:4d} s {last/1024:6.1f} MB, change {(last-first)/1024:+.1f} MB{report}")
+maxrss = os.path.join(out, "hil.maxrss_kb")
+if os.path.exists(maxrss):
+    print(f"  hil's peak resident memory (GNU time): {int(open(maxrss).read().split()[-1])/1024:.1f} MB")
 steps = s["steps"]; misses = s["deadline_misses"]
 print(f"  model steps {steps}, emulator deadline misses {misses} ({misses/max(steps,1):.1e}), cycles run by its standby thread {s.get('emulator_standby_cycles', 0)}; rig deadline misses {s.get('deadline_misses_rig')}")
 st = s.get("stalls") or {}
