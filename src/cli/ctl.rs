@@ -186,8 +186,8 @@ pub fn run(args: CtlArgs) -> anyhow::Result<ExitCode> {
         if last.is_some_and(|hb| wanted.contains(&hb.state)) {
             let hb = last.expect("checked");
             println!(
-                "ctl: {:?} -> the rig is {} at t = {:.3} s (run {})",
-                args.action,
+                "ctl {}: done; rig state {} at t = {:.3} s (run {})",
+                format!("{:?}", args.action).to_lowercase(),
                 state_name(&hb),
                 hb.sequence as f64 / run.rate_hz,
                 run.run_id
@@ -198,8 +198,9 @@ pub fn run(args: CtlArgs) -> anyhow::Result<ExitCode> {
     }
     let seen = last.map_or("no heartbeat".to_string(), |hb| state_name(&hb));
     eprintln!(
-        "ctl: {:?} sent to run {}, but the rig did not confirm within 2 s (its state: {seen})",
-        args.action, run.run_id
+        "ctl {}: sent to run {}, but the rig did not confirm within 2 s (its state: {seen})",
+        format!("{:?}", args.action).to_lowercase(),
+        run.run_id
     );
     Ok(ExitCode::from(2))
 }

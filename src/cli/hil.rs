@@ -643,10 +643,13 @@ fn summarise(
     }
     if let Some(a) = analysis {
         eprintln!(
-            "hil: {} steps, {deadline_misses} deadline misses, {} stalls (longest {:.1} ms, largest transient {:.1} um), displacement rel. RMS error {:.3} %, stable {}, end-to-end p50 {} us p99 {} us",
+            "hil: {} steps, {deadline_misses} deadline misses ({:.1e}), {} stalls ridden through (longest {:.1} ms), largest transient {:.2} um of {:.1} um allowed ({:.2} um after a stall), displacement rel. RMS error {:.3} %, stable {}, end-to-end p50 {} us p99 {} us",
             a.steps,
+            deadline_misses as f64 / a.steps.max(1) as f64,
             a.stalls.count,
             a.stalls.longest_ms,
+            a.largest_transient_m * 1e6,
+            cfg.safety.max_transient_m * 1e6,
             a.stalls.largest_transient_m * 1e6,
             a.fidelity.displacement_rel_rms * 100.0,
             a.stability.stable,

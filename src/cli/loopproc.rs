@@ -108,7 +108,7 @@ pub fn run_emulator_command(args: LoopProcessArgs) -> anyhow::Result<ExitCode> {
         &args.out,
     )
     .context("emulator")?;
-    eprintln!(
+    say_line(format!(
         "emulator: {} cycles, {} model steps, {} stale cycles, {} missing samples, {} missed deadlines (longest stall {:.1} ms){}, {} records dropped{}",
         s.cycles,
         s.model_steps,
@@ -126,7 +126,7 @@ pub fn run_emulator_command(args: LoopProcessArgs) -> anyhow::Result<ExitCode> {
         },
         s.records.dropped,
         s.fault.as_ref().map_or(String::new(), |f| format!(", tripped: {f}"))
-    );
+    ));
     Ok(exit_code(s.fault.is_some()))
 }
 
@@ -141,7 +141,7 @@ pub fn run_controller_command(args: LoopProcessArgs) -> anyhow::Result<ExitCode>
         &args.out,
     )
     .context("controller")?;
-    eprintln!(
+    say_line(format!(
         "controller: {} commands ({} keep-alive repeats), {} limited, {} records dropped{}",
         s.commands,
         s.repeated_commands,
@@ -150,7 +150,7 @@ pub fn run_controller_command(args: LoopProcessArgs) -> anyhow::Result<ExitCode>
         s.fault
             .as_ref()
             .map_or(String::new(), |f| format!(", fault: {f}"))
-    );
+    ));
     Ok(exit_code(s.fault.is_some()))
 }
 
@@ -178,7 +178,7 @@ pub fn run_rig_command(args: RigArgs) -> anyhow::Result<ExitCode> {
         start_timeout,
     )
     .context("bench_rig")?;
-    eprintln!(
+    say_line(format!(
         "bench_rig: {} steps, {} missed deadlines, {} periods without a new command{}{}",
         s.steps,
         s.missed_deadlines,
@@ -199,7 +199,7 @@ pub fn run_rig_command(args: RigArgs) -> anyhow::Result<ExitCode> {
                 ", not at rest"
             }
         ))
-    );
+    ));
     Ok(exit_code(s.fault.is_some()))
 }
 
@@ -210,4 +210,12 @@ fn exit_code(faulted: bool) -> ExitCode {
     } else {
         ExitCode::SUCCESS
     }
+}
+
+/// Writes one line to stderr in a single write: the three loop processes end at the same
+/// moment and share `hil`'s stderr, and `eprintln!` writes piece by piece (their lines
+/// came out interleaved).
+fn say_line(line: String) {
+    use std::io::Write;
+    let _ = std::io::stderr().write_all(format!("{line}\n").as_bytes());
 }

@@ -97,10 +97,32 @@ pub fn clear_stale_runs() -> Vec<String> {
 }
 
 /// Clears the run's own state after all its processes were reaped; returns what was
-/// still left after iceoryx2's dead-node cleanup (removed as well).
+/// still left after iceoryx2's dead-node cleanup (removed as well), apart from iceoryx2's
+/// node counter (`*.global_mgmt`), which it keeps by design and which is removed too.
 pub fn clear_run(run_id: &str) -> Vec<PathBuf> {
     let _ = cleanup_dead_nodes(run_id);
-    let left = files_with_prefix(&file_prefix(run_id));
+    let mut left = files_with_prefix(&file_prefix(run_id));
     remove_paths(&left);
+    left.retain(|p| !p.to_string_lossy().ends_with(".global_mgmt"));
     left
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clear_run_removes_every_file_and_names_only_real_leftovers() {
+        // A run id no live orchestrator has (pid 0 never runs a hil).
+        let run_id = format!("fe0x{}", std::process::id());
+        let prefix = file_prefix(&run_id);
+        let leaked = PathBuf::from("/dev/shm").join(format!("{prefix}some_service.data"));
+        let counter = PathBuf::from("/dev/shm").join(format!("{prefix}node.0_10_0.global_mgmt"));
+        std::fs::write(&leaked, b"x").unwrap();
+        std::fs::write(&counter, b"x").unwrap();
+        let named = clear_run(&run_id);
+        assert_eq!(named, vec![leaked.clone()]);
+        assert!(!leaked.exists() && !counter.exists());
+        assert!(files_with_prefix(&prefix).is_empty());
+    }
 }
