@@ -29,7 +29,8 @@ pub struct HilArgs {
     /// Report directory (default `out/hil-<UTC timestamp>`).
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Overrides `[scenario] duration_s`.
+    /// Overrides `[scenario] duration_s`: programme time, s (it stands still while the rig
+    /// holds, so a run with an operator hold lasts longer in wall time).
     #[arg(long)]
     pub duration_s: Option<f64>,
     /// Also export the records as CSV (`rig.csv`, `emulator.csv`, `controller.csv`,

@@ -113,6 +113,8 @@ struct RawLoop {
     #[serde(default)]
     rig_cpus: Vec<usize>,
     #[serde(default)]
+    controller_cpus: Vec<usize>,
+    #[serde(default)]
     emulator_standby_cpus: Vec<usize>,
     #[serde(default)]
     emulator_standby_after_us: Option<f64>,
@@ -223,6 +225,8 @@ pub struct LoopConfig {
     pub fifo_priority: Option<i32>,
     pub emulator_cpus: Vec<usize>,
     pub rig_cpus: Vec<usize>,
+    /// The controller's thread (empty: any CPU the kernel picks).
+    pub controller_cpus: Vec<usize>,
     /// The emulator's standby loop thread: `None` = no standby.
     pub emulator_standby: Option<Standby>,
 }
@@ -882,6 +886,7 @@ fn parse_loop(check: &Check, l: &RawLoop) -> Result<LoopConfig, ConfigError> {
         fifo_priority: (l.fifo_priority > 0).then_some(l.fifo_priority),
         emulator_cpus: l.emulator_cpus.clone(),
         rig_cpus: l.rig_cpus.clone(),
+        controller_cpus: l.controller_cpus.clone(),
         emulator_standby,
     })
 }
@@ -1262,6 +1267,27 @@ mod tests {
         parse_hil_config(&text, "x.toml", None)
             .unwrap_err()
             .to_string()
+    }
+
+    #[test]
+    fn the_controller_sits_with_the_rig_and_the_standby_unless_left_to_the_kernel() {
+        let c = default_hil_config().unwrap();
+        let standby = c.loop_.emulator_standby.expect("the default has a standby");
+        assert_eq!(c.loop_.controller_cpus, c.loop_.rig_cpus);
+        assert_eq!(c.loop_.controller_cpus, standby.cpus);
+        assert!(!c
+            .loop_
+            .controller_cpus
+            .iter()
+            .any(|cpu| c.loop_.emulator_cpus.contains(cpu)));
+        let unpinned = DEFAULT_CONFIG_TOML.replace("controller_cpus = [0]", "");
+        let c = parse_hil_config(&unpinned, "x.toml", None).unwrap();
+        assert!(c.loop_.controller_cpus.is_empty());
+        let misspelt = error_with("controller_cpus = [0]", "controller_cpu = [0]");
+        assert!(
+            misspelt.contains("controller_cpu") && misspelt.contains("controller_cpus"),
+            "{misspelt}"
+        );
     }
 
     #[test]

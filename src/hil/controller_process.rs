@@ -59,7 +59,7 @@ pub fn run_controller(
     let records = builder.sink::<ControllerRecord>(cfg.loop_.record_queue_capacity);
     let events = builder.sink::<EventRecord>(256);
     let recorder = builder.spawn()?;
-    real_time_setup(cfg, &[], "controller");
+    real_time_setup(cfg, &cfg.loop_.controller_cpus, "controller");
     let start = wait_for_start(process_id::CONTROLLER, &heartbeat, &control)?;
     recorder.start(
         start.start_unix_ns,

@@ -334,6 +334,10 @@ fn tiny_run_reports_every_transport_and_writes_its_files() {
         for k in ["p50_ns", "p99_ns", "p999_ns", "max_ns"] {
             assert!(e2e[k].is_number(), "end_to_end.{k}");
         }
+        // The `hil` runs report under the bench's own directory, not in ./out.
+        for run in ["hil-iceoryx2", "hil-udp-link"] {
+            assert!(out.join(run).join("summary.json").is_file(), "{run}");
+        }
     }
     assert!(report["ratio_udp_over_iceoryx2_p99"].is_number());
     assert_eq!(report["message_bytes"], 56);

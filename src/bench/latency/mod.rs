@@ -296,8 +296,14 @@ pub fn run_latency_bench(
         .collect();
 
     // --- end-to-end from the real loop, on iceoryx2 and behind the UDP rig link ------
-    let hil_run = |extra: &[&str], progress: &mut dyn FnMut(&str)| match config.hil_duration_s {
+    // Each run's report directory goes under the bench's own output directory.
+    let hil_run = |extra: &[&str], report: &str, progress: &mut dyn FnMut(&str)| match config
+        .hil_duration_s
+    {
         Some(duration_s) => {
+            let report_dir = config.out_dir.join(report).display().to_string();
+            let mut extra = extra.to_vec();
+            extra.extend(["--out", &report_dir]);
             progress(&format!(
                 "end-to-end: `hil --json --duration-s {duration_s} {}`",
                 extra.join(" ")
@@ -306,7 +312,7 @@ pub fn run_latency_bench(
                 &config.exe,
                 duration_s,
                 Duration::from_secs_f64(duration_s + 60.0),
-                extra,
+                &extra,
             )
         }
         None => EndToEnd::Unavailable {
@@ -314,8 +320,8 @@ pub fn run_latency_bench(
             command: String::new(),
         },
     };
-    let end_to_end = hil_run(&[], &mut *progress);
-    let end_to_end_udp_link = hil_run(&["--rig-link", "udp"], &mut *progress);
+    let end_to_end = hil_run(&[], "hil-iceoryx2", &mut *progress);
+    let end_to_end_udp_link = hil_run(&["--rig-link", "udp"], "hil-udp-link", &mut *progress);
 
     let leftovers: Vec<String> = iceoryx2_shm_entries()
         .difference(&shm_before)
