@@ -1,6 +1,6 @@
 //! A small external rig written from `include/fastemu_rig.h` and the README alone: its own
 //! `#[repr(C)]` messages (none of fastemu's types), the iceoryx2 crate for
-//! `--ipc RUN_ID` (rig ABI 2) and std's UDP socket for `--udp BIND PEER` (link protocol 1).
+//! `--ipc RUN_ID` (rig ABI 3) and std's UDP socket for `--udp BIND PEER` (link protocol 2).
 //!
 //! The "hardware" is a mass on the actuator (`m x'' = P(t) - F - c x'`, P the external
 //! load programme: preload + harmonic, F the actuator force), integrated in sub-steps; its
@@ -96,6 +96,33 @@ struct Command {
     controller_state: u32,
     fault_code: u32,
     reserved: u32,
+    compensation: Compensation,
+}
+
+/// Header, `fastemu_compensation`: how a LAW command becomes the force command.
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[type_name("fastemu::Compensation")]
+#[repr(C)]
+struct Compensation {
+    lead_s: f64,
+    added_damping_ns_per_m: f64,
+    added_damping_corner_hz: f64,
+    gain: f64,
+    lead_order: u32,
+    reserved: u32,
+}
+
+impl Compensation {
+    /// Header, `fastemu_compensation_ok`.
+    fn ok(&self) -> bool {
+        (0.0..=0.02).contains(&self.lead_s)
+            && self.added_damping_ns_per_m >= 0.0
+            && self.added_damping_ns_per_m.is_finite()
+            && self.added_damping_corner_hz >= 0.0
+            && self.added_damping_corner_hz.is_finite()
+            && (0.25..=4.0).contains(&self.gain)
+            && self.lead_order <= 3
+    }
 }
 
 impl Command {
@@ -120,6 +147,7 @@ impl Command {
                 .iter()
                 .all(|x| x.is_finite())
                     && self.force_min_n <= self.force_max_n
+                    && (self.mode == MODE_FORCE || self.compensation.ok())
             }
             _ => false,
         }
@@ -360,13 +388,13 @@ impl Udp {
             let u32_at = |o: usize| u32::from_le_bytes(d[o..o + 4].try_into().unwrap());
             let u64_at = |o: usize| u64::from_le_bytes(d[o..o + 8].try_into().unwrap());
             let f64_at = |o: usize| f64::from_le_bytes(d[o..o + 8].try_into().unwrap());
-            if from != self.peer || len < 24 || &d[0..4] != b"FEMU" || u16_at(4) != 1 {
+            if from != self.peer || len < 24 || &d[0..4] != b"FEMU" || u16_at(4) != 2 {
                 self.rejected += 1;
                 continue;
             }
             let kind = u16_at(6);
             let size = match kind {
-                2 => 144,
+                2 => 184,
                 3 => 56,
                 _ => 0,
             };
@@ -384,6 +412,7 @@ impl Udp {
                                 && lo.is_finite()
                                 && hi.is_finite()
                                 && lo <= hi
+                                && (u32_at(120) == MODE_FORCE || compensation_at(d).ok())
                         }
                         _ => false,
                     },
@@ -418,6 +447,7 @@ impl Udp {
                     controller_state: u32_at(124),
                     fault_code: u32_at(128),
                     reserved: 0,
+                    compensation: compensation_at(d),
                 });
             } else {
                 let control_sequence = u64_at(32);
@@ -434,6 +464,19 @@ impl Udp {
             }
         }
         start
+    }
+}
+
+/// The compensation of a COMMAND datagram (offset 144).
+fn compensation_at(d: &[u8]) -> Compensation {
+    let f = |o: usize| f64::from_le_bytes(d[o..o + 8].try_into().unwrap());
+    Compensation {
+        lead_s: f(144),
+        added_damping_ns_per_m: f(152),
+        added_damping_corner_hz: f(160),
+        gain: f(168),
+        lead_order: u32::from_le_bytes(d[176..180].try_into().unwrap()),
+        reserved: 0,
     }
 }
 
@@ -578,9 +621,11 @@ fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
     // At rest in equilibrium with the load programme's first value, the actuator holding it.
     let (mut x, mut v) = (0.0f64, 0.0f64);
     let mut force = load_n(o, 0.0);
-    // Zero-order hold over one period: the law is evaluated half a period ahead.
-    let lead_s = 0.5 * dt;
-    let (wv, ws) = lead_weights(2, dt, lead_s);
+    // The prediction over the command's lead (header 2c, fastemu_compensated_force): its
+    // weights are recomputed when a command's lead or order changes.
+    let (mut wv, mut ws) = lead_weights(0, dt, 0.0);
+    let mut weights_for = (0.0f64, 0u32);
+    let mut v_lp = 0.0f64;
     let mut history = [0.0f64; 4];
     let mut command: Option<Command> = None;
     let mut last_command_k: Option<u64> = None;
@@ -711,12 +756,27 @@ fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
         } else {
             match &command {
                 Some(c) if c.mode == MODE_LAW => {
+                    let comp = &c.compensation;
+                    if (comp.lead_s, comp.lead_order) != weights_for {
+                        (wv, ws) = lead_weights(comp.lead_order as usize, dt, comp.lead_s);
+                        weights_for = (comp.lead_s, comp.lead_order);
+                    }
                     let z: f64 = (0..4).map(|i| wv[i] * history[i]).sum();
                     let zdot: f64 = (0..4).map(|i| ws[i] * history[i]).sum();
+                    let v_hp = if comp.added_damping_corner_hz > 0.0 {
+                        let a = 1.0
+                            - (-2.0 * std::f64::consts::PI * comp.added_damping_corner_hz * dt)
+                                .exp();
+                        v_lp += a * (zdot - v_lp);
+                        zdot - v_lp
+                    } else {
+                        v_lp = zdot;
+                        zdot
+                    };
                     let since = if c.sample_sequence == u64::MAX {
                         0.0
                     } else {
-                        ((k.saturating_sub(c.sample_sequence)) as f64 * dt + lead_s)
+                        ((k.saturating_sub(c.sample_sequence)) as f64 * dt + comp.lead_s)
                             .min(o.stale_periods as f64 * dt)
                     };
                     let l = &c.law;
@@ -724,8 +784,9 @@ fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
                     let f = l.force_n
                         + (l.stiffness_n_per_m + 0.5 * l.stiffness_slope_n_per_m2 * dz) * dz
                         + l.damping_ns_per_m * (zdot - l.velocity_m_per_s)
-                        + l.force_rate_n_per_s * since;
-                    f.max(c.force_min_n).min(c.force_max_n)
+                        + l.force_rate_n_per_s * since
+                        + comp.added_damping_ns_per_m * v_hp;
+                    f.max(c.force_min_n).min(c.force_max_n) / comp.gain
                 }
                 Some(c) if c.mode == MODE_FORCE => {
                     c.law.force_n.max(c.force_min_n).min(c.force_max_n)

@@ -1,8 +1,8 @@
 /*
  * fastemu_rig.h: the interface between fastemu and a rig it did not start.
  *
- *   rig ABI version 2   (iceoryx2 shared memory, same machine)
- *   link protocol 1     (UDP datagrams, any machine: Speedgoat, TwinCAT, VeriStand, a DAQ PC)
+ *   rig ABI version 3   (iceoryx2 shared memory, same machine)
+ *   link protocol 2     (UDP datagrams, any machine: Speedgoat, TwinCAT, VeriStand, a DAQ PC)
  *
  * Every layout below is checked against fastemu's Rust types by the test
  * tests/it/rig_header.rs (sizes and offsets of every field). Units are SI; displacement
@@ -55,15 +55,24 @@
  *            starting position with the load programme's change fed forward (a servo
  *            controller starts in displacement control), the programme running.
  *     FORCE  F = clamp(law.force_n, force_min_n, force_max_n), held until the next one.
- *     LAW    F = clamp(fastemu_law_evaluate(&law, z_L, v_L, since_s), force_min_n,
- *            force_max_n), re-evaluated every period with the rig's own measurement:
- *              z_L, v_L: displacement and velocity extrapolated over the rig's output
- *                delay L (half a period of zero-order hold + actuator transport delay +
- *                lag; fastemu's [rig] law_lead_us, 252 us by default) by the Lagrange
- *                polynomial of order n ([rig] law_lead_order, 2 by default) through the
- *                newest n+1 measurements: fastemu_lead_weights() below.
+ *     LAW    F = (clamp(fastemu_law_evaluate(&law, z_L, v_L, since_s) + D v_hp,
+ *            force_min_n, force_max_n)) / g, re-evaluated every period with the rig's own
+ *            measurement and the command's compensation (fastemu_compensated_force()
+ *            below does all of it):
+ *              z_L, v_L: displacement and velocity predicted over the command's lead
+ *                L = compensation.lead_s (the actuator's effective output delay as
+ *                fastemu's controller identified it: half a period of zero-order hold +
+ *                transport delay + lag; it changes while the controller learns) by the
+ *                Lagrange polynomial of order n = compensation.lead_order through the
+ *                newest n+1 measurements: fastemu_lead_weights() below (recompute when
+ *                L or n change).
  *              since_s = (k - command.sample_sequence) * T + L, at most the stale limit
  *                N * T (below); 0 when sample_sequence is UINT64_MAX.
+ *              D = compensation.added_damping_ns_per_m (the passivity guard, 0 while the
+ *                loop is passive), v_hp = v_L minus its first-order low-pass with corner
+ *                compensation.added_damping_corner_hz (updated every period; corner 0:
+ *                v_hp = v_L).
+ *              g = compensation.gain, the actuator's identified force per command.
  *     HOLD / HOLD_UNLOAD  position control: hold the displacement measured when the
  *            interlock latched (as a servo controller's interlock does), the load
  *            programme held; HOLD_UNLOAD: once the specimen is at rest, ramp the load
@@ -95,12 +104,13 @@
  * its length is exactly its kind's size. A receiver drops (and counts) datagrams with a
  * wrong length, magic, version or kind, from any other address, with content nobody may
  * act on (a START or STATUS with another period, an unknown run-control command, a
- * COMMAND with an unknown mode, a non-finite law or non-finite or unordered force limits;
+ * COMMAND with an unknown mode, a non-finite law or non-finite or unordered force limits,
+ * a LAW command whose compensation is out of range (fastemu_compensation_ok);
  * checked before the sequence, so a dropped datagram moves nothing), or whose sequence is
  * not newer than the newest accepted one of its kind (duplicates, reordering).
  *
  *   kind 1 SAMPLE   rig -> fastemu   88 bytes, one per period
- *   kind 2 COMMAND  fastemu -> rig  144 bytes, one per command
+ *   kind 2 COMMAND  fastemu -> rig  184 bytes, one per command
  *   kind 3 CONTROL  fastemu -> rig   56 bytes, run control (sent 3 times; START repeated
  *                                    every 5 ms until the first sample): act once per
  *                                    control_sequence
@@ -122,10 +132,11 @@
 #ifndef FASTEMU_RIG_H
 #define FASTEMU_RIG_H
 
+#include <math.h>
 #include <stdint.h>
 
-#define FASTEMU_RIG_ABI_VERSION 2u
-#define FASTEMU_LINK_VERSION 1u
+#define FASTEMU_RIG_ABI_VERSION 3u
+#define FASTEMU_LINK_VERSION 2u
 
 /* fastemu_displacement_sample.status */
 #define FASTEMU_SAMPLE_OK 0u          /* reading valid */
@@ -174,6 +185,7 @@
 #define FASTEMU_FAULT_TOO_MANY_STALE_SAMPLES 4u
 #define FASTEMU_FAULT_SENSOR_FAULT 5u
 #define FASTEMU_FAULT_EMULATOR_STALLED 6u
+#define FASTEMU_FAULT_LOOP_UNSTABLE 7u     /* the loop generated energy or oscillated */
 #define FASTEMU_FAULT_SETPOINTS_STALE 10u
 #define FASTEMU_FAULT_EMULATOR_HEARTBEAT_LOST 11u
 #define FASTEMU_FAULT_EMULATOR_TRIPPED 12u
@@ -209,7 +221,17 @@ typedef struct fastemu_local_law {
     double stiffness_slope_n_per_m2; /* 48  change of stiffness with displacement, N/m^2   */
 } fastemu_local_law;
 
-/* Controller -> rig, "fastemu::ActuatorCommand", 120 bytes. */
+/* How the rig turns a LAW command into its force command (2c), 40 bytes. */
+typedef struct fastemu_compensation {
+    double lead_s;                  /*  0  prediction horizon L, s (0 .. 0.02)              */
+    double added_damping_ns_per_m;  /*  8  guard damping D on v_hp, N s/m (>= 0)            */
+    double added_damping_corner_hz; /* 16  high-pass corner of v_hp, Hz (>= 0; 0: none)     */
+    double gain;                    /* 24  actuator force per command g (0.25 .. 4)         */
+    uint32_t lead_order;            /* 32  prediction polynomial order n (0-3)              */
+    uint32_t reserved;              /* 36                                                   */
+} fastemu_compensation;
+
+/* Controller -> rig, "fastemu::ActuatorCommand", 160 bytes. */
 typedef struct fastemu_actuator_command {
     uint64_t sequence;               /*   0  command counter (keep-alive repeats get new ones) */
     uint64_t setpoint_sequence;      /*   8  setpoint behind it (a repeat keeps it)            */
@@ -222,6 +244,7 @@ typedef struct fastemu_actuator_command {
     uint32_t controller_state;       /* 108  FASTEMU_CONTROLLER_*                              */
     uint32_t fault_code;             /* 112  the controller's latched fault, 0 none            */
     uint32_t reserved;               /* 116                                                    */
+    fastemu_compensation compensation; /* 120  LAW: lead, guard damping, gain (2c)            */
 } fastemu_actuator_command;
 
 /* Any process -> hil, "fastemu::Heartbeat", 32 bytes. */
@@ -273,7 +296,7 @@ typedef struct fastemu_link_sample {
     uint64_t echo_hold_ns;         /* 80  rig clock from reading that command to now        */
 } fastemu_link_sample;
 
-/* fastemu -> rig, 144 bytes: fastemu_actuator_command's content. */
+/* fastemu -> rig, 184 bytes: fastemu_actuator_command's content. */
 typedef struct fastemu_link_command {
     fastemu_link_header header;   /*   0                                                   */
     uint64_t command_sequence;    /*  24                                                   */
@@ -287,6 +310,7 @@ typedef struct fastemu_link_command {
     uint32_t fault_code;          /* 128                                                   */
     uint32_t reserved;            /* 132                                                   */
     uint64_t echo_sample_time_ns; /* 136  sender_time_ns of the newest sample fastemu got  */
+    fastemu_compensation compensation; /* 144  LAW: lead, guard damping, gain (2c)       */
 } fastemu_link_command;
 
 /* fastemu -> rig, 56 bytes. */
@@ -308,16 +332,17 @@ typedef struct fastemu_link_status {
 } fastemu_link_status;
 
 #if defined(__STDC_VERSION__) && __STDC_VERSION__ >= 201112L
-_Static_assert(sizeof(fastemu_displacement_sample) == 56, "rig ABI 2");
-_Static_assert(sizeof(fastemu_local_law) == 56, "rig ABI 2");
-_Static_assert(sizeof(fastemu_actuator_command) == 120, "rig ABI 2");
-_Static_assert(sizeof(fastemu_heartbeat) == 32, "rig ABI 2");
-_Static_assert(sizeof(fastemu_run_control) == 32, "rig ABI 2");
-_Static_assert(sizeof(fastemu_link_header) == 24, "link protocol 1");
-_Static_assert(sizeof(fastemu_link_sample) == 88, "link protocol 1");
-_Static_assert(sizeof(fastemu_link_command) == 144, "link protocol 1");
-_Static_assert(sizeof(fastemu_link_control) == 56, "link protocol 1");
-_Static_assert(sizeof(fastemu_link_status) == 40, "link protocol 1");
+_Static_assert(sizeof(fastemu_displacement_sample) == 56, "rig ABI 3");
+_Static_assert(sizeof(fastemu_local_law) == 56, "rig ABI 3");
+_Static_assert(sizeof(fastemu_compensation) == 40, "rig ABI 3");
+_Static_assert(sizeof(fastemu_actuator_command) == 160, "rig ABI 3");
+_Static_assert(sizeof(fastemu_heartbeat) == 32, "rig ABI 3");
+_Static_assert(sizeof(fastemu_run_control) == 32, "rig ABI 3");
+_Static_assert(sizeof(fastemu_link_header) == 24, "link protocol 2");
+_Static_assert(sizeof(fastemu_link_sample) == 88, "link protocol 2");
+_Static_assert(sizeof(fastemu_link_command) == 184, "link protocol 2");
+_Static_assert(sizeof(fastemu_link_control) == 56, "link protocol 2");
+_Static_assert(sizeof(fastemu_link_status) == 40, "link protocol 2");
 #endif
 
 /* The law's force at displacement z (m), velocity v (m/s), since_s after its sample:
@@ -334,7 +359,7 @@ static inline double fastemu_law_evaluate(const fastemu_local_law *law, double z
 /* Weights of the Lagrange polynomial through the newest order+1 measurements (newest
  * first, spacing h = T, nodes t_i = -i h) for its value and slope at `lead` (s) past the
  * newest: z_L = sum value[i] z_{k-i}, v_L = sum slope[i] z_{k-i}, i = 0..order (order
- * 0-3; unused weights are 0). Compute once at start: it depends on T and L only. */
+ * 0-3; unused weights are 0). Recompute when a command's lead or order changes. */
 static inline void fastemu_lead_weights(unsigned order, double h, double lead, double value[4],
                                         double slope[4]) {
     unsigned n = (order > 3 ? 3 : order) + 1, i, j, m;
@@ -359,6 +384,66 @@ static inline void fastemu_lead_weights(unsigned order, double h, double lead, d
         value[i] = li;
         slope[i] = d;
     }
+}
+
+/* Whether a LAW command's compensation may be acted on (else drop the command, 2b). */
+static inline int fastemu_compensation_ok(const fastemu_compensation *c) {
+    return c->lead_s >= 0.0 && c->lead_s <= 0.02 && c->added_damping_ns_per_m >= 0.0 &&
+           c->added_damping_ns_per_m <= 1e300 && c->added_damping_corner_hz >= 0.0 &&
+           c->added_damping_corner_hz <= 1e300 && c->gain >= 0.25 && c->gain <= 4.0 &&
+           c->lead_order <= 3; /* comparisons are false for NaN */
+}
+
+/* The rig's state for LAW commands: the newest four measurements and the guard's
+ * velocity low-pass. Zero it, then fill z[] with the starting displacement. */
+typedef struct fastemu_law_state {
+    double z[4];       /* newest first, m                                   */
+    double value[4];   /* fastemu_lead_weights for (order, lead) below      */
+    double slope[4];
+    double lead_s;     /* the lead the weights belong to (-1: none yet)     */
+    unsigned order;
+    double v_lp;       /* low-passed predicted velocity, m/s                */
+} fastemu_law_state;
+
+/* Every period k in LAW mode (2c): push the measurement z_k, then the force to command,
+ * N, for `cmd` (its law, limits and compensation) at period k with period T (s);
+ * stale_limit_s = N * T bounds since_s. Also call it (and ignore the result) in other
+ * modes so the state follows the measurement. */
+static inline double fastemu_compensated_force(fastemu_law_state *st,
+                                               const fastemu_actuator_command *cmd, double z_k,
+                                               uint64_t k, double T, double stale_limit_s) {
+    const fastemu_compensation *c = &cmd->compensation;
+    double zl = 0.0, vl = 0.0, since_s, v_hp, f;
+    unsigned i;
+    st->z[3] = st->z[2];
+    st->z[2] = st->z[1];
+    st->z[1] = st->z[0];
+    st->z[0] = z_k;
+    if (c->lead_s != st->lead_s || c->lead_order != st->order) {
+        fastemu_lead_weights(c->lead_order, T, c->lead_s, st->value, st->slope);
+        st->lead_s = c->lead_s;
+        st->order = c->lead_order;
+    }
+    for (i = 0; i < 4; i++) {
+        zl += st->value[i] * st->z[i];
+        vl += st->slope[i] * st->z[i];
+    }
+    if (c->added_damping_corner_hz > 0.0) {
+        double a = 1.0 - exp(-2.0 * 3.14159265358979323846 * c->added_damping_corner_hz * T);
+        st->v_lp += a * (vl - st->v_lp);
+        v_hp = vl - st->v_lp;
+    } else {
+        st->v_lp = vl;
+        v_hp = vl;
+    }
+    since_s = cmd->sample_sequence == UINT64_MAX
+                  ? 0.0
+                  : (double)(k - cmd->sample_sequence) * T + c->lead_s;
+    if (since_s > stale_limit_s) since_s = stale_limit_s;
+    f = fastemu_law_evaluate(&cmd->law, zl, vl, since_s) + c->added_damping_ns_per_m * v_hp;
+    if (f > cmd->force_max_n) f = cmd->force_max_n;
+    if (f < cmd->force_min_n) f = cmd->force_min_n;
+    return f / c->gain;
 }
 
 #endif /* FASTEMU_RIG_H */

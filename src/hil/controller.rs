@@ -19,12 +19,13 @@
 //!
 //! Must not: allocate, log, read a clock or do I/O (times come in as arguments).
 
+use super::compensation::{CompensationConfig, Compensator};
 use super::config::{CommandMode, ControllerConfig, LimitAction};
 use super::fault::{Fault, FaultAction, FaultActions};
-use crate::ipc::messages::process_id;
 use crate::ipc::messages::{
     command_mode, controller_state, emulator_state, ActuatorCommand, ForceSetpoint, LocalLaw,
 };
+use crate::ipc::messages::{process_id, rig_state, Compensation};
 use crate::record_type;
 use crate::records::event::{action_code, event_kind};
 use crate::records::EventRecord;
@@ -87,6 +88,20 @@ record_type! {
             repeat: u8,
             /// sample publish -> command publish, ns (0 for repeats and holds)
             end_to_end_ns: u64,
+            /// the rig's measured force at the setpoint's sample, N (NaN: none)
+            measured_force_n: f64,
+            /// compensation sent: the lead the rig predicts over, s
+            lead_s: f64,
+            /// compensation sent: the actuator gain the rig divides by
+            actuator_gain: f64,
+            /// compensation sent: the passivity guard's added damping, N s/m
+            guard_damping_ns_per_m: f64,
+            /// the guard's observer: energy generated above its band corner, J
+            guard_generated_j: f64,
+            /// the effective delay identified now (lead + residual), s (NaN: not yet)
+            identified_delay_s: f64,
+            /// its standard error, s
+            identified_delay_sigma_s: f64,
         }
     }
 }
@@ -149,6 +164,7 @@ pub struct ControllerCore {
     command_seq: u64,
     pub limited_commands: u64,
     pub repeated_commands: u64,
+    compensator: Compensator,
 }
 
 impl ControllerCore {
@@ -181,7 +197,21 @@ impl ControllerCore {
             command_seq: 0,
             limited_commands: 0,
             repeated_commands: 0,
+            compensator: Compensator::new(
+                CompensationConfig::with_initial_delay(0.0),
+                period_ns as f64 * 1e-9,
+            ),
         }
+    }
+
+    /// The compensation the controller sends with its law commands (`[compensation]`).
+    pub fn with_compensation(mut self, cfg: CompensationConfig) -> ControllerCore {
+        self.compensator = Compensator::new(cfg, self.period_s);
+        self
+    }
+
+    pub fn compensator(&self) -> &Compensator {
+        &self.compensator
     }
 
     /// The rig's first sample instant (`CLOCK_MONOTONIC`, ns): origin of the sample grid.
@@ -327,6 +357,13 @@ impl ControllerCore {
             (None, None) => (u64::MAX, u64::MAX, 0, f64::NAN),
         };
         let fault_code = self.trip.map_or(0, |t| t.fault.code());
+        let status = self.compensator.status();
+        let compensation = if mode == command_mode::LAW {
+            status.compensation
+        } else {
+            Compensation::NONE
+        };
+        let measured_force_n = sp.map_or(f64::NAN, |s| s.measured_force_n);
         let cmd = ActuatorCommand {
             sequence: self.command_seq,
             setpoint_sequence: setpoint_seq,
@@ -339,6 +376,7 @@ impl ControllerCore {
             controller_state: self.state(),
             fault_code,
             reserved: 0,
+            compensation,
         };
         let rec = ControllerRecord {
             t_s: now_ns.saturating_sub(self.start_time_ns) as f64 * 1e-9,
@@ -358,6 +396,13 @@ impl ControllerCore {
             limited: u8::from(limited),
             repeat: u8::from(repeat),
             end_to_end_ns: e2e_ns,
+            measured_force_n,
+            lead_s: compensation.lead_s,
+            actuator_gain: compensation.gain,
+            guard_damping_ns_per_m: compensation.added_damping_ns_per_m,
+            guard_generated_j: status.guard.generated_j,
+            identified_delay_s: status.identified_delay_s,
+            identified_delay_sigma_s: status.identified_delay_sigma_s,
         };
         self.command_seq += 1;
         self.last_sent_ns = Some(now_ns);
@@ -414,6 +459,16 @@ impl ControllerCore {
         let e2e = now_ns.saturating_sub(sp.sample_publish_time_ns);
         match self.cfg.command_mode {
             CommandMode::Law => {
+                if sp.rig_state == rig_state::RUNNING {
+                    self.compensator.on_sample(
+                        sp.sample_sequence,
+                        sp.law.displacement_m,
+                        sp.law.force_n,
+                        sp.measured_force_n,
+                    );
+                } else {
+                    self.compensator.pause();
+                }
                 let (force, limited) = self.limit(sp.law.force_n, now_ns);
                 if self.holding() {
                     return Some(self.hold_command(now_ns));

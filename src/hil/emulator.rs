@@ -10,8 +10,10 @@
 
 use super::config::{EmulatorConfig, LoopConfig};
 use super::fault::Fault;
+use super::passivity::{StabilityBounds, StabilityMonitor};
 use crate::ipc::messages::{
-    emulator_state, process_id, sample_status, DisplacementSample, ForceSetpoint, LocalLaw,
+    emulator_state, process_id, rig_state, sample_status, DisplacementSample, ForceSetpoint,
+    LocalLaw,
 };
 use crate::model::effects::{AugmentedModel, ModelStepper, StepperMode};
 use crate::record_type;
@@ -64,6 +66,10 @@ record_type! {
             rig_state: u32,
             /// the rig's latched fault code in the sample, 0 none
             rig_fault_code: u32,
+            /// stability monitor: energy the loop generated above its band, J (0 while not monitored)
+            generated_energy_j: f64,
+            /// stability monitor: the displacement's oscillation above its band, m
+            oscillation_m: f64,
         }
     }
 }
@@ -133,6 +139,8 @@ pub struct EmulatorCore {
     setpoint_seq: u64,
     step_idx: u64,
     flags: u32,
+    /// The online stability monitor (`loop-unstable`).
+    monitor: StabilityMonitor,
     pub counts: EmulatorCounts,
 }
 
@@ -163,8 +171,19 @@ impl EmulatorCore {
             setpoint_seq: 0,
             step_idx: 0,
             flags: 0,
+            monitor: StabilityMonitor::new(StabilityBounds::DEFAULT, loop_.dt_s()),
             counts: EmulatorCounts::default(),
         }
+    }
+
+    /// The stability monitor's bounds (`[safety]`).
+    pub fn with_stability_bounds(mut self, bounds: StabilityBounds) -> EmulatorCore {
+        self.monitor = StabilityMonitor::new(bounds, self.dt_s);
+        self
+    }
+
+    pub fn monitor(&self) -> &StabilityMonitor {
+        &self.monitor
     }
 
     pub fn fault(&self) -> Option<Fault> {
@@ -237,6 +256,14 @@ impl EmulatorCore {
         self.flags = flags.0 as u32;
         let law = self.stepper.local_law();
         self.counts.model_steps += 1;
+        // The monitor follows the loop while the rig renders the element (force control);
+        // an interpolated step (no measurement) or a hold restarts it.
+        if interpolated || rig.state != rig_state::RUNNING {
+            self.monitor.restart();
+        } else if self.fault.is_none() && self.monitor.update(z_m, force, rig.force_n).is_some() {
+            self.fault = Some(Fault::LoopUnstable);
+        }
+        let energy = self.monitor.state();
         record(EmulatorRecord {
             t_s: sample_seq as f64 * self.dt_s,
             step_idx: self.step_idx,
@@ -253,6 +280,8 @@ impl EmulatorCore {
             rig_force_n: if interpolated { f64::NAN } else { rig.force_n },
             rig_state: rig.state,
             rig_fault_code: rig.fault_code,
+            generated_energy_j: energy.generated_high_j,
+            oscillation_m: energy.oscillation_m,
         });
         self.step_idx += 1;
     }
@@ -376,7 +405,10 @@ impl EmulatorCore {
                 emulator_state: self.state(),
                 fault_code: self.fault.map_or(0, Fault::code),
                 model_flags: self.flags,
-                reserved: 0,
+                rig_state: self
+                    .last_sample
+                    .map_or(rig_state::STARTING, |s| s.rig_state),
+                measured_force_n: self.last_sample.map_or(f64::NAN, |s| s.actuator_force_n),
             });
             self.setpoint_seq += 1;
         }

@@ -282,7 +282,8 @@ pub fn run_emulator(
         emulator_state: emulator_state::STOPPED,
         fault_code: core.fault().map_or(0, Fault::code),
         model_flags: 0,
-        reserved: 0,
+        rig_state: 0,
+        measured_force_n: f64::NAN,
     });
     wake.notify();
     heartbeat.publish(Heartbeat {

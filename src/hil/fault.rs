@@ -20,6 +20,9 @@ pub enum Fault {
     SensorFault = 5,
     /// Emulator: its own loop woke later than the stall limit (it was stopped or starved).
     EmulatorStalled = 6,
+    /// Emulator: the loop generates energy or oscillates beyond its bound
+    /// (`StabilityMonitor`: the passivity observer's energy, the resonant oscillation).
+    LoopUnstable = 7,
     /// Controller: no new setpoint for longer than the stall limit (emulator dead or stalled).
     SetpointsStale = 10,
     /// Controller: the emulator's heartbeat stopped.
@@ -96,13 +99,14 @@ impl FaultAction {
     }
 }
 
-const ALL_FAULTS: [Fault; 14] = [
+const ALL_FAULTS: [Fault; 15] = [
     Fault::NonFiniteSample,
     Fault::DisplacementOutOfRange,
     Fault::SequenceBackwards,
     Fault::TooManyStaleSamples,
     Fault::SensorFault,
     Fault::EmulatorStalled,
+    Fault::LoopUnstable,
     Fault::SetpointsStale,
     Fault::EmulatorHeartbeatLost,
     Fault::EmulatorTripped,
@@ -141,6 +145,7 @@ impl Fault {
             Fault::TooManyStaleSamples => "too-many-stale-samples",
             Fault::SensorFault => "sensor-fault",
             Fault::EmulatorStalled => "emulator-stalled",
+            Fault::LoopUnstable => "loop-unstable",
             Fault::SetpointsStale => "setpoints-stale",
             Fault::EmulatorHeartbeatLost => "emulator-heartbeat-lost",
             Fault::EmulatorTripped => "emulator-tripped",

@@ -5,6 +5,7 @@
 //! Must not: import iceoryx2 (only `ipc/` does); allocate, log or do I/O in the loop
 //! iterations (`EmulatorCore::cycle`, `ControllerCore::on_*`).
 
+pub mod compensation;
 pub mod config;
 pub mod controller;
 pub mod controller_process;
@@ -13,6 +14,7 @@ pub mod emulator_process;
 pub mod fault;
 pub mod inproc;
 pub mod orchestrator;
+pub mod passivity;
 pub mod process;
 pub mod registry;
 pub mod report;

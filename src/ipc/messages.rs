@@ -13,7 +13,9 @@ use iceoryx2::prelude::ZeroCopySend;
 
 /// Version of the message layouts and their meaning; bumped on any change.
 /// 2: `DisplacementSample` carries the rig's measured force, state and latched fault.
-pub const ABI_VERSION: u32 = 2;
+/// 3: `ActuatorCommand` carries the controller's `Compensation` (output lead, actuator
+/// gain, guard damping): the rig no longer has a lead of its own.
+pub const ABI_VERSION: u32 = 3;
 
 /// Status of a displacement sample (`DisplacementSample::status`).
 pub mod sample_status {
@@ -166,7 +168,12 @@ pub struct ForceSetpoint {
     pub fault_code: u32,
     /// Model step flags (`StepFlags` bits).
     pub model_flags: u32,
-    pub reserved: u32,
+    /// The rig's state in that sample (`rig_state`): the controller learns the actuator
+    /// only while the rig is in force control.
+    pub rig_state: u32,
+    /// The force the rig measured at that sample (its `actuator_force_n`), N; NaN when the
+    /// rig does not measure it. The controller learns the actuator from it.
+    pub measured_force_n: f64,
 }
 
 /// What the actuator side does with an `ActuatorCommand` (`ActuatorCommand::mode`).
@@ -212,6 +219,85 @@ pub struct ActuatorCommand {
     /// Latched fault code, 0 if none.
     pub fault_code: u32,
     pub reserved: u32,
+    /// How the actuator side turns the law into its force command (`LAW` mode).
+    pub compensation: Compensation,
+}
+
+/// The controller's compensation of the actuator, sent with every command (ABI 3): the
+/// actuator side, every period in `LAW` mode, predicts its displacement and velocity
+/// `lead_s` ahead (Lagrange polynomial of order `lead_order` through its newest
+/// `lead_order + 1` measurements), evaluates the law there, adds
+/// `added_damping_ns_per_m` times the high-passed velocity (first-order high-pass with
+/// corner `added_damping_corner_hz`; 0 = the whole velocity), clamps to the command's
+/// limits and divides by `gain` (the actuator's identified force per commanded force):
+///
+/// `u = clamp(law(z(t + lead), v(t + lead)) - D v_hp(t + lead), min, max) / gain`.
+///
+/// The added damping opposes the specimen's velocity: it pushes like the element's own
+/// damping (force positive in compression, so `+ D v` in the element's reaction).
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("fastemu::Compensation")]
+#[repr(C)]
+pub struct Compensation {
+    /// Prediction horizon: the actuator's effective output delay (zero-order hold,
+    /// transport, lag) as the controller identified it, s; 0..=`MAX_LEAD_S`.
+    pub lead_s: f64,
+    /// Damping the passivity guard adds while the loop generates energy, N s/m (>= 0).
+    pub added_damping_ns_per_m: f64,
+    /// Corner of the first-order high-pass on the velocity the added damping acts on, Hz
+    /// (>= 0; 0 = no high-pass). It keeps the guard out of the band that carries the load.
+    pub added_damping_corner_hz: f64,
+    /// The actuator's force per commanded force, as identified (`MIN_GAIN..=MAX_GAIN`).
+    pub gain: f64,
+    /// Order of the prediction polynomial, 0-3.
+    pub lead_order: u32,
+    pub reserved: u32,
+}
+
+impl Compensation {
+    /// Longest prediction a rig accepts, s.
+    pub const MAX_LEAD_S: f64 = 0.02;
+    pub const MIN_GAIN: f64 = 0.25;
+    pub const MAX_GAIN: f64 = 4.0;
+
+    /// No compensation: the law at the newest measurement, unit gain, no added damping.
+    pub const NONE: Compensation = Compensation {
+        lead_s: 0.0,
+        added_damping_ns_per_m: 0.0,
+        added_damping_corner_hz: 0.0,
+        gain: 1.0,
+        lead_order: 0,
+        reserved: 0,
+    };
+
+    /// A plain lead of `lead_s` with a polynomial of `order`.
+    pub fn lead(lead_s: f64, order: u32) -> Compensation {
+        Compensation {
+            lead_s,
+            lead_order: order,
+            ..Compensation::NONE
+        }
+    }
+
+    /// Whether a rig may act on it: finite, within the documented ranges.
+    #[inline]
+    pub fn is_valid(&self) -> bool {
+        self.lead_s.is_finite()
+            && (0.0..=Self::MAX_LEAD_S).contains(&self.lead_s)
+            && self.added_damping_ns_per_m.is_finite()
+            && self.added_damping_ns_per_m >= 0.0
+            && self.added_damping_corner_hz.is_finite()
+            && self.added_damping_corner_hz >= 0.0
+            && self.gain.is_finite()
+            && (Self::MIN_GAIN..=Self::MAX_GAIN).contains(&self.gain)
+            && self.lead_order <= 3
+    }
+}
+
+impl Default for Compensation {
+    fn default() -> Compensation {
+        Compensation::NONE
+    }
 }
 
 impl ActuatorCommand {
@@ -237,7 +323,8 @@ impl ActuatorCommand {
         .iter()
         .all(|x| x.is_finite());
         match self.mode {
-            command_mode::FORCE | command_mode::LAW => limits && law,
+            command_mode::FORCE => limits && law,
+            command_mode::LAW => limits && law && self.compensation.is_valid(),
             command_mode::HOLD | command_mode::HOLD_UNLOAD => true,
             _ => false,
         }

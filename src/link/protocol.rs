@@ -13,12 +13,12 @@
 
 use std::fmt;
 
-use crate::ipc::messages::{ActuatorCommand, DisplacementSample, LocalLaw};
+use crate::ipc::messages::{ActuatorCommand, Compensation, DisplacementSample, LocalLaw};
 
 /// First four bytes of every datagram.
 pub const MAGIC: [u8; 4] = *b"FEMU";
 /// Version of the datagram layouts and their meaning; bumped on any change.
-pub const LINK_VERSION: u16 = 1;
+pub const LINK_VERSION: u16 = 2;
 /// Bytes of the common header.
 pub const HEADER_BYTES: usize = 24;
 
@@ -36,7 +36,7 @@ pub mod kind {
 
 /// Size of each kind's datagram, bytes (a datagram of any other length is rejected).
 pub const SAMPLE_BYTES: usize = 88;
-pub const COMMAND_BYTES: usize = 144;
+pub const COMMAND_BYTES: usize = 184;
 pub const CONTROL_BYTES: usize = 56;
 pub const STATUS_BYTES: usize = 40;
 /// The largest datagram of the protocol.
@@ -374,6 +374,13 @@ pub fn encode_command(
     p.u32(c.fault_code);
     p.u32(0);
     p.u64(d.echo_sample_time_ns);
+    let k = &c.compensation;
+    p.f64(k.lead_s);
+    p.f64(k.added_damping_ns_per_m);
+    p.f64(k.added_damping_corner_hz);
+    p.f64(k.gain);
+    p.u32(k.lead_order);
+    p.u32(0);
     debug_assert_eq!(p.at, COMMAND_BYTES);
     COMMAND_BYTES
 }
@@ -496,6 +503,15 @@ pub fn decode(bytes: &[u8], side: Side) -> Result<(Header, Datagram), Reject> {
             let controller_state = g.u32();
             let fault_code = g.u32();
             let _reserved = g.u32();
+            let echo_sample_time_ns = g.u64();
+            let compensation = Compensation {
+                lead_s: g.f64(),
+                added_damping_ns_per_m: g.f64(),
+                added_damping_corner_hz: g.f64(),
+                gain: g.f64(),
+                lead_order: g.u32(),
+                reserved: 0,
+            };
             Datagram::Command(CommandDatagram {
                 command: ActuatorCommand {
                     sequence,
@@ -509,8 +525,9 @@ pub fn decode(bytes: &[u8], side: Side) -> Result<(Header, Datagram), Reject> {
                     controller_state,
                     fault_code,
                     reserved: 0,
+                    compensation,
                 },
-                echo_sample_time_ns: g.u64(),
+                echo_sample_time_ns,
             })
         }
         kind::CONTROL => {
@@ -573,6 +590,14 @@ mod tests {
                 controller_state: controller_state::RUNNING,
                 fault_code: 0,
                 reserved: 0,
+                compensation: Compensation {
+                    lead_s: 2.52e-4,
+                    added_damping_ns_per_m: 1.5e3,
+                    added_damping_corner_hz: 60.0,
+                    gain: 0.97,
+                    lead_order: 2,
+                    reserved: 0,
+                },
             },
             echo_sample_time_ns: 5,
         }

@@ -2,9 +2,11 @@
 //! calculated channel, a Speedgoat or dSPACE model) runs every actuator period.
 //!
 //! - `LAW` commands: applies the element's local linear law with the rig's own
-//!   displacement measurement, extrapolated over the actuator's output delay (zero-order
-//!   hold, transport delay, lag), so neither the loop's delay nor a short stall of the
-//!   loop leaves the specimen on a constant force.
+//!   displacement measurement, predicted over the lead the command's `Compensation` names
+//!   (the controller's estimate of the actuator's output delay), plus the passivity
+//!   guard's damping on the high-passed velocity, divided by the identified actuator gain,
+//!   so neither the loop's delay nor a short stall of the loop leaves the specimen on a
+//!   constant force.
 //! - `FORCE` commands: applies the force (zero-order hold).
 //! - The interlock: stale commands, a hold command, a lost orchestrator or an operator
 //!   hold make it leave force control and hold the specimen's position where it tripped
@@ -22,9 +24,13 @@ const REST_WINDOW_MAX: usize = 1024;
 
 /// Weights of a Lagrange polynomial through the newest `order + 1` equally spaced samples
 /// (newest first, spacing `h`) for its value and slope at `lead` past the newest sample.
+/// Allocation-free: the servo recomputes them when a command's lead changes.
 pub fn lead_weights(order: usize, h: f64, lead: f64) -> ([f64; 4], [f64; 4]) {
     let n = order.min(3) + 1;
-    let t: Vec<f64> = (0..n).map(|i| -(i as f64) * h).collect();
+    let mut t = [0.0; 4];
+    for (i, ti) in t.iter_mut().enumerate().take(n) {
+        *ti = -(i as f64) * h;
+    }
     let mut value = [0.0; 4];
     let mut slope = [0.0; 4];
     for i in 0..n {
@@ -159,6 +165,10 @@ pub struct Servo {
     cfg: ServoConfig,
     value_weights: [f64; 4],
     slope_weights: [f64; 4],
+    /// The (lead, order) the weights were computed for.
+    weights_for: (f64, u32),
+    /// Low-passed predicted velocity (the guard's damping acts on the rest), m/s.
+    velocity_lp_m_per_s: f64,
     /// Measured displacements, newest first.
     z_history_m: [f64; 4],
     command: Option<ActuatorCommand>,
@@ -193,14 +203,15 @@ impl Servo {
     /// A servo at rest at measured displacement `z0_m` under the load `force0_n`, holding
     /// that position (with `force0_n` fed forward) until the first command arrives.
     pub fn new(cfg: ServoConfig, z0_m: f64, force0_n: f64) -> Servo {
-        let (value_weights, slope_weights) =
-            lead_weights(cfg.law_lead_order, cfg.period_s, cfg.law_lead_s);
+        let (value_weights, slope_weights) = lead_weights(0, cfg.period_s, 0.0);
         let rest_len =
             ((cfg.rest_window_s / cfg.period_s).round() as usize).clamp(2, REST_WINDOW_MAX);
         Servo {
             cfg,
             value_weights,
             slope_weights,
+            weights_for: (0.0, 0),
+            velocity_lp_m_per_s: 0.0,
             z_history_m: [z0_m; 4],
             command: None,
             last_command_step: None,
@@ -293,6 +304,14 @@ impl Servo {
                 self.latch(Fault::HoldRequested, cmd.fault_code, step_idx, age, action);
             }
             _ => {
+                let c = &cmd.compensation;
+                if (c.lead_s, c.lead_order) != self.weights_for {
+                    let (value, slope) =
+                        lead_weights(c.lead_order as usize, self.cfg.period_s, c.lead_s);
+                    self.value_weights = value;
+                    self.slope_weights = slope;
+                    self.weights_for = (c.lead_s, c.lead_order);
+                }
                 self.command = Some(*cmd);
                 if matches!(self.phase, Phase::Awaiting) {
                     self.phase = Phase::Force;
@@ -413,15 +432,24 @@ impl Servo {
         hi - lo
     }
 
-    /// The law's force with the displacement extrapolated over the output delay.
+    /// The displacement and velocity predicted over the command's lead.
     #[inline]
-    fn law_force_n(&self, cmd: &ActuatorCommand) -> f64 {
+    fn predicted(&self) -> (f64, f64) {
         let mut z = 0.0;
         let mut v = 0.0;
         for i in 0..4 {
             z += self.value_weights[i] * self.z_history_m[i];
             v += self.slope_weights[i] * self.z_history_m[i];
         }
+        (z, v)
+    }
+
+    /// The law's force at the displacement predicted over the command's lead, plus the
+    /// guard's damping, clamped, divided by the actuator's identified gain.
+    #[inline]
+    fn law_force_n(&self, cmd: &ActuatorCommand) -> f64 {
+        let (z, v) = self.predicted();
+        let c = &cmd.compensation;
         // Time since the law's sample, at the instant the force will act. The rate term
         // is a first-order relaxation: valid for a stall's length, not for ever, so it
         // stops growing at the rig's own stale-command limit.
@@ -430,13 +458,32 @@ impl Servo {
             0.0
         } else {
             (self.step_idx.saturating_sub(cmd.sample_sequence) as f64 * self.cfg.period_s
-                + self.cfg.law_lead_s)
+                + c.lead_s)
                 .min(horizon_s)
         };
-        cmd.law
-            .evaluate(z, v, since_s)
-            .max(cmd.force_min_n)
-            .min(cmd.force_max_n)
+        let v_hp = if c.added_damping_corner_hz > 0.0 {
+            v - self.velocity_lp_m_per_s
+        } else {
+            v
+        };
+        let force = cmd.law.evaluate(z, v, since_s) + c.added_damping_ns_per_m * v_hp;
+        force.max(cmd.force_min_n).min(cmd.force_max_n) / c.gain
+    }
+
+    /// Advances the guard's velocity low-pass by one period (corner from the command).
+    #[inline]
+    fn update_velocity_filter(&mut self) {
+        let corner_hz = self
+            .command
+            .as_ref()
+            .map_or(0.0, |c| c.compensation.added_damping_corner_hz);
+        let (_, v) = self.predicted();
+        if corner_hz > 0.0 {
+            let a = 1.0 - (-2.0 * std::f64::consts::PI * corner_hz * self.cfg.period_s).exp();
+            self.velocity_lp_m_per_s += a * (v - self.velocity_lp_m_per_s);
+        } else {
+            self.velocity_lp_m_per_s = v;
+        }
     }
 
     #[inline]
@@ -479,6 +526,7 @@ impl Servo {
         ];
         self.push_rest(z_measured_m);
         self.step_idx = step_idx;
+        self.update_velocity_filter();
         // The rig's own interlock: commands stopped (controller dead or stalled, link
         // lost), or never came. Armed from sample 0 (the run's start): the loop was ready
         // before the start, so its first command is due within a few periods, and a rig

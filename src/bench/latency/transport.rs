@@ -118,6 +118,7 @@ fn answer(sample: &SampleDatagram, sample_time_ns: u64) -> CommandDatagram {
             controller_state: controller_state::RUNNING,
             fault_code: 0,
             reserved: 0,
+            compensation: crate::ipc::messages::Compensation::lead(2.52e-4, 2),
         },
         echo_sample_time_ns: sample_time_ns,
     }

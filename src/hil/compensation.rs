@@ -1,0 +1,477 @@
+//! The controller's compensation of the actuator (SPEC 6.1), sent with every command as a
+//! `Compensation`: the lead the rig predicts its displacement over, the actuator gain it
+//! divides by, and the passivity guard's damping.
+//!
+//! - `DelayEstimator`: learns the actuator's effective delay and gain online from the force
+//!   the rig measured against the element's force at the same sample (the adaptive time
+//!   series compensator's idea, Chae et al. 2013): both low-passed to the load band, the
+//!   measured force regressed on the element force and its rate by exponentially weighted
+//!   least squares (`F_meas ~ a F + b dF/dt`: residual gain `a`, residual delay `-b/a`),
+//!   and the lead and gain moved towards the estimate smoothly, with bounded steps.
+//! - `PassivityGuard`: a passivity observer (`hil::passivity`) above the load band and a
+//!   variable damper that adds damping there only while the loop has generated energy
+//!   (Hannaford and Ryu 2002), released slowly once the energy is gone.
+//!
+//! Must not: allocate, lock, log, read a clock or do I/O (runs per setpoint in the
+//! controller's loop); same setpoint stream gives the same compensation bit for bit.
+
+use super::passivity::{LowPass2, PassivityObserver};
+use crate::ipc::messages::Compensation;
+
+/// `[compensation]`: the controller's settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CompensationConfig {
+    /// The starting lead (the actuator's effective output delay as first guessed), s.
+    pub initial_delay_s: f64,
+    /// Prediction polynomial order (0-3).
+    pub lead_order: u32,
+    /// Learn the delay and gain during the run.
+    pub adapt: bool,
+    /// Add damping above the load band while the loop generates energy.
+    pub passivity_guard: bool,
+    /// Largest lead the adaptation may reach, s.
+    pub max_delay_s: f64,
+    /// Low-pass corner of the estimator's regression (the band the lead is right in), Hz.
+    pub estimator_band_hz: f64,
+    /// Memory of the estimator's least squares, s.
+    pub estimator_memory_s: f64,
+    /// Time constant with which the lead and gain follow the estimate, s.
+    pub adapt_time_s: f64,
+    /// Corner above which the guard observes energy and adds damping, Hz.
+    pub guard_band_hz: f64,
+    /// Energy generated above the corner at which the guard's damping is full, J.
+    pub guard_full_energy_j: f64,
+    /// Largest damping the guard adds, N s/m.
+    pub guard_max_damping_ns_per_m: f64,
+    /// Time constant of the guard's release once the energy is gone, s.
+    pub guard_release_s: f64,
+}
+
+impl CompensationConfig {
+    /// The shipped settings around a starting guess.
+    pub fn with_initial_delay(initial_delay_s: f64) -> CompensationConfig {
+        CompensationConfig {
+            initial_delay_s,
+            lead_order: 2,
+            adapt: true,
+            passivity_guard: true,
+            max_delay_s: 0.01,
+            estimator_band_hz: 30.0,
+            estimator_memory_s: 0.25,
+            adapt_time_s: 0.3,
+            guard_band_hz: 60.0,
+            guard_full_energy_j: 0.002,
+            guard_max_damping_ns_per_m: 40.0e3,
+            guard_release_s: 0.5,
+        }
+    }
+}
+
+impl CompensationConfig {
+    /// The run's compensation settings.
+    pub fn of(cfg: &super::config::HilConfig) -> CompensationConfig {
+        let mut c = CompensationConfig::with_initial_delay(cfg.rig.law_lead_s);
+        c.lead_order = cfg.rig.law_lead_order;
+        c
+    }
+}
+
+/// The estimator's view after a sample.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct DelayEstimate {
+    /// Residual delay of the rendered force behind the element's (the lead is short by
+    /// this), s.
+    pub residual_delay_s: f64,
+    /// Its standard error, s (infinite until the data carry it).
+    pub residual_delay_sigma_s: f64,
+    /// Rendered force per element force in the load band.
+    pub residual_gain: f64,
+}
+
+/// Exponentially weighted least squares of `y ~ a x + b xdot` on load-band signals.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DelayEstimator {
+    /// Two cascaded second-order low-passes per signal (fourth order): the resonance's
+    /// content, which the rate regressor would weigh by its frequency, is kept out.
+    lp_element: [LowPass2; 2],
+    lp_measured: [LowPass2; 2],
+    forget: f64,
+    dt_s: f64,
+    last_x: f64,
+    primed: bool,
+    /// Weighted sums: xx, xd, dd, xy, dy, yy, and the weight.
+    s: [f64; 7],
+}
+
+impl DelayEstimator {
+    pub fn new(band_hz: f64, memory_s: f64, dt_s: f64) -> DelayEstimator {
+        DelayEstimator {
+            lp_element: [LowPass2::new(band_hz, dt_s); 2],
+            lp_measured: [LowPass2::new(band_hz, dt_s); 2],
+            forget: (-dt_s / memory_s).exp(),
+            dt_s,
+            last_x: 0.0,
+            primed: false,
+            s: [0.0; 7],
+        }
+    }
+
+    /// Forgets the filters' state (a gap in the samples); the sums decay as usual.
+    pub fn restart(&mut self) {
+        self.primed = false;
+    }
+
+    /// One consecutive rig sample; `None` until the regression is determined.
+    #[inline]
+    pub fn update(&mut self, element_force_n: f64, measured_force_n: f64) -> Option<DelayEstimate> {
+        if !(element_force_n.is_finite() && measured_force_n.is_finite()) {
+            self.restart();
+            return None;
+        }
+        if !self.primed {
+            for f in &mut self.lp_element {
+                f.reset(element_force_n);
+            }
+            for f in &mut self.lp_measured {
+                f.reset(measured_force_n);
+            }
+            self.last_x = element_force_n;
+            self.primed = true;
+            return None;
+        }
+        let x = self.lp_element[0].step(element_force_n);
+        let x = self.lp_element[1].step(x);
+        let y = self.lp_measured[0].step(measured_force_n);
+        let y = self.lp_measured[1].step(y);
+        let d = (x - self.last_x) / self.dt_s;
+        self.last_x = x;
+        let l = self.forget;
+        let s = &mut self.s;
+        s[0] = l * s[0] + x * x;
+        s[1] = l * s[1] + x * d;
+        s[2] = l * s[2] + d * d;
+        s[3] = l * s[3] + x * y;
+        s[4] = l * s[4] + d * y;
+        s[5] = l * s[5] + y * y;
+        s[6] = l * s[6] + 1.0;
+        let det = s[0] * s[2] - s[1] * s[1];
+        if !(det > 1e-12 * s[0] * s[2]) || s[2] <= 0.0 {
+            return None;
+        }
+        let a = (s[2] * s[3] - s[1] * s[4]) / det;
+        let b = (s[0] * s[4] - s[1] * s[3]) / det;
+        if a.abs() < 1e-6 {
+            return None;
+        }
+        // Residual sum of squares and the standard error of b (and so of -b/a).
+        let rss = (s[5] - a * s[3] - b * s[4]).max(0.0);
+        let dof = (s[6] - 2.0).max(1.0);
+        let var_b = rss / dof * s[0] / det;
+        Some(DelayEstimate {
+            residual_delay_s: -b / a,
+            residual_delay_sigma_s: var_b.sqrt() / a.abs(),
+            residual_gain: a,
+        })
+    }
+}
+
+/// The guard's state after a sample.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct GuardState {
+    /// Damping added now, N s/m.
+    pub damping_ns_per_m: f64,
+    /// Energy generated above the corner (the observer), J.
+    pub generated_j: f64,
+}
+
+/// Running totals of the guard's activity (for the report).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct GuardActivity {
+    /// Samples with damping added.
+    pub active_samples: u64,
+    /// Energy the added damping dissipated (its force times the high-passed velocity), J.
+    pub dissipated_j: f64,
+    /// Largest damping added, N s/m.
+    pub max_damping_ns_per_m: f64,
+    /// Largest energy the observer saw generated above the corner, J.
+    pub max_generated_j: f64,
+}
+
+/// Time-domain passivity controller above the load band.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PassivityGuard {
+    observer: PassivityObserver,
+    full_energy_j: f64,
+    max_damping: f64,
+    release: f64,
+    damping: f64,
+    last_z_hp_m: f64,
+    dt_s: f64,
+    pub activity: GuardActivity,
+}
+
+impl PassivityGuard {
+    pub fn new(cfg: &CompensationConfig, dt_s: f64) -> PassivityGuard {
+        PassivityGuard {
+            // A short memory: the guard follows the energy as it is generated.
+            observer: PassivityObserver::new(cfg.guard_band_hz, 0.05, dt_s),
+            full_energy_j: cfg.guard_full_energy_j,
+            max_damping: cfg.guard_max_damping_ns_per_m,
+            release: (-dt_s / cfg.guard_release_s).exp(),
+            damping: 0.0,
+            last_z_hp_m: 0.0,
+            dt_s,
+            activity: GuardActivity::default(),
+        }
+    }
+
+    pub fn restart(&mut self) {
+        self.observer.restart();
+    }
+
+    /// One consecutive rig sample in force control.
+    #[inline]
+    pub fn update(&mut self, z_m: f64, element_force_n: f64, measured_force_n: f64) -> GuardState {
+        let s = self.observer.update(z_m, element_force_n, measured_force_n);
+        // Damping in proportion to the energy generated (none while the loop absorbs it),
+        // at once when it rises, released slowly when it falls.
+        let target = self.max_damping * (s.generated_high_j / self.full_energy_j).clamp(0.0, 1.0);
+        self.damping = target.max(self.damping * self.release);
+        if self.damping < 1.0 {
+            self.damping = 0.0;
+        }
+        let v_hp = (s.oscillation_m - self.last_z_hp_m) / self.dt_s;
+        self.last_z_hp_m = s.oscillation_m;
+        let a = &mut self.activity;
+        if self.damping > 0.0 {
+            a.active_samples += 1;
+            a.dissipated_j += self.damping * v_hp * v_hp * self.dt_s;
+        }
+        a.max_damping_ns_per_m = a.max_damping_ns_per_m.max(self.damping);
+        a.max_generated_j = a.max_generated_j.max(s.generated_high_j);
+        GuardState {
+            damping_ns_per_m: self.damping,
+            generated_j: s.generated_high_j,
+        }
+    }
+}
+
+/// The compensation's state for records and the report.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CompensationStatus {
+    pub compensation: Compensation,
+    /// The effective delay identified now (lead plus the residual), s; NaN before any.
+    pub identified_delay_s: f64,
+    pub identified_delay_sigma_s: f64,
+    pub guard: GuardState,
+}
+
+/// The controller's compensator: estimator, adaptation and guard around one `Compensation`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Compensator {
+    cfg: CompensationConfig,
+    dt_s: f64,
+    estimator: DelayEstimator,
+    guard: PassivityGuard,
+    lead_s: f64,
+    gain: f64,
+    last_sample_seq: Option<u64>,
+    status: CompensationStatus,
+}
+
+impl Compensator {
+    pub fn new(cfg: CompensationConfig, dt_s: f64) -> Compensator {
+        let lead_s = cfg.initial_delay_s.clamp(0.0, cfg.max_delay_s);
+        let compensation = Compensation {
+            lead_s,
+            added_damping_corner_hz: cfg.guard_band_hz,
+            ..Compensation::lead(lead_s, cfg.lead_order)
+        };
+        Compensator {
+            cfg,
+            dt_s,
+            estimator: DelayEstimator::new(cfg.estimator_band_hz, cfg.estimator_memory_s, dt_s),
+            guard: PassivityGuard::new(&cfg, dt_s),
+            lead_s,
+            gain: 1.0,
+            last_sample_seq: None,
+            status: CompensationStatus {
+                compensation,
+                identified_delay_s: f64::NAN,
+                identified_delay_sigma_s: f64::NAN,
+                guard: GuardState::default(),
+            },
+        }
+    }
+
+    pub fn config(&self) -> &CompensationConfig {
+        &self.cfg
+    }
+
+    pub fn status(&self) -> CompensationStatus {
+        self.status
+    }
+
+    pub fn guard_activity(&self) -> GuardActivity {
+        self.guard.activity
+    }
+
+    /// The rig left force control (a hold): the observers restart when it comes back.
+    pub fn pause(&mut self) {
+        self.last_sample_seq = None;
+    }
+
+    /// One setpoint in force control: the element's force and displacement at sample
+    /// `sample_seq` and the force the rig measured there. Returns the compensation to send.
+    #[inline]
+    pub fn on_sample(
+        &mut self,
+        sample_seq: u64,
+        displacement_m: f64,
+        element_force_n: f64,
+        measured_force_n: f64,
+    ) -> Compensation {
+        let consecutive = self.last_sample_seq.is_some_and(|s| sample_seq == s + 1);
+        self.last_sample_seq = Some(sample_seq);
+        if !consecutive {
+            self.estimator.restart();
+            self.guard.restart();
+        }
+        if self.cfg.adapt {
+            if let Some(e) = self.estimator.update(element_force_n, measured_force_n) {
+                self.adapt(e);
+            }
+        }
+        let guard = if self.cfg.passivity_guard {
+            self.guard
+                .update(displacement_m, element_force_n, measured_force_n)
+        } else {
+            GuardState::default()
+        };
+        self.status.guard = guard;
+        self.status.compensation = Compensation {
+            lead_s: self.lead_s,
+            added_damping_ns_per_m: guard.damping_ns_per_m,
+            added_damping_corner_hz: self.cfg.guard_band_hz,
+            gain: self.gain,
+            lead_order: self.cfg.lead_order,
+            reserved: 0,
+        };
+        self.status.compensation
+    }
+
+    /// Moves the lead and gain towards the estimate: a first-order step of `dt /
+    /// adapt_time` of the residual, each step bounded (no jump the loop could feel), only
+    /// when the residual is resolved by the data (its standard error under a quarter of it,
+    /// or under 10 us).
+    #[inline]
+    fn adapt(&mut self, e: DelayEstimate) {
+        let identified = self.lead_s + e.residual_delay_s;
+        self.status.identified_delay_s = identified;
+        self.status.identified_delay_sigma_s = e.residual_delay_sigma_s;
+        let resolved = e.residual_delay_sigma_s.is_finite()
+            && (e.residual_delay_sigma_s < 0.25 * e.residual_delay_s.abs()
+                || e.residual_delay_sigma_s < 10e-6);
+        if !resolved || !(0.5..=2.0).contains(&e.residual_gain) {
+            return;
+        }
+        let k = (self.dt_s / self.cfg.adapt_time_s).min(1.0);
+        // At most 2 ms of lead per second (0.5 us per sample at 4096 Hz).
+        let max_step = 2e-3 * self.dt_s;
+        let step = (k * e.residual_delay_s).clamp(-max_step, max_step);
+        self.lead_s = (self.lead_s + step).clamp(0.0, self.cfg.max_delay_s);
+        let gain_step = (k * (e.residual_gain - 1.0)).clamp(-1e-4, 1e-4);
+        self.gain = (self.gain * (1.0 + gain_step)).clamp(0.5, 2.0);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::PI;
+
+    const DT: f64 = 1.0 / 4096.0;
+
+    /// A force history rich in the load band: preload, 2 Hz and 11 Hz harmonics.
+    fn element_force(t: f64) -> f64 {
+        20e3 + 4e3 * (2.0 * PI * 2.0 * t).sin() + 1e3 * (2.0 * PI * 11.0 * t).sin()
+    }
+
+    #[test]
+    fn estimator_finds_a_delay_and_gain() {
+        for &(delay, gain) in &[(300e-6, 1.0), (2.5e-3, 0.9), (-150e-6, 1.1)] {
+            let mut est = DelayEstimator::new(40.0, 0.5, DT);
+            let mut last = None;
+            for i in 0..(4096 * 3) {
+                let t = i as f64 * DT;
+                last = est.update(element_force(t), gain * element_force(t - delay));
+            }
+            let e = last.expect("determined");
+            assert!(
+                (e.residual_delay_s - delay).abs() < 0.03 * delay.abs(),
+                "{e:?} vs {delay}"
+            );
+            assert!((e.residual_gain - gain).abs() < 0.01, "{e:?} vs {gain}");
+            assert!(e.residual_delay_sigma_s < 0.1 * delay.abs());
+        }
+    }
+
+    /// The compensator on a plant that renders the commanded force `d` late with gain `g`:
+    /// the rendered force at `t` is `g F(t - d + lead)` (the rig predicted over the lead).
+    #[test]
+    fn adaptation_converges_from_a_guess_off_by_100_percent() {
+        for &(true_delay, guess) in &[(252e-6, 0.0), (252e-6, 504e-6), (5e-3, 2.5e-3)] {
+            let mut cfg = CompensationConfig::with_initial_delay(guess);
+            cfg.passivity_guard = false;
+            let mut c = Compensator::new(cfg, DT);
+            let mut comp = c.status().compensation;
+            for i in 0..(4096 * 4) {
+                let t = i as f64 * DT;
+                let measured = 0.95 * element_force(t - true_delay + comp.lead_s) / comp.gain;
+                comp = c.on_sample(i as u64, 0.0, element_force(t), measured);
+            }
+            assert!(
+                (comp.lead_s - true_delay).abs() < 0.02 * true_delay,
+                "lead {} vs {true_delay}",
+                comp.lead_s
+            );
+            assert!((comp.gain - 0.95).abs() < 0.01, "gain {}", comp.gain);
+            let s = c.status();
+            assert!((s.identified_delay_s - true_delay).abs() < 0.02 * true_delay);
+        }
+    }
+
+    #[test]
+    fn guard_adds_damping_only_while_energy_is_generated() {
+        let cfg = CompensationConfig::with_initial_delay(0.0);
+        let mut g = PassivityGuard::new(&cfg, DT);
+        let k = 5.7e7;
+        // A passive rendering: no damping.
+        for i in 0..4096 {
+            let t = i as f64 * DT;
+            let z = 3e-4 + 5e-6 * (2.0 * PI * 155.0 * t).sin();
+            let s = g.update(z, k * z, k * z);
+            assert_eq!(s.damping_ns_per_m, 0.0);
+        }
+        // 200 us late at 155 Hz: energy generated, damping rises.
+        let mut max_d: f64 = 0.0;
+        for i in 4096..8192 {
+            let t = i as f64 * DT;
+            let z = 3e-4 + 5e-6 * (2.0 * PI * 155.0 * t).sin();
+            let zl = 3e-4 + 5e-6 * (2.0 * PI * 155.0 * (t - 2e-4)).sin();
+            max_d = max_d.max(g.update(z, k * z, k * zl).damping_ns_per_m);
+        }
+        assert!(max_d > 0.5 * cfg.guard_max_damping_ns_per_m, "{max_d}");
+        assert!(g.activity.active_samples > 0);
+        assert!(g.activity.dissipated_j > 0.0);
+        // Passive again: released with its time constant (e^-4 after 4 time constants).
+        let n = (4.0 * cfg.guard_release_s / DT) as usize + 1024;
+        let mut last = f64::NAN;
+        for i in 0..n {
+            let t = (8192 + i) as f64 * DT;
+            let z = 3e-4 + 5e-6 * (2.0 * PI * 155.0 * t).sin();
+            last = g.update(z, k * z, k * z).damping_ns_per_m;
+        }
+        assert!(last < 0.03 * max_d, "{last}");
+    }
+}
