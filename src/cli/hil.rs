@@ -621,10 +621,12 @@ fn summarise(
                 crate::hil::config::CommandMode::Law => "law",
                 crate::hil::config::CommandMode::Force => "force",
             },
-            "law_lead_us": cfg.rig.law_lead_s * 1e6,
-            "law_lead_order": cfg.rig.law_lead_order,
+            "initial_delay_us": cfg.compensation.initial_delay_s * 1e6,
+            "lead_order": cfg.compensation.lead_order,
+            "adapt": cfg.compensation.adapt,
+            "passivity_guard": cfg.compensation.passivity_guard,
         },
-        "compensation": {
+        "force_mode_compensation": {
             "enabled": cfg.controller.compensation_enabled,
             "order": cfg.controller.compensation_order,
             "delay_us": cfg.controller.compensation_delay_s * 1e6,

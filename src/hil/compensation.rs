@@ -37,9 +37,14 @@ pub struct CompensationConfig {
     pub estimator_memory_s: f64,
     /// Time constant with which the lead and gain follow the estimate, s.
     pub adapt_time_s: f64,
-    /// Corner above which the guard observes energy and adds damping, Hz.
+    /// Corner above which the guard observes energy and adds damping, Hz (its observer
+    /// stops at `guard_band_top_hz`, where the sensor's noise takes over).
     pub guard_band_hz: f64,
-    /// Energy generated above the corner at which the guard's damping is full, J.
+    pub guard_band_top_hz: f64,
+    /// Energy generated in the band (over the observer's 100 ms) below which the guard
+    /// adds nothing, J: the ringing of the resonance after an axle passage stays below it.
+    pub guard_onset_energy_j: f64,
+    /// Energy generated in the band at which the guard's damping is full, J.
     pub guard_full_energy_j: f64,
     /// Largest damping the guard adds, N s/m.
     pub guard_max_damping_ns_per_m: f64,
@@ -60,19 +65,12 @@ impl CompensationConfig {
             estimator_memory_s: 0.25,
             adapt_time_s: 0.3,
             guard_band_hz: 60.0,
-            guard_full_energy_j: 0.002,
+            guard_band_top_hz: 400.0,
+            guard_onset_energy_j: 0.5e-3,
+            guard_full_energy_j: 5.0e-3,
             guard_max_damping_ns_per_m: 40.0e3,
             guard_release_s: 0.5,
         }
-    }
-}
-
-impl CompensationConfig {
-    /// The run's compensation settings.
-    pub fn of(cfg: &super::config::HilConfig) -> CompensationConfig {
-        let mut c = CompensationConfig::with_initial_delay(cfg.rig.law_lead_s);
-        c.lead_order = cfg.rig.law_lead_order;
-        c
     }
 }
 
@@ -201,6 +199,7 @@ pub struct GuardActivity {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PassivityGuard {
     observer: PassivityObserver,
+    onset_energy_j: f64,
     full_energy_j: f64,
     max_damping: f64,
     release: f64,
@@ -213,8 +212,8 @@ pub struct PassivityGuard {
 impl PassivityGuard {
     pub fn new(cfg: &CompensationConfig, dt_s: f64) -> PassivityGuard {
         PassivityGuard {
-            // A short memory: the guard follows the energy as it is generated.
-            observer: PassivityObserver::new(cfg.guard_band_hz, 0.05, dt_s),
+            observer: PassivityObserver::new((cfg.guard_band_hz, cfg.guard_band_top_hz), 0.1, dt_s),
+            onset_energy_j: cfg.guard_onset_energy_j,
             full_energy_j: cfg.guard_full_energy_j,
             max_damping: cfg.guard_max_damping_ns_per_m,
             release: (-dt_s / cfg.guard_release_s).exp(),
@@ -235,7 +234,9 @@ impl PassivityGuard {
         let s = self.observer.update(z_m, element_force_n, measured_force_n);
         // Damping in proportion to the energy generated (none while the loop absorbs it),
         // at once when it rises, released slowly when it falls.
-        let target = self.max_damping * (s.generated_high_j / self.full_energy_j).clamp(0.0, 1.0);
+        let span = (self.full_energy_j - self.onset_energy_j).max(1e-12);
+        let target = self.max_damping
+            * ((s.generated_high_j - self.onset_energy_j) / span).clamp(0.0, 1.0);
         self.damping = target.max(self.damping * self.release);
         if self.damping < 1.0 {
             self.damping = 0.0;

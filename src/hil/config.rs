@@ -5,6 +5,8 @@
 //! Every error is one line naming the file, the key, the value and what would be valid.
 //! Must not: fill in physical constants silently (every physical key is required).
 
+use crate::hil::compensation::CompensationConfig;
+use crate::ipc::messages::Compensation;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
@@ -50,6 +52,7 @@ struct RawConfig {
     emulator: RawEmulator,
     controller: RawController,
     rig: RawRig,
+    compensation: RawCompensation,
     safety: RawSafety,
     scenario: RawScenario,
     #[serde(default)]
@@ -156,10 +159,42 @@ struct RawRig {
     seed: u64,
     internal_substeps: u32,
     command_stale_periods: u32,
-    law_lead_us: f64,
-    law_lead_order: u32,
     hold_bandwidth_hz: f64,
     hold_damping_ratio: f64,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCompensation {
+    initial_delay_us: f64,
+    #[serde(default = "yes")]
+    adapt: bool,
+    #[serde(default = "yes")]
+    passivity_guard: bool,
+    #[serde(default)]
+    lead_order: Option<u32>,
+    #[serde(default)]
+    max_delay_us: Option<f64>,
+    #[serde(default)]
+    estimator_band_hz: Option<f64>,
+    #[serde(default)]
+    estimator_memory_ms: Option<f64>,
+    #[serde(default)]
+    adapt_time_ms: Option<f64>,
+    #[serde(default)]
+    guard_band_hz: Option<f64>,
+    #[serde(default)]
+    guard_onset_energy_j: Option<f64>,
+    #[serde(default)]
+    guard_full_energy_j: Option<f64>,
+    #[serde(default)]
+    guard_max_damping_ns_per_m: Option<f64>,
+    #[serde(default)]
+    guard_release_ms: Option<f64>,
+}
+
+fn yes() -> bool {
+    true
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -302,8 +337,6 @@ pub struct RigConfig {
     pub seed: u64,
     pub internal_substeps: u32,
     pub command_stale_periods: u32,
-    pub law_lead_s: f64,
-    pub law_lead_order: u32,
     pub hold_bandwidth_hz: f64,
     pub hold_damping_ratio: f64,
 }
@@ -464,6 +497,8 @@ pub struct HilConfig {
     pub emulator: EmulatorConfig,
     pub controller: ControllerConfig,
     pub rig: RigConfig,
+    /// `[compensation]`: what the controller sends the rig to compensate its actuator.
+    pub compensation: CompensationConfig,
     pub safety: SafetyConfig,
     pub scenario: ScenarioConfig,
     /// The load programme (from `[programme]`, or the scenario's load keys as one block).
@@ -481,8 +516,6 @@ impl HilConfig {
         );
         ServoConfig {
             period_s: self.loop_.dt_s(),
-            law_lead_s: self.rig.law_lead_s,
-            law_lead_order: self.rig.law_lead_order as usize,
             command_stale_periods: u64::from(self.rig.command_stale_periods),
             hold_kp,
             hold_ki,
@@ -517,7 +550,15 @@ impl HilConfig {
 }
 
 /// Keys of earlier versions and what replaced them (a clearer error than "unknown key").
-const REMOVED_KEYS: [(&str, &str); 6] = [
+const REMOVED_KEYS: [(&str, &str); 8] = [
+    (
+        "law_lead_us",
+        "moved: the controller owns the lead now, [compensation] initial_delay_us (a starting guess it refines during the run)",
+    ),
+    (
+        "law_lead_order",
+        "moved to [compensation] lead_order",
+    ),
     (
         "safe_force_n",
         "removed: a constant force on a free mass is not a safe state; faults now hold the specimen's position (see [safety])",
@@ -665,6 +706,7 @@ pub fn parse_hil_config(
     let emulator = parse_emulator(&check, &raw.emulator)?;
     let controller = parse_controller(&check, &raw.controller, loop_.period_ns)?;
     let rig = parse_rig(&check, &raw.rig)?;
+    let compensation = parse_compensation(&check, &raw.compensation)?;
     let safety = parse_safety(&check, &raw.safety)?;
     let scenario = parse_scenario(&check, &raw.scenario, &resolve)?;
     let programme = parse_programme(&check, raw.programme.as_ref(), &scenario, &resolve)?;
@@ -703,11 +745,86 @@ pub fn parse_hil_config(
         emulator,
         controller,
         rig,
+        compensation,
         safety,
         scenario,
         programme,
         injections,
     })
+}
+
+fn parse_compensation(check: &Check, c: &RawCompensation) -> Result<CompensationConfig, ConfigError> {
+    let mut out = CompensationConfig::with_initial_delay(0.0);
+    let max_delay_s = match c.max_delay_us {
+        Some(v) => check.positive("compensation.max_delay_us", v)? * 1e-6,
+        None => out.max_delay_s,
+    };
+    if max_delay_s > Compensation::MAX_LEAD_S {
+        return Err(check.err(
+            "compensation.max_delay_us",
+            format!(
+                "{} is not valid: expected at most {} us (the longest lead a rig accepts)",
+                max_delay_s * 1e6,
+                Compensation::MAX_LEAD_S * 1e6
+            ),
+        ));
+    }
+    out.max_delay_s = max_delay_s;
+    out.initial_delay_s =
+        check.non_negative("compensation.initial_delay_us", c.initial_delay_us)? * 1e-6;
+    if out.initial_delay_s > max_delay_s {
+        return Err(check.err(
+            "compensation.initial_delay_us",
+            format!(
+                "{} is not valid: expected at most max_delay_us = {} us",
+                c.initial_delay_us,
+                max_delay_s * 1e6
+            ),
+        ));
+    }
+    out.adapt = c.adapt;
+    out.passivity_guard = c.passivity_guard;
+    if let Some(order) = c.lead_order {
+        if order > 3 {
+            return Err(check.err(
+                "compensation.lead_order",
+                format!("{order} is not valid: expected 0, 1, 2 or 3"),
+            ));
+        }
+        out.lead_order = order;
+    }
+    let pos = |key: &str, v: Option<f64>, scale: f64, default: f64| -> Result<f64, ConfigError> {
+        match v {
+            Some(v) => Ok(check.positive(&format!("compensation.{key}"), v)? * scale),
+            None => Ok(default),
+        }
+    };
+    out.estimator_band_hz = pos("estimator_band_hz", c.estimator_band_hz, 1.0, out.estimator_band_hz)?;
+    out.estimator_memory_s =
+        pos("estimator_memory_ms", c.estimator_memory_ms, 1e-3, out.estimator_memory_s)?;
+    out.adapt_time_s = pos("adapt_time_ms", c.adapt_time_ms, 1e-3, out.adapt_time_s)?;
+    out.guard_band_hz = pos("guard_band_hz", c.guard_band_hz, 1.0, out.guard_band_hz)?;
+    out.guard_onset_energy_j =
+        pos("guard_onset_energy_j", c.guard_onset_energy_j, 1.0, out.guard_onset_energy_j)?;
+    out.guard_full_energy_j =
+        pos("guard_full_energy_j", c.guard_full_energy_j, 1.0, out.guard_full_energy_j)?;
+    if out.guard_full_energy_j <= out.guard_onset_energy_j {
+        return Err(check.err(
+            "compensation.guard_full_energy_j",
+            format!(
+                "{} is not valid: expected more than guard_onset_energy_j = {}",
+                out.guard_full_energy_j, out.guard_onset_energy_j
+            ),
+        ));
+    }
+    out.guard_max_damping_ns_per_m = pos(
+        "guard_max_damping_ns_per_m",
+        c.guard_max_damping_ns_per_m,
+        1.0,
+        out.guard_max_damping_ns_per_m,
+    )?;
+    out.guard_release_s = pos("guard_release_ms", c.guard_release_ms, 1e-3, out.guard_release_s)?;
+    Ok(out)
 }
 
 impl HilConfig {
@@ -1057,12 +1174,6 @@ fn parse_rig(check: &Check, r: &RawRig) -> Result<RigConfig, ConfigError> {
         u64::from(r.command_stale_periods),
         1,
     )?;
-    if r.law_lead_order > 3 {
-        return Err(check.err(
-            "rig.law_lead_order",
-            format!("{} is not valid: expected 0, 1, 2 or 3", r.law_lead_order),
-        ));
-    }
     let actuator_delay_s = check.non_negative("rig.actuator_delay_us", r.actuator_delay_us)? * 1e-6;
     if actuator_delay_s > 0.1 {
         return Err(check.err(
@@ -1086,8 +1197,6 @@ fn parse_rig(check: &Check, r: &RawRig) -> Result<RigConfig, ConfigError> {
         seed: r.seed,
         internal_substeps: r.internal_substeps,
         command_stale_periods: r.command_stale_periods,
-        law_lead_s: check.non_negative("rig.law_lead_us", r.law_lead_us)? * 1e-6,
-        law_lead_order: r.law_lead_order,
         hold_bandwidth_hz: check.positive("rig.hold_bandwidth_hz", r.hold_bandwidth_hz)?,
         hold_damping_ratio,
     })

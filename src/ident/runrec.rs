@@ -382,18 +382,26 @@ fn uniform_series(
 
 /// What a fitted channel delay between emulated and applied force means for the loop,
 /// in the words of the run's config. `force_lag_s` > 0: the applied force lags. The knob
-/// is the rig's law lead in law mode (`[rig] law_lead_us`, the default), the
+/// is the lead the controller sends in law mode (`[compensation] initial_delay_us`, the
+/// default, which the controller refines during the run when `adapt` is on), the
 /// controller's compensation delay in force mode (`[controller] compensation_delay_us`).
-/// With an external rig in law mode the lead is the rig's own (its L in the rig ABI); the
-/// configuration's value is only what the rig was told to use.
 pub fn delay_knob_advice(config: &HilConfig, force_lag_s: f64, external_rig: bool) -> String {
     let us = (force_lag_s * 1e6).abs();
     let knob = match config.controller.command_mode {
-        CommandMode::Law if external_rig => format!(
-            "the external rig's own law lead L (the configuration's [rig] law_lead_us says {:.0} us)",
-            config.rig.law_lead_s * 1e6
+        CommandMode::Law => format!(
+            "{}[compensation] initial_delay_us ({:.0} us{})",
+            if external_rig {
+                "the lead the external rig applied (it follows the commands' compensation.lead_s): "
+            } else {
+                ""
+            },
+            config.compensation.initial_delay_s * 1e6,
+            if config.compensation.adapt {
+                "; adapt = true refined it during the run, see the report's compensation"
+            } else {
+                ""
+            }
         ),
-        CommandMode::Law => format!("[rig] law_lead_us ({:.0} us)", config.rig.law_lead_s * 1e6),
         CommandMode::Force => format!(
             "[controller] compensation_delay_us ({:.0} us)",
             config.controller.compensation_delay_s * 1e6

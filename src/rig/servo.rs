@@ -64,10 +64,6 @@ pub fn lead_weights(order: usize, h: f64, lead: f64) -> ([f64; 4], [f64; 4]) {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ServoConfig {
     pub period_s: f64,
-    /// Lead over which the measured displacement is extrapolated for `LAW` commands, s.
-    pub law_lead_s: f64,
-    /// Order of that extrapolation (0-3).
-    pub law_lead_order: usize,
     /// No new command for more than this many periods: interlock (`commands-stale`).
     pub command_stale_periods: u64,
     /// Position-hold PID gains: N/m, N/(m s), N s/m.
