@@ -235,8 +235,8 @@ impl PassivityGuard {
         // Damping in proportion to the energy generated (none while the loop absorbs it),
         // at once when it rises, released slowly when it falls.
         let span = (self.full_energy_j - self.onset_energy_j).max(1e-12);
-        let target = self.max_damping
-            * ((s.generated_high_j - self.onset_energy_j) / span).clamp(0.0, 1.0);
+        let target =
+            self.max_damping * ((s.generated_high_j - self.onset_energy_j) / span).clamp(0.0, 1.0);
         self.damping = target.max(self.damping * self.release);
         if self.damping < 1.0 {
             self.damping = 0.0;

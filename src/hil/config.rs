@@ -753,7 +753,10 @@ pub fn parse_hil_config(
     })
 }
 
-fn parse_compensation(check: &Check, c: &RawCompensation) -> Result<CompensationConfig, ConfigError> {
+fn parse_compensation(
+    check: &Check,
+    c: &RawCompensation,
+) -> Result<CompensationConfig, ConfigError> {
     let mut out = CompensationConfig::with_initial_delay(0.0);
     let max_delay_s = match c.max_delay_us {
         Some(v) => check.positive("compensation.max_delay_us", v)? * 1e-6,
@@ -799,15 +802,32 @@ fn parse_compensation(check: &Check, c: &RawCompensation) -> Result<Compensation
             None => Ok(default),
         }
     };
-    out.estimator_band_hz = pos("estimator_band_hz", c.estimator_band_hz, 1.0, out.estimator_band_hz)?;
-    out.estimator_memory_s =
-        pos("estimator_memory_ms", c.estimator_memory_ms, 1e-3, out.estimator_memory_s)?;
+    out.estimator_band_hz = pos(
+        "estimator_band_hz",
+        c.estimator_band_hz,
+        1.0,
+        out.estimator_band_hz,
+    )?;
+    out.estimator_memory_s = pos(
+        "estimator_memory_ms",
+        c.estimator_memory_ms,
+        1e-3,
+        out.estimator_memory_s,
+    )?;
     out.adapt_time_s = pos("adapt_time_ms", c.adapt_time_ms, 1e-3, out.adapt_time_s)?;
     out.guard_band_hz = pos("guard_band_hz", c.guard_band_hz, 1.0, out.guard_band_hz)?;
-    out.guard_onset_energy_j =
-        pos("guard_onset_energy_j", c.guard_onset_energy_j, 1.0, out.guard_onset_energy_j)?;
-    out.guard_full_energy_j =
-        pos("guard_full_energy_j", c.guard_full_energy_j, 1.0, out.guard_full_energy_j)?;
+    out.guard_onset_energy_j = pos(
+        "guard_onset_energy_j",
+        c.guard_onset_energy_j,
+        1.0,
+        out.guard_onset_energy_j,
+    )?;
+    out.guard_full_energy_j = pos(
+        "guard_full_energy_j",
+        c.guard_full_energy_j,
+        1.0,
+        out.guard_full_energy_j,
+    )?;
     if out.guard_full_energy_j <= out.guard_onset_energy_j {
         return Err(check.err(
             "compensation.guard_full_energy_j",
@@ -823,7 +843,12 @@ fn parse_compensation(check: &Check, c: &RawCompensation) -> Result<Compensation
         1.0,
         out.guard_max_damping_ns_per_m,
     )?;
-    out.guard_release_s = pos("guard_release_ms", c.guard_release_ms, 1e-3, out.guard_release_s)?;
+    out.guard_release_s = pos(
+        "guard_release_ms",
+        c.guard_release_ms,
+        1e-3,
+        out.guard_release_s,
+    )?;
     Ok(out)
 }
 
