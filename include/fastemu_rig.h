@@ -438,7 +438,8 @@ static inline double fastemu_compensated_force(fastemu_law_state *st,
     }
     since_s = cmd->sample_sequence == UINT64_MAX
                   ? 0.0
-                  : (double)(k - cmd->sample_sequence) * T + c->lead_s;
+                  : (double)(k > cmd->sample_sequence ? k - cmd->sample_sequence : 0) * T +
+                        c->lead_s;
     if (since_s > stale_limit_s) since_s = stale_limit_s;
     f = fastemu_law_evaluate(&cmd->law, zl, vl, since_s) + c->added_damping_ns_per_m * v_hp;
     if (f > cmd->force_max_n) f = cmd->force_max_n;

@@ -457,7 +457,7 @@ impl LinkReceiver {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ipc::messages::{command_mode, ActuatorCommand, LocalLaw};
+    use crate::ipc::messages::{command_mode, ActuatorCommand, Compensation, LocalLaw};
 
     #[test]
     fn commands_a_rig_must_not_act_on_are_bad_content() {
@@ -473,6 +473,7 @@ mod tests {
             controller_state: 1,
             fault_code: 0,
             reserved: 0,
+            compensation: Compensation::lead(2.52e-4, 2),
         };
         assert!(good.content_ok());
         assert!(ActuatorCommand {
@@ -491,6 +492,33 @@ mod tests {
             },
             ActuatorCommand {
                 force_max_n: f64::INFINITY,
+                ..good
+            },
+            // A law command whose compensation is out of range: a lead beyond 20 ms, a
+            // gain a rig must not divide by, negative guard damping, a NaN.
+            ActuatorCommand {
+                compensation: Compensation::lead(0.021, 2),
+                ..good
+            },
+            ActuatorCommand {
+                compensation: Compensation {
+                    gain: 0.0,
+                    ..good.compensation
+                },
+                ..good
+            },
+            ActuatorCommand {
+                compensation: Compensation {
+                    added_damping_ns_per_m: -1.0,
+                    ..good.compensation
+                },
+                ..good
+            },
+            ActuatorCommand {
+                compensation: Compensation {
+                    added_damping_corner_hz: f64::NAN,
+                    ..good.compensation
+                },
                 ..good
             },
         ];

@@ -188,7 +188,8 @@ fn controller_and_rig_cores_do_not_allocate() {
     let cfg = config();
     let period_ns = cfg.loop_.period_ns;
     let mut controller =
-        ControllerCore::new(cfg.controller, cfg.safety.actions, period_ns, 25_000_000);
+        ControllerCore::new(cfg.controller, cfg.safety.actions, period_ns, 25_000_000)
+            .with_compensation(cfg.compensation);
     controller.set_start_time_ns(0);
     let mut rig = RigCore::new(&cfg);
     let mut sent = 0;
@@ -211,7 +212,10 @@ fn controller_and_rig_cores_do_not_allocate() {
                 emulator_state: emulator_state::RUNNING,
                 fault_code: 0,
                 model_flags: 0,
-                reserved: 0,
+                // The rig in force control with its measured force: the compensator
+                // (estimator, guard) runs on every setpoint.
+                rig_state: sample.rig_state,
+                measured_force_n: sample.actuator_force_n,
             };
             let now = k * period_ns + 50_000;
             if let Some((cmd, _)) = controller.on_setpoint(&sp, now) {
@@ -398,7 +402,8 @@ fn setpoint(k: u64, period_ns: u64, law: LocalLaw) -> ForceSetpoint {
         emulator_state: emulator_state::RUNNING,
         fault_code: 0,
         model_flags: 0,
-        reserved: 0,
+        rig_state: fastemu::ipc::messages::rig_state::RUNNING,
+        measured_force_n: f64::NAN,
     }
 }
 

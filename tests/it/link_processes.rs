@@ -198,6 +198,7 @@ fn example_command() -> fastemu::ipc::messages::ActuatorCommand {
         controller_state: 1,
         fault_code: 0,
         reserved: 0,
+        compensation: fastemu::ipc::messages::Compensation::lead(2.52e-4, 2),
     }
 }
 

@@ -11,7 +11,8 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use fastemu::ipc::messages::{
-    ActuatorCommand, DisplacementSample, Heartbeat, LocalLaw, RunControl, ABI_VERSION,
+    command_mode, ActuatorCommand, Compensation, DisplacementSample, Heartbeat, LocalLaw,
+    RunControl, ABI_VERSION,
 };
 use fastemu::link::protocol::{self, CommandDatagram, ControlDatagram, SampleDatagram};
 use fastemu::rig::servo::lead_weights;
@@ -58,6 +59,18 @@ const FIELDS: &[(&str, &[&str])] = &[
             "mode",
             "controller_state",
             "fault_code",
+            "reserved",
+            "compensation",
+        ],
+    ),
+    (
+        "fastemu_compensation",
+        &[
+            "lead_s",
+            "added_damping_ns_per_m",
+            "added_damping_corner_hz",
+            "gain",
+            "lead_order",
             "reserved",
         ],
     ),
@@ -117,6 +130,7 @@ const FIELDS: &[(&str, &[&str])] = &[
             "fault_code",
             "reserved",
             "echo_sample_time_ns",
+            "compensation",
         ],
     ),
     (
@@ -163,6 +177,16 @@ fn probe() -> BTreeMap<String, f64> {
            for (int i = 0; i < 4; i++) printf(\"lead.%u.%d %.17g %.17g\\n\", o, i, v[i], s[i]);\n\
          }\n\
          printf(\"abi %u %u\\n\", FASTEMU_RIG_ABI_VERSION, FASTEMU_LINK_VERSION);\n\
+         fastemu_actuator_command cmd = {0};\n\
+         cmd.sample_sequence = 2; cmd.law = law; cmd.force_min_n = -5e3; cmd.force_max_n = 1.2e5;\n\
+         cmd.mode = FASTEMU_MODE_LAW;\n\
+         fastemu_compensation comp = {3.0e-4, 2.0e3, 60.0, 0.95, 2, 0};\n\
+         cmd.compensation = comp;\n\
+         fastemu_law_state st = {{3.5e-4, 3.5e-4, 3.5e-4, 3.5e-4}, {0}, {0}, -1.0, 0, 0.0};\n\
+         for (unsigned k = 0; k < 8; k++) {\n\
+           double z = 3.5e-4 + 2.0e-5 * k * k - 1.0e-6 * k * k * k;\n\
+           printf(\"comp.%u %.17g\\n\", k, fastemu_compensated_force(&st, &cmd, z, k, 1.0 / 4096.0, 205.0 / 4096.0));\n\
+         }\n\
          return 0;\n}\n",
     );
     let src = dir.join("probe.c");
@@ -189,7 +213,7 @@ fn probe() -> BTreeMap<String, f64> {
         let mut words = line.split_whitespace();
         let key = words.next().unwrap().to_string();
         let values: Vec<f64> = words.map(|w| w.parse().unwrap()).collect();
-        if key.starts_with("lead.") {
+        if key.starts_with("lead.") && values.len() == 2 {
             map.insert(format!("{key}.value"), values[0]);
             map.insert(format!("{key}.slope"), values[1]);
         } else if key == "abi" {
@@ -349,6 +373,14 @@ fn the_c_header_matches_the_rust_types_field_by_field() {
             controller_state: 37,
             fault_code: 38,
             reserved: 0,
+            compensation: Compensation {
+                lead_s: 40.5,
+                added_damping_ns_per_m: 41.5,
+                added_damping_corner_hz: 42.5,
+                gain: 43.5,
+                lead_order: 44,
+                reserved: 0,
+            },
         },
         echo_sample_time_ns: 39,
     };
@@ -373,6 +405,12 @@ fn the_c_header_matches_the_rust_types_field_by_field() {
     assert_eq!(u32_at(&buf, c("controller_state")), 37);
     assert_eq!(u32_at(&buf, c("fault_code")), 38);
     assert_eq!(u64_at(&buf, c("echo_sample_time_ns")), 39);
+    let k = |f: &str| c("compensation") + at(&m, &format!("fastemu_compensation.{f}"));
+    assert_eq!(f64_at(&buf, k("lead_s")), 40.5);
+    assert_eq!(f64_at(&buf, k("added_damping_ns_per_m")), 41.5);
+    assert_eq!(f64_at(&buf, k("added_damping_corner_hz")), 42.5);
+    assert_eq!(f64_at(&buf, k("gain")), 43.5);
+    assert_eq!(u32_at(&buf, k("lead_order")), 44);
 
     let control = ControlDatagram {
         command: 41,
@@ -432,5 +470,63 @@ fn the_c_headers_law_and_lead_helpers_give_the_rust_numbers() {
                 );
             }
         }
+    }
+}
+
+/// The header's `fastemu_compensated_force` (what an external rig runs every period) gives
+/// the simulated rig's servo's numbers: prediction over the command's lead, the guard's
+/// damping on the high-passed velocity, the limits, the gain.
+#[test]
+fn the_c_headers_compensated_force_is_the_servos() {
+    use fastemu::hil::config::default_hil_config;
+    use fastemu::rig::servo::Servo;
+    let m = probe();
+    let cfg = default_hil_config().unwrap();
+    let servo_cfg = fastemu::rig::servo::ServoConfig {
+        period_s: 1.0 / 4096.0,
+        command_stale_periods: 205,
+        ..cfg.servo_config()
+    };
+    let mut servo = Servo::new(servo_cfg, 3.5e-4, 2.0e4);
+    let cmd = ActuatorCommand {
+        sequence: 0,
+        setpoint_sequence: 0,
+        sample_sequence: 2,
+        sample_publish_time_ns: 0,
+        law: LocalLaw {
+            force_n: 2.0e4,
+            displacement_m: 3.5e-4,
+            velocity_m_per_s: -1.0e-3,
+            stiffness_n_per_m: 5.7e7,
+            damping_ns_per_m: 75.0,
+            force_rate_n_per_s: -12.5,
+            stiffness_slope_n_per_m2: 1.0e10,
+        },
+        force_min_n: -5e3,
+        force_max_n: 1.2e5,
+        mode: command_mode::LAW,
+        controller_state: 1,
+        fault_code: 0,
+        reserved: 0,
+        compensation: Compensation {
+            lead_s: 3.0e-4,
+            added_damping_ns_per_m: 2.0e3,
+            added_damping_corner_hz: 60.0,
+            gain: 0.95,
+            lead_order: 2,
+            reserved: 0,
+        },
+    };
+    servo.on_command(&cmd, 0);
+    for k in 0..8u64 {
+        let kf = k as f64;
+        let z = 3.5e-4 + 2.0e-5 * kf * kf - 1.0e-6 * kf * kf * kf;
+        let (out, _) = servo.update(k, z, 2.0e4);
+        let c = m[&format!("comp.{k}")];
+        assert!(
+            (out.command_n - c).abs() <= 1e-9 * c.abs().max(1.0),
+            "period {k}: servo {} vs header {c}",
+            out.command_n
+        );
     }
 }

@@ -546,6 +546,7 @@ fn commands_with_bad_content_are_dropped_and_end_in_commands_stale() {
         controller_state: 1,
         fault_code: 0,
         reserved: 0,
+        compensation: fastemu::ipc::messages::Compensation::NONE,
     };
     let mut nan_law = good;
     nan_law.law.force_n = f64::NAN;
