@@ -63,13 +63,13 @@ impl CompensationConfig {
             max_delay_s: 0.01,
             estimator_band_hz: 30.0,
             estimator_memory_s: 0.25,
-            adapt_time_s: 0.3,
+            adapt_time_s: 0.2,
             guard_band_hz: 60.0,
             guard_band_top_hz: 400.0,
             guard_onset_energy_j: 0.5e-3,
             guard_full_energy_j: 5.0e-3,
             guard_max_damping_ns_per_m: 40.0e3,
-            guard_release_s: 0.5,
+            guard_release_s: 0.25,
         }
     }
 }
@@ -77,16 +77,22 @@ impl CompensationConfig {
 /// The estimator's view after a sample.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct DelayEstimate {
-    /// Residual delay of the rendered force behind the element's (the lead is short by
-    /// this), s.
-    pub residual_delay_s: f64,
-    /// Its standard error, s (infinite until the data carry it).
-    pub residual_delay_sigma_s: f64,
-    /// Rendered force per element force in the load band.
+    /// The actuator side's effective output delay (zero-order hold, transport, lag): how
+    /// late the rendered force would follow the element's force without a lead, s.
+    pub delay_s: f64,
+    /// Its standard error, s.
+    pub delay_sigma_s: f64,
+    /// The actuator's force per commanded force in the load band.
     pub residual_gain: f64,
 }
 
-/// Exponentially weighted least squares of `y ~ a x + b xdot` on load-band signals.
+/// Exponentially weighted least squares on load-band signals. The rig renders the
+/// element's force predicted over the lead `L` in effect, `d` late, with gain `g`:
+/// `F_meas(t) = g F(t + L - d) ~ g (F + L dF/dt) - g d dF/dt`, so with the regressors
+/// `x = F + L dF/dt` (the lead the rig used at that sample) and `dF/dt`,
+/// `F_meas ~ a x + b dF/dt` gives `g = a` and the whole delay `d = -b/a` whatever leads
+/// the window's samples were rendered with (exact to first order in `L - d`, so exact at
+/// convergence).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DelayEstimator {
     /// Two cascaded second-order low-passes per signal (fourth order): the resonance's
@@ -97,6 +103,9 @@ pub struct DelayEstimator {
     dt_s: f64,
     last_x: f64,
     primed: bool,
+    /// Samples to skip after a restart while the filters settle.
+    warmup_left: u32,
+    warmup: u32,
     /// Weighted sums: xx, xd, dd, xy, dy, yy, and the weight.
     s: [f64; 7],
 }
@@ -110,6 +119,9 @@ impl DelayEstimator {
             dt_s,
             last_x: 0.0,
             primed: false,
+            // Four time constants of the 4th-order low-pass.
+            warmup_left: 0,
+            warmup: (4.0 / (band_hz * dt_s)).ceil() as u32,
             s: [0.0; 7],
         }
     }
@@ -121,7 +133,12 @@ impl DelayEstimator {
 
     /// One consecutive rig sample; `None` until the regression is determined.
     #[inline]
-    pub fn update(&mut self, element_force_n: f64, measured_force_n: f64) -> Option<DelayEstimate> {
+    pub fn update(
+        &mut self,
+        element_force_n: f64,
+        measured_force_n: f64,
+        lead_s: f64,
+    ) -> Option<DelayEstimate> {
         if !(element_force_n.is_finite() && measured_force_n.is_finite()) {
             self.restart();
             return None;
@@ -135,6 +152,7 @@ impl DelayEstimator {
             }
             self.last_x = element_force_n;
             self.primed = true;
+            self.warmup_left = self.warmup;
             return None;
         }
         let x = self.lp_element[0].step(element_force_n);
@@ -143,6 +161,11 @@ impl DelayEstimator {
         let y = self.lp_measured[1].step(y);
         let d = (x - self.last_x) / self.dt_s;
         self.last_x = x;
+        if self.warmup_left > 0 {
+            self.warmup_left -= 1;
+            return None;
+        }
+        let x = x + lead_s * d;
         let l = self.forget;
         let s = &mut self.s;
         s[0] = l * s[0] + x * x;
@@ -166,8 +189,8 @@ impl DelayEstimator {
         let dof = (s[6] - 2.0).max(1.0);
         let var_b = rss / dof * s[0] / det;
         Some(DelayEstimate {
-            residual_delay_s: -b / a,
-            residual_delay_sigma_s: var_b.sqrt() / a.abs(),
+            delay_s: -b / a,
+            delay_sigma_s: var_b.sqrt() / a.abs(),
             residual_gain: a,
         })
     }
@@ -277,8 +300,13 @@ pub struct Compensator {
     lead_s: f64,
     gain: f64,
     last_sample_seq: Option<u64>,
+    /// The last setpoint's (displacement, element force, measured force).
+    last_values: (f64, f64, f64),
     status: CompensationStatus,
 }
+
+/// Longest run of samples without a setpoint that the compensator bridges.
+const MAX_BRIDGED_GAP: u64 = 8;
 
 impl Compensator {
     pub fn new(cfg: CompensationConfig, dt_s: f64) -> Compensator {
@@ -296,6 +324,7 @@ impl Compensator {
             lead_s,
             gain: 1.0,
             last_sample_seq: None,
+            last_values: (0.0, 0.0, 0.0),
             status: CompensationStatus {
                 compensation,
                 identified_delay_s: f64::NAN,
@@ -332,14 +361,52 @@ impl Compensator {
         element_force_n: f64,
         measured_force_n: f64,
     ) -> Compensation {
-        let consecutive = self.last_sample_seq.is_some_and(|s| sample_seq == s + 1);
-        self.last_sample_seq = Some(sample_seq);
-        if !consecutive {
+        // A few samples without a setpoint (the emulator took two in one cycle) are bridged
+        // by linear interpolation, as the emulator bridges missing samples; a longer gap, or
+        // a sample out of order, restarts the estimator and the guard's observer.
+        let gap = match self.last_sample_seq {
+            Some(last) if sample_seq > last => sample_seq - last,
+            _ => u64::MAX,
+        };
+        let now = (displacement_m, element_force_n, measured_force_n);
+        if gap == u64::MAX || gap > MAX_BRIDGED_GAP {
             self.estimator.restart();
             self.guard.restart();
+            self.feed(now);
+        } else {
+            let (z0, e0, m0) = self.last_values;
+            for j in 1..=gap {
+                let w = j as f64 / gap as f64;
+                self.feed((
+                    z0 + w * (now.0 - z0),
+                    e0 + w * (now.1 - e0),
+                    m0 + w * (now.2 - m0),
+                ));
+            }
         }
+        self.last_sample_seq = Some(sample_seq);
+        self.last_values = now;
+        self.status.compensation = Compensation {
+            lead_s: self.lead_s,
+            added_damping_ns_per_m: self.status.guard.damping_ns_per_m,
+            added_damping_corner_hz: self.cfg.guard_band_hz,
+            gain: self.gain,
+            lead_order: self.cfg.lead_order,
+            reserved: 0,
+        };
+        self.status.compensation
+    }
+
+    /// One rig sample (measured or bridged) through the estimator and the guard.
+    #[inline]
+    fn feed(&mut self, (displacement_m, element_force_n, measured_force_n): (f64, f64, f64)) {
         if self.cfg.adapt {
-            if let Some(e) = self.estimator.update(element_force_n, measured_force_n) {
+            // The rig divided by the gain in effect: the actuator's own force per command
+            // is the measured force times that gain.
+            if let Some(e) =
+                self.estimator
+                    .update(element_force_n, measured_force_n * self.gain, self.lead_s)
+            {
                 self.adapt(e);
             }
         }
@@ -350,39 +417,29 @@ impl Compensator {
             GuardState::default()
         };
         self.status.guard = guard;
-        self.status.compensation = Compensation {
-            lead_s: self.lead_s,
-            added_damping_ns_per_m: guard.damping_ns_per_m,
-            added_damping_corner_hz: self.cfg.guard_band_hz,
-            gain: self.gain,
-            lead_order: self.cfg.lead_order,
-            reserved: 0,
-        };
-        self.status.compensation
     }
 
     /// Moves the lead and gain towards the estimate: a first-order step of `dt /
-    /// adapt_time` of the residual, each step bounded (no jump the loop could feel), only
-    /// when the residual is resolved by the data (its standard error under a quarter of it,
-    /// or under 10 us).
+    /// adapt_time` of the difference, each step bounded (no jump the loop could feel),
+    /// only when the data resolve the estimate (its standard error under 20 us, or under a
+    /// quarter of the difference).
     #[inline]
     fn adapt(&mut self, e: DelayEstimate) {
-        let identified = self.lead_s + e.residual_delay_s;
-        self.status.identified_delay_s = identified;
-        self.status.identified_delay_sigma_s = e.residual_delay_sigma_s;
-        let resolved = e.residual_delay_sigma_s.is_finite()
-            && (e.residual_delay_sigma_s < 0.25 * e.residual_delay_s.abs()
-                || e.residual_delay_sigma_s < 10e-6);
-        if !resolved || !(0.5..=2.0).contains(&e.residual_gain) {
+        self.status.identified_delay_s = e.delay_s;
+        self.status.identified_delay_sigma_s = e.delay_sigma_s;
+        let difference = e.delay_s - self.lead_s;
+        let resolved = e.delay_sigma_s.is_finite()
+            && (e.delay_sigma_s < 20e-6 || e.delay_sigma_s < 0.25 * difference.abs());
+        if !resolved || !(0.5..=2.0).contains(&e.residual_gain) || !e.delay_s.is_finite() {
             return;
         }
         let k = (self.dt_s / self.cfg.adapt_time_s).min(1.0);
         // At most 2 ms of lead per second (0.5 us per sample at 4096 Hz).
         let max_step = 2e-3 * self.dt_s;
-        let step = (k * e.residual_delay_s).clamp(-max_step, max_step);
+        let step = (k * difference).clamp(-max_step, max_step);
         self.lead_s = (self.lead_s + step).clamp(0.0, self.cfg.max_delay_s);
-        let gain_step = (k * (e.residual_gain - 1.0)).clamp(-1e-4, 1e-4);
-        self.gain = (self.gain * (1.0 + gain_step)).clamp(0.5, 2.0);
+        let gain_step = (k * (e.residual_gain - self.gain)).clamp(-1e-4, 1e-4);
+        self.gain = (self.gain + gain_step).clamp(0.5, 2.0);
     }
 }
 
@@ -401,19 +458,25 @@ mod tests {
     #[test]
     fn estimator_finds_a_delay_and_gain() {
         for &(delay, gain) in &[(300e-6, 1.0), (2.5e-3, 0.9), (-150e-6, 1.1)] {
-            let mut est = DelayEstimator::new(40.0, 0.5, DT);
+            // Rendered over a lead of 100 us: the estimate is the whole delay.
+            let lead = 100e-6;
+            let mut est = DelayEstimator::new(30.0, 0.5, DT);
             let mut last = None;
             for i in 0..(4096 * 3) {
                 let t = i as f64 * DT;
-                last = est.update(element_force(t), gain * element_force(t - delay));
+                last = est.update(
+                    element_force(t),
+                    gain * element_force(t + lead - delay),
+                    lead,
+                );
             }
             let e = last.expect("determined");
             assert!(
-                (e.residual_delay_s - delay).abs() < 0.03 * delay.abs(),
+                (e.delay_s - delay).abs() < 0.03 * delay.abs(),
                 "{e:?} vs {delay}"
             );
             assert!((e.residual_gain - gain).abs() < 0.01, "{e:?} vs {gain}");
-            assert!(e.residual_delay_sigma_s < 0.1 * delay.abs());
+            assert!(e.delay_sigma_s < 0.1 * delay.abs());
         }
     }
 
@@ -421,12 +484,21 @@ mod tests {
     /// the rendered force at `t` is `g F(t - d + lead)` (the rig predicted over the lead).
     #[test]
     fn adaptation_converges_from_a_guess_off_by_100_percent() {
-        for &(true_delay, guess) in &[(252e-6, 0.0), (252e-6, 504e-6), (5e-3, 2.5e-3)] {
+        for &(true_delay, guess) in &[(252e-6, 0.0), (252e-6, 504e-6), (2.1e-3, 4.2e-3)] {
             let mut cfg = CompensationConfig::with_initial_delay(guess);
             cfg.passivity_guard = false;
             let mut c = Compensator::new(cfg, DT);
             let mut comp = c.status().compensation;
+            // Settled within 2 s: the lead stays within 2 % from then on.
             for i in 0..(4096 * 4) {
+                if i >= 4096 * 2 {
+                    assert!(
+                        (comp.lead_s - true_delay).abs() < 0.02 * true_delay,
+                        "t = {} s: lead {} vs {true_delay}",
+                        i as f64 * DT,
+                        comp.lead_s
+                    );
+                }
                 let t = i as f64 * DT;
                 let measured = 0.95 * element_force(t - true_delay + comp.lead_s) / comp.gain;
                 comp = c.on_sample(i as u64, 0.0, element_force(t), measured);

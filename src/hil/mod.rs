@@ -5,6 +5,7 @@
 //! Must not: import iceoryx2 (only `ipc/` does); allocate, log or do I/O in the loop
 //! iterations (`EmulatorCore::cycle`, `ControllerCore::on_*`).
 
+pub mod check;
 pub mod compensation;
 pub mod config;
 pub mod controller;

@@ -679,7 +679,7 @@ mod tests {
         bad[0] = b'X';
         check(&bad, Side::Fastemu, Reject::BadMagic);
         let mut bad = good.clone();
-        bad[4] = 2;
+        bad[4] = 1; // the previous link protocol
         check(&bad, Side::Fastemu, Reject::BadVersion);
         let mut bad = good.clone();
         bad[6] = 9;

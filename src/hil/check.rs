@@ -1,0 +1,314 @@
+//! `fastemu hil --check`: the linearised loop's stability margin before a run, for the
+//! configured specimen (mass, rig damping), element (its small-signal modulus at the
+//! preload, SPEC 2.1), actuator (its frequency response) and compensation (the rig's
+//! prediction over the lead, the zero-order hold, the identified gain).
+//!
+//! The loop's characteristic function on the imaginary axis is
+//! `D(jw) = -m w^2 + jw c + H_u(jw) P(jw) Z(jw) / g + jw H_v(jw)`, with `Z` the element's
+//! complex modulus, `P` the rig's prediction (the Lagrange weights' response, and the
+//! zero-order hold), `H_u` the actuator's force per command and `H_v` its force per
+//! specimen velocity. `D` is a retarded quasi-polynomial of degree 2 whose open loop has no
+//! right-half-plane pole, so (Stepan's argument principle) the loop is stable exactly when
+//! the argument of `D(jw)` rises by `pi` from `w = 0` to `w -> inf`. The margins come from
+//! bisection on that test: the extra actuator delay the loop tolerates (both ways) and the
+//! gain factor; the thinnest frequency is where `|1 + L|` is smallest,
+//! `L = (D - D_open) / D_open`, `D_open = -m w^2 + jw c + jw H_v`.
+//!
+//! Must not: run anything or touch the loop (pure numbers and one plot).
+
+use std::f64::consts::PI;
+
+use realfft::num_complex::Complex64;
+
+use super::config::HilConfig;
+use crate::model::equiv::equivalent;
+use crate::plot::{draw_png, Panel, Series};
+use crate::rig::servo::lead_weights;
+
+/// The linearised loop.
+#[derive(Debug, Clone)]
+pub struct LinearLoop {
+    pub mass_kg: f64,
+    pub damping_ns_per_m: f64,
+    pub period_s: f64,
+    pub lead_s: f64,
+    pub lead_order: u32,
+    pub gain: f64,
+    /// The element's modulus `k_eq(w) + j w c_eq(w)` at the preload, on the frequency grid.
+    element: Vec<Complex64>,
+    /// Actuator responses on the grid: force per command, force per specimen velocity.
+    actuator_u: Vec<Complex64>,
+    actuator_v: Vec<Complex64>,
+    omega: Vec<f64>,
+}
+
+/// What `--check` reports.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Margins {
+    pub stable: bool,
+    /// The largest extra actuator delay the loop stays stable with (the actuator slower
+    /// than the lead assumes), us; `null` in JSON when already unstable.
+    pub delay_error_tolerated_slower_us: Option<f64>,
+    /// The same with the actuator faster than the lead assumes, us.
+    pub delay_error_tolerated_faster_us: Option<f64>,
+    /// The factor on the rendered force at which the loop becomes unstable (above 1).
+    pub gain_margin: Option<f64>,
+    /// Where the loop comes nearest to instability: the frequency of the smallest
+    /// `|1 + L|`, Hz, and that distance.
+    pub thinnest_frequency_hz: f64,
+    pub modulus_margin: f64,
+}
+
+/// Frequency grid: 0.05 Hz steps near 0 up to Nyquist, dense enough for the unwrapped
+/// phase of a 20 ms delay (a step of 0.25 Hz turns it by 1.8 degrees).
+fn grid(period_s: f64) -> Vec<f64> {
+    let nyquist_hz = 0.5 / period_s;
+    let mut f = Vec::new();
+    let mut x = 0.05;
+    while x < nyquist_hz {
+        f.push(2.0 * PI * x);
+        x += if x < 5.0 { 0.05 } else { 0.25 };
+    }
+    f
+}
+
+impl LinearLoop {
+    /// The configured loop; `actuator(w)` gives `(H_u, H_v)` at circular frequency `w`.
+    pub fn new(
+        cfg: &HilConfig,
+        actuator: impl Fn(f64) -> (Complex64, Complex64),
+        lead_s: f64,
+        gain: f64,
+    ) -> LinearLoop {
+        let omega = grid(cfg.loop_.dt_s());
+        let preload = cfg.scenario.preload_n;
+        let element = omega
+            .iter()
+            .map(|&w| {
+                let e = equivalent(&cfg.model.element, preload, w);
+                Complex64::new(e.k_eq_n_per_m, w * e.c_eq_ns_per_m)
+            })
+            .collect();
+        let (actuator_u, actuator_v) = omega.iter().map(|&w| actuator(w)).unzip();
+        LinearLoop {
+            mass_kg: cfg.rig.specimen_mass_kg,
+            damping_ns_per_m: cfg.rig.damping_ns_per_m,
+            period_s: cfg.loop_.dt_s(),
+            lead_s,
+            lead_order: cfg.compensation.lead_order,
+            gain,
+            element,
+            actuator_u,
+            actuator_v,
+            omega,
+        }
+    }
+
+    /// The rig's prediction and zero-order hold at `w`: the displacement predicted over the
+    /// lead from the newest samples, held over the period.
+    fn prediction(&self, w: f64) -> Complex64 {
+        let (value, _) = lead_weights(self.lead_order as usize, self.period_s, self.lead_s);
+        let mut p = Complex64::new(0.0, 0.0);
+        for (i, v) in value.iter().enumerate() {
+            p += *v * Complex64::from_polar(1.0, -w * i as f64 * self.period_s);
+        }
+        let h = self.period_s;
+        let zoh = if w * h > 1e-9 {
+            (Complex64::new(1.0, 0.0) - Complex64::from_polar(1.0, -w * h))
+                / Complex64::new(0.0, w * h)
+        } else {
+            Complex64::new(1.0, 0.0)
+        };
+        p * zoh
+    }
+
+    /// Open part and loop part of `D` at grid point `i` with an extra delay and a gain
+    /// factor on the actuator's force per command.
+    fn parts(&self, i: usize, extra_delay_s: f64, gain_factor: f64) -> (Complex64, Complex64) {
+        let w = self.omega[i];
+        let jw = Complex64::new(0.0, w);
+        let open = Complex64::new(-self.mass_kg * w * w, 0.0)
+            + jw * self.damping_ns_per_m
+            + jw * self.actuator_v[i];
+        let delay = Complex64::from_polar(gain_factor, -w * extra_delay_s);
+        let rendered =
+            self.actuator_u[i] * delay * self.prediction(w) * self.element[i] / self.gain;
+        (open, rendered)
+    }
+
+    /// Stability by the argument principle (module doc).
+    pub fn is_stable(&self, extra_delay_s: f64, gain_factor: f64) -> bool {
+        let mut last = f64::NAN;
+        let mut unwrapped = 0.0;
+        for i in 0..self.omega.len() {
+            let (open, rendered) = self.parts(i, extra_delay_s, gain_factor);
+            let arg = (open + rendered).arg();
+            if last.is_nan() {
+                unwrapped = arg;
+            } else {
+                let mut d = arg - last;
+                while d > PI {
+                    d -= 2.0 * PI;
+                }
+                while d < -PI {
+                    d += 2.0 * PI;
+                }
+                unwrapped += d;
+            }
+            last = arg;
+        }
+        // From 0 (a positive static stiffness) to pi (the mass dominates): one half turn.
+        (unwrapped - PI).abs() < 0.5 * PI
+    }
+
+    /// The margins (bisection on `is_stable`).
+    pub fn margins(&self) -> Margins {
+        let stable = self.is_stable(0.0, 1.0);
+        let bisect = |lo: f64, hi: f64, ok: &dyn Fn(f64) -> bool| -> f64 {
+            let (mut a, mut b) = (lo, hi);
+            for _ in 0..40 {
+                let mid = 0.5 * (a + b);
+                if ok(mid) {
+                    a = mid;
+                } else {
+                    b = mid;
+                }
+            }
+            a
+        };
+        let (slower, faster, gain) = if stable {
+            let max_delay = 0.02;
+            let slower = if self.is_stable(max_delay, 1.0) {
+                max_delay
+            } else {
+                bisect(0.0, max_delay, &|d| self.is_stable(d, 1.0))
+            };
+            let min_delay = -(self.lead_s + self.period_s);
+            let faster = if self.is_stable(min_delay, 1.0) {
+                -min_delay
+            } else {
+                -bisect(0.0, min_delay, &|d| self.is_stable(d, 1.0))
+            };
+            let gain = if self.is_stable(0.0, 100.0) {
+                100.0
+            } else {
+                bisect(1.0, 100.0, &|g| self.is_stable(0.0, g))
+            };
+            (Some(slower * 1e6), Some(faster * 1e6), Some(gain))
+        } else {
+            (None, None, None)
+        };
+        let (mut thin_i, mut thin) = (0, f64::INFINITY);
+        for i in 0..self.omega.len() {
+            let (open, rendered) = self.parts(i, 0.0, 1.0);
+            let d = ((open + rendered) / open).norm();
+            if d < thin {
+                thin = d;
+                thin_i = i;
+            }
+        }
+        Margins {
+            stable,
+            delay_error_tolerated_slower_us: slower,
+            delay_error_tolerated_faster_us: faster,
+            gain_margin: gain,
+            thinnest_frequency_hz: self.omega[thin_i] / (2.0 * PI),
+            modulus_margin: thin,
+        }
+    }
+
+    /// Bode (|L|, phase of L) and Nyquist of the loop transfer `L = rendered / open`.
+    pub fn plot(&self, path: &std::path::Path, title: &str) -> anyhow::Result<()> {
+        let mut f = Vec::new();
+        let (mut mag, mut phase, mut re, mut im) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for i in 0..self.omega.len() {
+            let (open, rendered) = self.parts(i, 0.0, 1.0);
+            let l = rendered / open;
+            f.push(self.omega[i] / (2.0 * PI));
+            mag.push(20.0 * l.norm().log10());
+            phase.push(l.arg().to_degrees());
+            if l.norm() < 4.0 {
+                re.push(l.re);
+                im.push(l.im);
+            }
+        }
+        let bode_mag = Panel::new(
+            &format!("{title}: loop gain |L|"),
+            "frequency, Hz",
+            "|L|, dB",
+        )
+        .log_x()
+        .with(Series::line("|L|", f.clone(), mag, 0))
+        .with(Series::dashed(
+            "0 dB",
+            vec![f[0], *f.last().unwrap()],
+            vec![0.0, 0.0],
+            3,
+        ));
+        let bode_phase = Panel::new("phase of L", "frequency, Hz", "degrees")
+            .log_x()
+            .with(Series::line("arg L", f.clone(), phase, 1))
+            .with(Series::dashed(
+                "-180",
+                vec![f[0], *f.last().unwrap()],
+                vec![-180.0, -180.0],
+                3,
+            ));
+        let circle_t: Vec<f64> = (0..=200).map(|k| 2.0 * PI * k as f64 / 200.0).collect();
+        let nyquist = Panel::new("Nyquist of L near -1 (|L| < 4)", "Re L", "Im L")
+            .x_range(-3.0, 1.0)
+            .y_range(-2.0, 2.0)
+            .with(Series::points("L(jw)", re, im, 0))
+            .with(Series::dashed(
+                "unit circle",
+                circle_t.iter().map(|t| t.cos()).collect(),
+                circle_t.iter().map(|t| t.sin()).collect(),
+                3,
+            ))
+            .with(Series::points("-1", vec![-1.0], vec![0.0], 2));
+        draw_png(path, 1000, 1200, 1, &[bode_mag, bode_phase, nyquist])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::hil::config::default_hil_config;
+
+    fn lag_delay(tau: f64, lag: f64) -> impl Fn(f64) -> (Complex64, Complex64) {
+        move |w| {
+            (
+                Complex64::from_polar(1.0, -w * tau) / Complex64::new(1.0, w * lag),
+                Complex64::new(0.0, 0.0),
+            )
+        }
+    }
+
+    #[test]
+    fn default_loop_is_stable_and_a_lead_100_us_short_is_not() {
+        let cfg = default_hil_config().unwrap();
+        // The default actuator (50 us + 80 us) with the lead matched (252 us).
+        let l = LinearLoop::new(&cfg, lag_delay(50e-6, 80e-6), 252e-6, 1.0);
+        let m = l.margins();
+        assert!(m.stable, "{m:?}");
+        // The observations: 52 us short (lead 200) was stable, 102 us short (lead
+        // 150) a limit cycle: the tolerated error lies between.
+        let slower = m.delay_error_tolerated_slower_us.unwrap();
+        assert!((40.0..110.0).contains(&slower), "{m:?}");
+        // It thins out at the specimen's resonance (~155 Hz).
+        assert!((120.0..220.0).contains(&m.thinnest_frequency_hz), "{m:?}");
+        let short = LinearLoop::new(&cfg, lag_delay(50e-6, 80e-6), 150e-6, 1.0);
+        assert!(!short.is_stable(0.0, 1.0));
+        // Lead 0: diverges (the table).
+        assert!(!LinearLoop::new(&cfg, lag_delay(50e-6, 80e-6), 0.0, 1.0).is_stable(0.0, 1.0));
+    }
+
+    #[test]
+    fn an_ideal_actuator_without_lead_needs_only_the_hold() {
+        let cfg = default_hil_config().unwrap();
+        // No actuator delay: only the zero-order hold's half period, which a lead of
+        // half a period covers.
+        let l = LinearLoop::new(&cfg, lag_delay(0.0, 0.0), 0.5 / 4096.0, 1.0);
+        assert!(l.margins().stable);
+    }
+}
