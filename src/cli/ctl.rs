@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use clap::{Args, Subcommand};
 
 use crate::hil::fault::fault_code_name;
-use crate::hil::registry::{running, RunEntry};
+use crate::hil::registry::{running, RunEntry, Scan};
 use crate::ipc::messages::{
     controller_state, emulator_state, process_id, rig_state, run_command, Heartbeat, RunControl,
     HEARTBEAT_READY,
@@ -39,27 +39,45 @@ pub enum CtlAction {
     Status,
 }
 
-fn find_run(run_id: Option<&str>) -> anyhow::Result<RunEntry> {
-    let runs = running();
-    match run_id {
-        Some(id) => runs.into_iter().find(|r| r.run_id == id).ok_or_else(|| {
-            anyhow::anyhow!(
-                "no running hil run `{id}` of this user (`fastemu ctl status` lists them)"
-            )
-        }),
-        None => match runs.len() {
-            0 => anyhow::bail!("no hil run of this user is running"),
-            1 => Ok(runs.into_iter().next().expect("one run")),
-            _ => anyhow::bail!(
+/// Says on stderr which registry entries could not be read, and why.
+fn report_skipped(scan: &Scan) {
+    for s in &scan.skipped {
+        eprintln!("ctl: {s}");
+    }
+}
+
+/// The run to control. The skipped entries are reported when they matter: when no run is
+/// chosen, or when one is chosen by elimination (a skipped entry may be another run).
+fn find_run(scan: Scan, run_id: Option<&str>) -> anyhow::Result<RunEntry> {
+    let found = match run_id {
+        Some(id) => scan
+            .runs
+            .iter()
+            .find(|r| r.run_id == id)
+            .cloned()
+            .ok_or_else(|| {
+                anyhow::anyhow!(
+                    "no running hil run `{id}` of this user (`fastemu ctl status` lists them)"
+                )
+            }),
+        None => match scan.runs.len() {
+            0 => Err(anyhow::anyhow!("no hil run of this user is running")),
+            1 => Ok(scan.runs[0].clone()),
+            _ => Err(anyhow::anyhow!(
                 "{} hil runs are running ({}): choose one with --run-id",
-                runs.len(),
-                runs.iter()
+                scan.runs.len(),
+                scan.runs
+                    .iter()
                     .map(|r| r.run_id.as_str())
                     .collect::<Vec<_>>()
                     .join(", ")
-            ),
+            )),
         },
+    };
+    if found.is_err() || run_id.is_none() {
+        report_skipped(&scan);
     }
+    found
 }
 
 fn state_name(hb: &Heartbeat) -> String {
@@ -143,14 +161,16 @@ fn print_status(run: &RunEntry, node: &IpcNode) -> anyhow::Result<()> {
 
 pub fn run(args: CtlArgs) -> anyhow::Result<ExitCode> {
     quiet_iceoryx2_logs();
-    if args.action == CtlAction::Status && args.run_id.is_none() && running().len() > 1 {
-        for run in running() {
+    let scan = running();
+    if args.action == CtlAction::Status && args.run_id.is_none() && scan.runs.len() > 1 {
+        report_skipped(&scan);
+        for run in &scan.runs {
             let node = IpcNode::new(&run.run_id, "ctl")?;
-            print_status(&run, &node)?;
+            print_status(run, &node)?;
         }
         return Ok(ExitCode::SUCCESS);
     }
-    let run = find_run(args.run_id.as_deref())?;
+    let run = find_run(scan, args.run_id.as_deref())?;
     let node = IpcNode::new(&run.run_id, "ctl")?;
     let (command, wanted): (u32, &[u32]) = match args.action {
         CtlAction::Status => {
