@@ -338,6 +338,14 @@ fn not_clean_because(
             if !a.stability.stable {
                 why.push("the loop was not stable (see stability)".into());
             }
+            let error = a.fidelity.displacement_rel_rms;
+            if error > cfg.safety.max_displacement_error {
+                why.push(format!(
+                    "displacement error {:.3} % > [safety] max_displacement_error = {:.3} %",
+                    error * 100.0,
+                    cfg.safety.max_displacement_error * 100.0
+                ));
+            }
             if a.largest_transient_m > cfg.safety.max_transient_m {
                 why.push(format!(
                     "largest resonant transient {:.1} um > [safety] max_transient_m = {:.1} um",
@@ -609,6 +617,7 @@ fn summarise(
         "max_transient_um": cfg.safety.max_transient_m * 1e6,
         "fidelity": value(analysis.map(|a| serde_json::to_value(&a.fidelity).unwrap_or_default())),
         "stability": value(analysis.map(|a| serde_json::to_value(&a.stability).unwrap_or_default())),
+        "compensation": value(analysis.map(|a| serde_json::to_value(&a.compensation).unwrap_or_default())),
         "latency_ns": value(analysis.map(|a| serde_json::to_value(&a.latency_ns).unwrap_or_default())),
         "events": value(analysis.map(|a| json!(a.events))),
         "model": {

@@ -6,6 +6,7 @@
 //! Must not: fill in physical constants silently (every physical key is required).
 
 use crate::hil::compensation::CompensationConfig;
+use crate::hil::passivity::StabilityBounds;
 use crate::ipc::messages::Compensation;
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -212,6 +213,18 @@ struct RawSafety {
     unload_rate_n_per_s: f64,
     resume_blend_ms: f64,
     max_transient_m: f64,
+    #[serde(default)]
+    max_displacement_error: Option<f64>,
+    #[serde(default)]
+    stability_band_low_hz: Option<f64>,
+    #[serde(default)]
+    stability_band_high_hz: Option<f64>,
+    #[serde(default)]
+    stability_memory_ms: Option<f64>,
+    #[serde(default)]
+    max_generated_energy_j: Option<f64>,
+    #[serde(default)]
+    max_oscillation_m: Option<f64>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -357,6 +370,11 @@ pub struct SafetyConfig {
     /// A run whose largest resonant transient (HIL minus reference) exceeds this is not
     /// reported as clean, m.
     pub max_transient_m: f64,
+    /// A run whose displacement error (relative RMS against the offline reference) exceeds
+    /// this is not clean (default 0.01).
+    pub max_displacement_error: f64,
+    /// The online stability monitor's bounds (`loop-unstable`).
+    pub stability: StabilityBounds,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -1271,6 +1289,61 @@ fn parse_safety(check: &Check, s: &RawSafety) -> Result<SafetyConfig, ConfigErro
         unload_rate_n_per_s: check.positive("safety.unload_rate_n_per_s", s.unload_rate_n_per_s)?,
         resume_blend_s: check.non_negative("safety.resume_blend_ms", s.resume_blend_ms)? * 1e-3,
         max_transient_m: check.positive("safety.max_transient_m", s.max_transient_m)?,
+        max_displacement_error: match s.max_displacement_error {
+            Some(v) => check.positive("safety.max_displacement_error", v)?,
+            None => 0.01,
+        },
+        stability: parse_stability(check, s)?,
+    })
+}
+
+/// `[safety]` keys of the stability monitor (defaults: `StabilityBounds::DEFAULT`).
+fn parse_stability(check: &Check, s: &RawSafety) -> Result<StabilityBounds, ConfigError> {
+    let d = StabilityBounds::DEFAULT;
+    let opt = |key: &str, v: Option<f64>, scale: f64, default: f64| -> Result<f64, ConfigError> {
+        match v {
+            Some(v) => Ok(check.positive(&format!("safety.{key}"), v)? * scale),
+            None => Ok(default),
+        }
+    };
+    let low = opt(
+        "stability_band_low_hz",
+        s.stability_band_low_hz,
+        1.0,
+        d.band_hz.0,
+    )?;
+    let high = opt(
+        "stability_band_high_hz",
+        s.stability_band_high_hz,
+        1.0,
+        d.band_hz.1,
+    )?;
+    if high <= low {
+        return Err(check.err(
+            "safety.stability_band_high_hz",
+            format!("{high} is not valid: expected more than stability_band_low_hz = {low}"),
+        ));
+    }
+    Ok(StabilityBounds {
+        band_hz: (low, high),
+        memory_s: opt(
+            "stability_memory_ms",
+            s.stability_memory_ms,
+            1e-3,
+            d.memory_s,
+        )?,
+        max_generated_energy_j: opt(
+            "max_generated_energy_j",
+            s.max_generated_energy_j,
+            1.0,
+            d.max_generated_energy_j,
+        )?,
+        max_oscillation_m: opt(
+            "max_oscillation_m",
+            s.max_oscillation_m,
+            1.0,
+            d.max_oscillation_m,
+        )?,
     })
 }
 

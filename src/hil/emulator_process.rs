@@ -232,7 +232,8 @@ pub fn run_emulator(
                 &cfg.loop_,
                 cfg.emulator,
                 cfg.stall_limit_periods(),
-            ),
+            )
+            .with_stability_bounds(cfg.safety.stability),
             io: IpcEmulatorIo {
                 input: &input,
                 output: &output,

@@ -72,7 +72,8 @@ pub fn run_in_process(cfg: &HilConfig, script: &InProcessScript) -> InProcessRun
         &cfg.loop_,
         cfg.emulator,
         cfg.stall_limit_periods(),
-    );
+    )
+    .with_stability_bounds(cfg.safety.stability);
     let mut controller = ControllerCore::new(
         cfg.controller,
         cfg.safety.actions,

@@ -5,6 +5,7 @@
 //! stalls and their transients, what each fault did to the specimen), then decimated plots.
 //! Offline code: never runs inside a loop.
 
+pub mod compensation;
 pub mod decimate;
 pub mod fidelity;
 pub mod latency;
@@ -78,6 +79,9 @@ pub struct Analysis {
     /// Largest resonant (>100 Hz) residual compared (no holds), m: the largest transient.
     pub largest_transient_m: f64,
     pub records: RecordsInfo,
+    /// The controller's compensation: lead and gain identified, the guard's activity, the
+    /// faithful band.
+    pub compensation: compensation::CompensationReport,
     /// Every event, as one line each.
     pub events: Vec<String>,
     /// Where the rig's view comes from: its own records, or (an external rig) what it
@@ -132,6 +136,7 @@ struct SideStreams {
     rig_records: u64,
     /// The first fault an external rig reported in its samples: (t_s, sample, code).
     sample_rig_fault: Option<(f64, u64, u32)>,
+    compensation: compensation::CompensationAnalyser,
 }
 
 /// Pass 1: events, the emulator's and the controller's records.
@@ -148,6 +153,7 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
         truncated: Vec::new(),
         rig_records: 0,
         sample_rig_fault: None,
+        compensation: compensation::CompensationAnalyser::new(dt, cfg.programme.end_s),
     };
     let mut last_cycle: Option<u64> = None;
     let mut last_command_t: Option<f64> = None;
@@ -164,6 +170,7 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
             t if t == EmulatorRecord::TOPIC => {
                 if let Some(r) = EmulatorRecord::decode(data) {
                     side.emulator_steps += 1;
+                    side.compensation.emulator(&r);
                     if r.rig_fault_code != 0 && side.sample_rig_fault.is_none() {
                         side.sample_rig_fault = Some((r.t_s, r.sample_seq, r.rig_fault_code));
                     }
@@ -182,6 +189,7 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
             }
             t if t == ControllerRecord::TOPIC => {
                 if let Some(r) = ControllerRecord::decode(data) {
+                    side.compensation.controller(&r);
                     if r.end_to_end_ns > 0 {
                         side.end_to_end.saturating_record(r.end_to_end_ns);
                     }
@@ -403,6 +411,13 @@ fn bands(cfg: &HilConfig) -> Vec<(String, f64, f64)> {
 pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
     let set = RecordSet::open(dir)?;
     let side = read_side_streams(&set, cfg)?;
+    let mut side = side;
+    let compensation_report = std::mem::replace(
+        &mut side.compensation,
+        compensation::CompensationAnalyser::new(cfg.loop_.dt_s(), 0.0),
+    )
+    .finish(cfg);
+    compensation::draw(dir, &compensation_report)?;
     let rig = read_rig_stream(&set, cfg, &side)?;
     anyhow::ensure!(
         rig.rig_steps > 16,
@@ -453,6 +468,7 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
         latency_ns,
         safety: rig.safety,
         stalls: rig.stalls,
+        compensation: compensation_report,
         records: RecordsInfo {
             files: set.files.iter().map(|p| p.display().to_string()).collect(),
             truncated: side.truncated.clone(),

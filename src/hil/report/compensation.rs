@@ -1,0 +1,400 @@
+//! The report's `compensation` object and the faithful band, from the records in
+//! streaming passes: the controller's records give the lead, gain and guard it sent (the
+//! estimate's trajectory, decimated), the emulator's records the element's force and the
+//! force the rig measured at every sample, whose cross-spectrum (Welch, 1 Hz bins) gives
+//! the rendered force per element force by frequency.
+//!
+//! Must not: hold a run's records in memory (bounded sums and decimated series only).
+
+use realfft::num_complex::Complex64;
+use realfft::RealFftPlanner;
+use serde::Serialize;
+
+use crate::hil::controller::ControllerRecord;
+use crate::hil::emulator::EmulatorRecord;
+use crate::ipc::messages::{command_mode, rig_state};
+
+/// Welch segment length, samples (1 s at 4096 Hz: 1 Hz bins).
+const SEGMENT: usize = 4096;
+/// Highest frequency the faithful band is looked for up to, Hz.
+const BAND_TOP_HZ: f64 = 200.0;
+/// Bins whose coherence is below this carry too little of the load to judge.
+const MIN_COHERENCE: f64 = 0.98;
+/// Faithful: amplitude within 1 %, phase within 2 degrees.
+const AMPLITUDE_TOL: f64 = 0.01;
+const PHASE_TOL_DEG: f64 = 2.0;
+
+/// The guard's activity over the run.
+#[derive(Debug, Clone, Serialize, Default)]
+pub struct GuardReport {
+    pub enabled: bool,
+    /// Time with damping added, s, and its share of the time in force control.
+    pub active_s: f64,
+    pub active_fraction: f64,
+    /// Energy the added damping dissipated (its force on the high-passed velocity), J.
+    pub dissipated_j: f64,
+    /// Largest damping added, N s/m.
+    pub max_damping_ns_per_m: f64,
+    /// Largest energy the guard's observer saw generated in its band, J.
+    pub max_generated_j: f64,
+    /// The band the guard observes and acts in, Hz.
+    pub band_hz: (f64, f64),
+}
+
+/// One point of the estimate's trajectory.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct EstimatePoint {
+    pub t_s: f64,
+    pub lead_us: f64,
+    pub identified_delay_us: f64,
+    pub identified_delay_sigma_us: f64,
+    pub gain: f64,
+    pub guard_damping_ns_per_m: f64,
+}
+
+/// The rendered force per element force at one frequency.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct RenderingPoint {
+    pub frequency_hz: f64,
+    pub amplitude_ratio: f64,
+    pub phase_deg: f64,
+    pub coherence: f64,
+}
+
+/// The report's `compensation` object.
+#[derive(Debug, Clone, Serialize, Default)]
+pub struct CompensationReport {
+    pub adapt: bool,
+    pub initial_delay_us: f64,
+    /// The effective delay the controller identified at the end of force control, and
+    /// its standard error, us (null: never identified).
+    pub identified_delay_us: Option<f64>,
+    pub identified_delay_sigma_us: Option<f64>,
+    /// The lead and gain sent last in force control.
+    pub final_lead_us: f64,
+    pub final_gain: f64,
+    /// When the lead first came and stayed within 5 % (or 10 us) of its final value, s.
+    pub settled_at_s: Option<f64>,
+    pub guard: GuardReport,
+    /// The highest frequency up to which the rendered force stays within 1 % in amplitude
+    /// and 2 degrees in phase of the element's (every bin from 1 Hz up that the load
+    /// excited); null when no bin was excited enough to judge.
+    pub faithful_band_hz: Option<f64>,
+    /// The first excited bin beyond it and why it is not faithful.
+    pub faithful_band_limited_by: Option<String>,
+    /// Rendering by frequency (excited bins up to 200 Hz).
+    pub rendering: Vec<RenderingPoint>,
+    /// The estimate's trajectory (decimated to at most 400 points).
+    pub trajectory: Vec<EstimatePoint>,
+}
+
+/// Streaming analyser of the controller's and emulator's records.
+pub struct CompensationAnalyser {
+    dt_s: f64,
+    // Controller side.
+    last: Option<ControllerRecord>,
+    force_control_s: f64,
+    active_s: f64,
+    max_damping: f64,
+    max_generated: f64,
+    identified: Option<(f64, f64)>,
+    trajectory: Vec<EstimatePoint>,
+    stride_s: f64,
+    next_point_s: f64,
+    /// (t, lead) at each change of the lead (for when it settled).
+    lead_points: Vec<(f64, f64)>,
+    // Emulator side: Welch segment being filled and the sums.
+    seg_x: Vec<f64>,
+    seg_y: Vec<f64>,
+    last_seq: Option<u64>,
+    sxx: Vec<f64>,
+    syy: Vec<f64>,
+    sxy: Vec<Complex64>,
+    segments: u64,
+    dissipated_j: f64,
+    last_guard: Option<(f64, f64)>,
+}
+
+impl CompensationAnalyser {
+    /// `duration_s`: the run's expected length (for the trajectory's decimation).
+    pub fn new(dt_s: f64, duration_s: f64) -> CompensationAnalyser {
+        let bins = SEGMENT / 2 + 1;
+        CompensationAnalyser {
+            dt_s,
+            last: None,
+            force_control_s: 0.0,
+            active_s: 0.0,
+            max_damping: 0.0,
+            max_generated: 0.0,
+            identified: None,
+            trajectory: Vec::new(),
+            stride_s: (duration_s / 400.0).max(dt_s),
+            next_point_s: 0.0,
+            lead_points: Vec::new(),
+            seg_x: Vec::with_capacity(SEGMENT),
+            seg_y: Vec::with_capacity(SEGMENT),
+            last_seq: None,
+            sxx: vec![0.0; bins],
+            syy: vec![0.0; bins],
+            sxy: vec![Complex64::new(0.0, 0.0); bins],
+            segments: 0,
+            dissipated_j: 0.0,
+            last_guard: None,
+        }
+    }
+
+    /// One controller record.
+    pub fn controller(&mut self, r: &ControllerRecord) {
+        if r.mode != command_mode::LAW || r.repeat != 0 {
+            self.last = Some(*r);
+            return;
+        }
+        if let Some(prev) = self.last {
+            if prev.mode == command_mode::LAW {
+                let dt = (r.t_s - prev.t_s).clamp(0.0, 0.05);
+                self.force_control_s += dt;
+                if prev.guard_damping_ns_per_m > 0.0 {
+                    self.active_s += dt;
+                }
+            }
+        }
+        self.max_damping = self.max_damping.max(r.guard_damping_ns_per_m);
+        if r.guard_generated_j.is_finite() {
+            self.max_generated = self.max_generated.max(r.guard_generated_j);
+        }
+        if r.identified_delay_s.is_finite() {
+            self.identified = Some((r.identified_delay_s, r.identified_delay_sigma_s));
+        }
+        // The guard's dissipation: its damping on the velocity of the law's displacement.
+        if let Some((t0, z0)) = self.last_guard {
+            let dt = r.t_s - t0;
+            if dt > 0.0 && dt < 0.01 && r.guard_damping_ns_per_m > 0.0 {
+                let v = (r.law_displacement_m - z0) / dt;
+                self.dissipated_j += r.guard_damping_ns_per_m * v * v * dt;
+            }
+        }
+        self.last_guard = Some((r.t_s, r.law_displacement_m));
+        self.lead_points_push(r.t_s, r.lead_s);
+        if r.t_s >= self.next_point_s {
+            self.next_point_s = r.t_s + self.stride_s;
+            self.trajectory.push(EstimatePoint {
+                t_s: r.t_s,
+                lead_us: r.lead_s * 1e6,
+                identified_delay_us: r.identified_delay_s * 1e6,
+                identified_delay_sigma_us: r.identified_delay_sigma_s * 1e6,
+                gain: r.actuator_gain,
+                guard_damping_ns_per_m: r.guard_damping_ns_per_m,
+            });
+        }
+        self.last = Some(*r);
+    }
+
+    fn lead_points_push(&mut self, t: f64, lead: f64) {
+        // Keep the lead's changes only (a bounded list: the lead moves slowly and little).
+        match self.lead_points.last() {
+            Some(&(_, l)) if (l - lead).abs() < 1e-6 => {}
+            _ if self.lead_points.len() < 100_000 => self.lead_points.push((t, lead)),
+            _ => {}
+        }
+    }
+
+    /// One emulator record: a sample of the element's force and the rig's measured force.
+    pub fn emulator(&mut self, r: &EmulatorRecord) {
+        let usable = r.interpolated == 0
+            && r.rig_state == rig_state::RUNNING
+            && r.rig_force_n.is_finite()
+            && r.force_n.is_finite();
+        let consecutive = self.last_seq.is_some_and(|s| r.sample_seq == s + 1);
+        self.last_seq = Some(r.sample_seq);
+        if !usable || !consecutive {
+            self.seg_x.clear();
+            self.seg_y.clear();
+            if !usable {
+                return;
+            }
+        }
+        self.seg_x.push(r.force_n);
+        self.seg_y.push(r.rig_force_n);
+        if self.seg_x.len() == SEGMENT {
+            self.add_segment();
+            // 50 % overlap.
+            self.seg_x.drain(..SEGMENT / 2);
+            self.seg_y.drain(..SEGMENT / 2);
+        }
+    }
+
+    fn add_segment(&mut self) {
+        let mut planner = RealFftPlanner::<f64>::new();
+        let fft = planner.plan_fft_forward(SEGMENT);
+        let hann =
+            |i: usize| 0.5 - 0.5 * (2.0 * std::f64::consts::PI * i as f64 / SEGMENT as f64).cos();
+        let mean_x = self.seg_x.iter().sum::<f64>() / SEGMENT as f64;
+        let mean_y = self.seg_y.iter().sum::<f64>() / SEGMENT as f64;
+        let mut bx: Vec<f64> = (0..SEGMENT)
+            .map(|i| (self.seg_x[i] - mean_x) * hann(i))
+            .collect();
+        let mut by: Vec<f64> = (0..SEGMENT)
+            .map(|i| (self.seg_y[i] - mean_y) * hann(i))
+            .collect();
+        let mut fx = fft.make_output_vec();
+        let mut fy = fft.make_output_vec();
+        if fft.process(&mut bx, &mut fx).is_err() || fft.process(&mut by, &mut fy).is_err() {
+            return;
+        }
+        for k in 0..fx.len() {
+            self.sxx[k] += fx[k].norm_sqr();
+            self.syy[k] += fy[k].norm_sqr();
+            self.sxy[k] += fx[k].conj() * fy[k];
+        }
+        self.segments += 1;
+    }
+
+    pub fn finish(self, cfg: &crate::hil::config::HilConfig) -> CompensationReport {
+        let c = &cfg.compensation;
+        let (final_lead, final_gain) = self
+            .last
+            .filter(|r| r.mode == command_mode::LAW)
+            .map_or((c.initial_delay_s, 1.0), |r| (r.lead_s, r.actuator_gain));
+        let settled_at_s = {
+            let tol = (0.05 * final_lead).max(10e-6);
+            let mut settled = self.lead_points.first().map(|p| p.0);
+            for &(t, l) in &self.lead_points {
+                if (l - final_lead).abs() > tol {
+                    settled = None;
+                } else if settled.is_none() {
+                    settled = Some(t);
+                }
+            }
+            settled
+        };
+        // Rendering by frequency and the faithful band.
+        let df = 1.0 / (SEGMENT as f64 * self.dt_s);
+        let mut rendering = Vec::new();
+        let mut faithful = None;
+        let mut limited_by = None;
+        if self.segments > 0 {
+            let top = (BAND_TOP_HZ / df) as usize;
+            let mut broken = false;
+            for k in 1..=top.min(self.sxx.len() - 1) {
+                if self.sxx[k] <= 0.0 || self.syy[k] <= 0.0 {
+                    continue;
+                }
+                let coherence = self.sxy[k].norm_sqr() / (self.sxx[k] * self.syy[k]);
+                if coherence < MIN_COHERENCE {
+                    continue;
+                }
+                let h = self.sxy[k] / self.sxx[k];
+                let p = RenderingPoint {
+                    frequency_hz: k as f64 * df,
+                    amplitude_ratio: h.norm(),
+                    phase_deg: h.arg().to_degrees(),
+                    coherence,
+                };
+                rendering.push(p);
+                if broken {
+                    continue;
+                }
+                let amp_err = (p.amplitude_ratio - 1.0).abs();
+                if amp_err <= AMPLITUDE_TOL && p.phase_deg.abs() <= PHASE_TOL_DEG {
+                    faithful = Some(p.frequency_hz);
+                } else {
+                    broken = true;
+                    limited_by = Some(format!(
+                        "{:.0} Hz: amplitude {:+.2} %, phase {:+.2} deg",
+                        p.frequency_hz,
+                        (p.amplitude_ratio - 1.0) * 100.0,
+                        p.phase_deg
+                    ));
+                }
+            }
+        }
+        CompensationReport {
+            adapt: c.adapt,
+            initial_delay_us: c.initial_delay_s * 1e6,
+            identified_delay_us: self.identified.map(|(d, _)| d * 1e6),
+            identified_delay_sigma_us: self.identified.map(|(_, s)| s * 1e6),
+            final_lead_us: final_lead * 1e6,
+            final_gain,
+            settled_at_s,
+            guard: GuardReport {
+                enabled: c.passivity_guard,
+                active_s: self.active_s,
+                active_fraction: if self.force_control_s > 0.0 {
+                    self.active_s / self.force_control_s
+                } else {
+                    0.0
+                },
+                dissipated_j: self.dissipated_j,
+                max_damping_ns_per_m: self.max_damping,
+                max_generated_j: self.max_generated,
+                band_hz: (c.guard_band_hz, c.guard_band_top_hz),
+            },
+            faithful_band_hz: faithful,
+            faithful_band_limited_by: limited_by,
+            rendering,
+            trajectory: self.trajectory,
+        }
+    }
+}
+
+/// `compensation.png`: the lead and the identified delay, the gain, the guard's damping
+/// over the run, and the rendering's amplitude and phase by frequency.
+pub fn draw(dir: &std::path::Path, r: &CompensationReport) -> anyhow::Result<()> {
+    use crate::plot::{draw_png, Panel, Series};
+    let t: Vec<f64> = r.trajectory.iter().map(|p| p.t_s).collect();
+    let lead: Vec<f64> = r.trajectory.iter().map(|p| p.lead_us).collect();
+    let (ti, id): (Vec<f64>, Vec<f64>) = r
+        .trajectory
+        .iter()
+        .filter(|p| p.identified_delay_us.is_finite())
+        .map(|p| (p.t_s, p.identified_delay_us))
+        .unzip();
+    let gain: Vec<f64> = r.trajectory.iter().map(|p| p.gain).collect();
+    let guard: Vec<f64> = r
+        .trajectory
+        .iter()
+        .map(|p| p.guard_damping_ns_per_m * 1e-3)
+        .collect();
+    let estimate = Panel::new("delay compensation over the run", "time, s", "us")
+        .with(Series::line("lead sent", t.clone(), lead, 0))
+        .with(Series::points("identified delay", ti, id, 1));
+    let gain_panel = Panel::new("identified actuator gain", "time, s", "force / command")
+        .with(Series::line("gain", t.clone(), gain, 2));
+    let guard_panel = Panel::new(
+        &format!(
+            "passivity guard ({:.0}-{:.0} Hz): damping added",
+            r.guard.band_hz.0, r.guard.band_hz.1
+        ),
+        "time, s",
+        "kN s/m",
+    )
+    .with(Series::line("guard damping", t, guard, 3));
+    let f: Vec<f64> = r.rendering.iter().map(|p| p.frequency_hz).collect();
+    let amp: Vec<f64> = r
+        .rendering
+        .iter()
+        .map(|p| (p.amplitude_ratio - 1.0) * 100.0)
+        .collect();
+    let phase: Vec<f64> = r.rendering.iter().map(|p| p.phase_deg).collect();
+    let title = match r.faithful_band_hz {
+        Some(b) => format!("rendered / element force (faithful up to {b:.0} Hz)"),
+        None => "rendered / element force (no excited bin within tolerance)".to_string(),
+    };
+    let mut rendering = Panel::new(&title, "frequency, Hz", "amplitude error %, phase deg");
+    if !f.is_empty() {
+        let (lo, hi) = (f[0], *f.last().unwrap());
+        rendering = rendering
+            .log_x()
+            .with(Series::points("amplitude error, %", f.clone(), amp, 0))
+            .with(Series::points("phase, deg", f, phase, 1))
+            .with(Series::dashed("+1 %", vec![lo, hi], vec![1.0, 1.0], 3))
+            .with(Series::dashed("-1 %", vec![lo, hi], vec![-1.0, -1.0], 3));
+    }
+    draw_png(
+        &dir.join("compensation.png"),
+        1000,
+        1300,
+        1,
+        &[estimate, gain_panel, guard_panel, rendering],
+    )
+}
