@@ -26,6 +26,11 @@ pub struct HilArgs {
     /// Print one JSON object with the results on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Do not run: print the linearised loop's stability margin for the configured
+    /// specimen, element, actuator and compensation, and write its Bode/Nyquist plot
+    /// (`check.png` in `--out`, else in the current directory).
+    #[arg(long)]
+    pub check: bool,
     /// Report directory (default `out/hil-<UTC timestamp>`).
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -321,6 +326,89 @@ fn merge_records(out_dir: &std::path::Path) -> serde_json::Value {
     }
 }
 
+/// `hil --check`: the linearised loop's margins, printed, as JSON with `--json`, and its
+/// plot. Exit 0 when the loop is stable, 1 when not.
+fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
+    use crate::hil::check::{actuator_response, describe_actuator, LinearLoop};
+    let lead_s = cfg.compensation.initial_delay_s;
+    let lin = LinearLoop::new(cfg, actuator_response(cfg), lead_s, 1.0);
+    let m = lin.margins();
+    let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("."));
+    std::fs::create_dir_all(&dir).map_err(|e| anyhow::anyhow!("--out {}: {e}", dir.display()))?;
+    let plot = dir.join("check.png");
+    lin.plot(&plot, "linearised loop")?;
+    let element = crate::model::equiv::equivalent(
+        &cfg.model.element,
+        cfg.scenario.preload_n,
+        2.0 * std::f64::consts::PI * cfg.emulator.law_frequency_hz,
+    );
+    if args.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&json!({
+                "margins": m,
+                "stable_leads_us": lin.stable_leads(cfg.compensation.max_delay_s).map(|(a, b)| [a * 1e6, b * 1e6]),
+                "lead_us": lead_s * 1e6,
+                "lead_order": cfg.compensation.lead_order,
+                "actuator": describe_actuator(cfg),
+                "plot": plot.display().to_string(),
+            }))?
+        );
+    }
+    eprintln!("hil --check: {}", cfg.origin);
+    eprintln!(
+        "  specimen {:.2} kg, rig damping {:.0} N s/m; element at {:.0} kN preload: {:.1} MN/m, {:.0} N s/m at {:.0} Hz",
+        cfg.rig.specimen_mass_kg,
+        cfg.rig.damping_ns_per_m,
+        cfg.scenario.preload_n * 1e-3,
+        element.k_eq_n_per_m * 1e-6,
+        element.c_eq_ns_per_m,
+        cfg.emulator.law_frequency_hz
+    );
+    eprintln!(
+        "  actuator: {} (the simulated rig's [rig.actuator]; a rig of its own is unknown to fastemu, which learns it with adapt = true)",
+        describe_actuator(cfg)
+    );
+    eprintln!(
+        "  compensation: lead {:.0} us ([compensation] initial_delay_us), prediction order {}",
+        lead_s * 1e6,
+        cfg.compensation.lead_order
+    );
+    if m.stable {
+        eprintln!(
+            "  linearised loop: stable; it tolerates an actuator {:.0} us slower and {:.0} us faster than the lead; gain margin {:.2}; thinnest at {:.0} Hz (|1 + L| = {:.3})",
+            m.delay_error_tolerated_slower_us.unwrap_or(f64::NAN),
+            m.delay_error_tolerated_faster_us.unwrap_or(f64::NAN),
+            m.gain_margin.unwrap_or(f64::NAN),
+            m.thinnest_frequency_hz,
+            m.modulus_margin
+        );
+    } else {
+        eprintln!(
+            "  linearised loop: NOT STABLE with this lead (nearest to -1 at {:.0} Hz, |1 + L| = {:.3}): the run would end in loop-unstable unless the controller's adaptation and guard make up for it",
+            m.thinnest_frequency_hz, m.modulus_margin
+        );
+    }
+    match lin.stable_leads(cfg.compensation.max_delay_s) {
+        Some((lo, hi)) => eprintln!(
+            "  leads with which the linearised loop is stable: {:.0}-{:.0} us (the adaptation keeps the lead within [0, {:.0}] us)",
+            lo * 1e6,
+            hi * 1e6,
+            cfg.compensation.max_delay_s * 1e6
+        ),
+        None => eprintln!(
+            "  no lead from 0 to {:.0} us makes the linearised loop stable: this actuator is too slow for the specimen's resonance on this element (SPEC 6.1); expect loop-unstable and a hold",
+            cfg.compensation.max_delay_s * 1e6
+        ),
+    }
+    eprintln!("  plot: {}", plot.display());
+    Ok(if m.stable {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}
+
 /// Why a run is not clean (empty: clean).
 fn not_clean_because(
     cfg: &HilConfig,
@@ -447,6 +535,9 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
     install_signal_handlers();
     quiet_iceoryx2_logs();
     let cfg = load_config(&args)?;
+    if args.check {
+        return check(&args, &cfg);
+    }
     let live_front = bind_live(&args)?;
     let out_dir = report_dir(&args)?;
     let config_path = write_report_config(&args, &out_dir)?;

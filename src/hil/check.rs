@@ -25,6 +25,27 @@ use crate::model::equiv::equivalent;
 use crate::plot::{draw_png, Panel, Series};
 use crate::rig::servo::lead_weights;
 
+/// The simulated rig's actuator (`[rig]` today): force per command and per specimen
+/// velocity at circular frequency `w`.
+pub fn actuator_response(cfg: &HilConfig) -> impl Fn(f64) -> (Complex64, Complex64) {
+    let (tau, lag) = (cfg.rig.actuator_delay_s, cfg.rig.actuator_lag_s);
+    move |w| {
+        (
+            Complex64::from_polar(1.0, -w * tau) / Complex64::new(1.0, w * lag),
+            Complex64::new(0.0, 0.0),
+        )
+    }
+}
+
+/// One line naming the simulated rig's actuator.
+pub fn describe_actuator(cfg: &HilConfig) -> String {
+    format!(
+        "lag-delay, transport {:.0} us + lag {:.0} us",
+        cfg.rig.actuator_delay_s * 1e6,
+        cfg.rig.actuator_lag_s * 1e6
+    )
+}
+
 /// The linearised loop.
 #[derive(Debug, Clone)]
 pub struct LinearLoop {
@@ -217,6 +238,22 @@ impl LinearLoop {
         }
     }
 
+    /// The leads (10 us steps up to `max_lead_s`) with which the loop is stable: the
+    /// first and last of the stable range, or `None` when no lead makes it stable.
+    pub fn stable_leads(&self, max_lead_s: f64) -> Option<(f64, f64)> {
+        let mut range: Option<(f64, f64)> = None;
+        let mut probe = self.clone();
+        let n = (max_lead_s / 10e-6).round() as usize;
+        for i in 0..=n {
+            probe.lead_s = i as f64 * 10e-6;
+            if probe.is_stable(0.0, 1.0) {
+                range =
+                    Some(range.map_or((probe.lead_s, probe.lead_s), |(a, _)| (a, probe.lead_s)));
+            }
+        }
+        range
+    }
+
     /// Bode (|L|, phase of L) and Nyquist of the loop transfer `L = rendered / open`.
     pub fn plot(&self, path: &std::path::Path, title: &str) -> anyhow::Result<()> {
         let mut f = Vec::new();
@@ -256,8 +293,8 @@ impl LinearLoop {
             ));
         let circle_t: Vec<f64> = (0..=200).map(|k| 2.0 * PI * k as f64 / 200.0).collect();
         let nyquist = Panel::new("Nyquist of L near -1 (|L| < 4)", "Re L", "Im L")
-            .x_range(-3.0, 1.0)
-            .y_range(-2.0, 2.0)
+            .x_range(-2.0, 0.5)
+            .y_range(-1.0, 1.0)
             .with(Series::points("L(jw)", re, im, 0))
             .with(Series::dashed(
                 "unit circle",
@@ -297,6 +334,13 @@ mod tests {
         assert!((40.0..110.0).contains(&slower), "{m:?}");
         // It thins out at the specimen's resonance (~155 Hz).
         assert!((120.0..220.0).contains(&m.thinnest_frequency_hz), "{m:?}");
+        // Some lead around the matched one is stable, and the range contains it.
+        let (lo, hi) = l.stable_leads(2e-3).expect("a stable lead");
+        assert!(lo < 252e-6 && hi > 252e-6, "{lo} {hi}");
+        // An ideal force source 1 ms + 1 ms late: no lead up to 10 ms stabilises the
+        // specimen's resonance (SPEC 6.1: the actuator is too slow for it).
+        let slow = LinearLoop::new(&cfg, lag_delay(1e-3, 1e-3), 2.1e-3, 1.0);
+        assert_eq!(slow.stable_leads(10e-3), None);
         let short = LinearLoop::new(&cfg, lag_delay(50e-6, 80e-6), 150e-6, 1.0);
         assert!(!short.is_stable(0.0, 1.0));
         // Lead 0: diverges (the table).

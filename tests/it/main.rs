@@ -5,6 +5,7 @@ mod alloc_counter;
 mod campaign_loading;
 mod cli_errors;
 mod common;
+mod compensation_inproc;
 mod diagnose_campaigns;
 mod diagnose_run;
 mod diagnose_verdicts;
