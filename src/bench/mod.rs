@@ -1,8 +1,10 @@
 //! Benchmarks: model step speed (`model`), offline rail simulation (`rail`), the loop's
 //! latency and jitter (`latency`), and what stalls do to the specimen (`ride_through`,
-//! deterministic, on the in-process loop). Timing lives here and in reports, never in
+//! deterministic, on the in-process loop), the controller's compensation (`compensation`: its
+//! work per command, fidelity per actuator and initial guess). Timing lives here and in reports, never in
 //! pass/fail tests.
 
+pub mod compensation;
 pub mod latency;
 pub mod model;
 pub mod rail;

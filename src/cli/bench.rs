@@ -26,6 +26,9 @@ pub enum BenchCommand {
     /// What a stall of the emulator or controller does to the specimen (deterministic,
     /// in-process loop): largest transient per stall length, law vs force commands.
     RideThrough(RideThroughArgs),
+    /// The controller's compensation: its added work per command (percentiles), and the
+    /// fidelity per actuator and initial delay guess on the in-process loop.
+    Compensation(CompensationBenchArgs),
     /// Echo peer of `bench latency` (spawned by it; not for direct use).
     #[command(hide = true)]
     LatencyPeer(LatencyPeerArgs),
@@ -102,6 +105,26 @@ pub struct RideThroughArgs {
 }
 
 #[derive(Args)]
+pub struct CompensationBenchArgs {
+    /// HIL configuration (the embedded default when omitted).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Alternating timing rounds (with and without compensation), each over a 4 s run's
+    /// setpoints.
+    #[arg(long, default_value_t = 5)]
+    pub rounds: usize,
+    /// Length of each fidelity run, s of programme.
+    #[arg(long, default_value_t = 6.0)]
+    pub duration_s: f64,
+    /// Skip the fidelity table (timing only).
+    #[arg(long)]
+    pub timing_only: bool,
+    /// Print one JSON object instead of the tables.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Args)]
 pub struct LatencyPeerArgs {
     #[arg(long)]
     pub control: PathBuf,
@@ -166,6 +189,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<ExitCode> {
         BenchCommand::Rail(args) => run_rail(args),
         BenchCommand::Latency(args) => run_latency(args),
         BenchCommand::RideThrough(args) => run_ride_through(args),
+        BenchCommand::Compensation(args) => run_compensation(args),
         BenchCommand::LatencyPeer(args) => run_latency_peer(args),
     }
 }
@@ -349,6 +373,66 @@ fn run_ride_through(args: RideThroughArgs) -> anyhow::Result<ExitCode> {
         println!("{}", serde_json::to_string(&study)?);
     } else {
         print!("{}", study.table());
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn run_compensation(args: CompensationBenchArgs) -> anyhow::Result<ExitCode> {
+    use crate::bench::compensation::{controller_work, fidelity_cell, fidelity_table};
+    let cfg = crate::hil::config::load_or_default(args.config.as_deref())?;
+    anyhow::ensure!(
+        args.duration_s > 0.0 && args.duration_s.is_finite(),
+        "--duration-s must be a positive number of seconds, got {}",
+        args.duration_s
+    );
+    eprintln!(
+        "bench compensation: timing on_setpoint, {} rounds each way",
+        args.rounds
+    );
+    let work = controller_work(&cfg, args.rounds);
+    let mut cells = Vec::new();
+    if !args.timing_only {
+        let initial = cfg.compensation.initial_delay_s;
+        for (name, variant) in crate::bench::compensation::actuator_variants(&cfg) {
+            for guess in [0.0, initial, 2.0 * initial] {
+                let mut c = variant.clone();
+                c.compensation.initial_delay_s = guess.min(c.compensation.max_delay_s);
+                eprintln!(
+                    "bench compensation: {name}, initial delay {:.0} us",
+                    guess * 1e6
+                );
+                cells.push(fidelity_cell(&c, &name, args.duration_s));
+            }
+        }
+    }
+    if args.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&serde_json::json!({
+                "controller_work": work,
+                "fidelity": cells,
+            }))?
+        );
+    } else {
+        let t = |x: &crate::bench::compensation::Timing| {
+            format!(
+                "p50 {:.2} us, p99 {:.2} us, p99.9 {:.2} us, max {:.1} us",
+                x.p50_ns as f64 * 1e-3,
+                x.p99_ns as f64 * 1e-3,
+                x.p999_ns as f64 * 1e-3,
+                x.max_ns as f64 * 1e-3
+            )
+        };
+        println!(
+            "controller on_setpoint over {} setpoints x {} rounds:\n  with compensation:    {}\n  without compensation: {}",
+            work.commands,
+            args.rounds,
+            t(&work.with_compensation),
+            t(&work.without)
+        );
+        if !cells.is_empty() {
+            print!("\n{}", fidelity_table(&cells));
+        }
     }
     Ok(ExitCode::SUCCESS)
 }

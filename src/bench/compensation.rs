@@ -1,0 +1,233 @@
+//! `fastemu bench compensation`: what the controller's compensation costs and gives.
+//!
+//! - The controller's added work per command: `ControllerCore::on_setpoint` timed on the
+//!   setpoints of an in-process run, with the compensation on (estimator and guard) and
+//!   off, in alternating rounds; percentiles of each and of their difference of medians.
+//! - Fidelity per actuator and initial guess: in-process runs of the configuration with
+//!   each actuator variant and each starting lead, the displacement error against the
+//!   offline reference, the identified delay, the faithful band, the guard's activity and
+//!   whether a fault ended the run.
+//!
+//! Timings here are figures for reports, never pass/fail.
+
+use std::time::Instant;
+
+use hdrhistogram::Histogram;
+use serde::Serialize;
+
+use crate::hil::config::HilConfig;
+use crate::hil::controller::ControllerCore;
+use crate::hil::inproc::{run_in_process, InProcessRun, InProcessScript};
+use crate::hil::report::compensation::CompensationAnalyser;
+use crate::ipc::messages::{emulator_state, ForceSetpoint, LocalLaw};
+use crate::records::event::event_kind;
+use crate::rig::reference::reference_displacement_m;
+
+/// Percentiles of one timing, ns.
+#[derive(Debug, Clone, Serialize)]
+pub struct Timing {
+    pub p50_ns: u64,
+    pub p99_ns: u64,
+    pub p999_ns: u64,
+    pub max_ns: u64,
+}
+
+fn timing(h: &Histogram<u64>) -> Timing {
+    Timing {
+        p50_ns: h.value_at_quantile(0.5),
+        p99_ns: h.value_at_quantile(0.99),
+        p999_ns: h.value_at_quantile(0.999),
+        max_ns: h.max(),
+    }
+}
+
+/// The controller's work per command.
+#[derive(Debug, Clone, Serialize)]
+pub struct ControllerWork {
+    pub commands: u64,
+    pub with_compensation: Timing,
+    pub without: Timing,
+}
+
+/// One fidelity cell.
+#[derive(Debug, Clone, Serialize)]
+pub struct FidelityCell {
+    pub actuator: String,
+    pub initial_delay_us: f64,
+    pub fault: Option<String>,
+    pub displacement_error_pct: f64,
+    pub identified_delay_us: Option<f64>,
+    pub final_lead_us: f64,
+    pub settled_at_s: Option<f64>,
+    pub faithful_band_hz: Option<f64>,
+    pub guard_active_s: f64,
+    pub guard_max_damping_ns_per_m: f64,
+}
+
+/// The setpoints the emulator of an in-process run published, rebuilt from its records
+/// with the rig's measured force and state.
+fn setpoints(run: &InProcessRun) -> Vec<ForceSetpoint> {
+    run.emulator
+        .iter()
+        .enumerate()
+        .map(|(i, e)| ForceSetpoint {
+            sequence: i as u64,
+            sample_sequence: e.sample_seq,
+            sample_publish_time_ns: 0,
+            loop_time_ns: 0,
+            law: LocalLaw {
+                force_n: e.force_n,
+                displacement_m: e.z_used_m,
+                stiffness_n_per_m: e.law_stiffness_n_per_m,
+                damping_ns_per_m: e.law_damping_ns_per_m,
+                force_rate_n_per_s: e.law_force_rate_n_per_s,
+                ..LocalLaw::default()
+            },
+            emulator_state: emulator_state::RUNNING,
+            fault_code: 0,
+            model_flags: 0,
+            rig_state: e.rig_state,
+            measured_force_n: e.rig_force_n,
+        })
+        .collect()
+}
+
+/// Times `on_setpoint` with and without compensation over `rounds` alternating rounds.
+pub fn controller_work(cfg: &HilConfig, rounds: usize) -> ControllerWork {
+    let run = run_in_process(
+        cfg,
+        &InProcessScript {
+            max_steps: (4.0 * cfg.loop_.rate_hz) as u64,
+            command_delay_periods: 1,
+            ..InProcessScript::default()
+        },
+    );
+    let sps = setpoints(&run);
+    let period_ns = cfg.loop_.period_ns;
+    let mut with = Histogram::<u64>::new_with_bounds(1, 1_000_000_000, 3).expect("bounds");
+    let mut without = with.clone();
+    let mut off = cfg.compensation;
+    off.adapt = false;
+    off.passivity_guard = false;
+    for round in 0..rounds.max(1) * 2 {
+        let on = round % 2 == 0;
+        let mut core = ControllerCore::new(
+            cfg.controller,
+            cfg.safety.actions,
+            period_ns,
+            (cfg.safety.stall_limit_s * 1e9) as u64,
+        )
+        .with_compensation(if on { cfg.compensation } else { off });
+        for (k, sp) in sps.iter().enumerate() {
+            let now = k as u64 * period_ns;
+            let t0 = Instant::now();
+            let out = core.on_setpoint(sp, now);
+            let ns = t0.elapsed().as_nanos() as u64;
+            std::hint::black_box(out);
+            let h = if on { &mut with } else { &mut without };
+            h.saturating_record(ns.max(1));
+        }
+    }
+    ControllerWork {
+        commands: sps.len() as u64,
+        with_compensation: timing(&with),
+        without: timing(&without),
+    }
+}
+
+/// One in-process run of `cfg` for `duration_s`, summarised.
+pub fn fidelity_cell(cfg: &HilConfig, actuator: &str, duration_s: f64) -> FidelityCell {
+    let run = run_in_process(
+        cfg,
+        &InProcessScript {
+            max_steps: (duration_s * cfg.loop_.rate_hz) as u64,
+            command_delay_periods: 1,
+            ..InProcessScript::default()
+        },
+    );
+    let fault = run
+        .events
+        .iter()
+        .find(|e| e.kind == event_kind::FAULT)
+        .map(|e| crate::hil::fault::fault_code_name(e.fault_code));
+    // The displacement error up to the first hold (the reference has none).
+    let reference = reference_displacement_m(cfg, run.rig.len());
+    let (mut e2, mut r2) = (0.0, 0.0);
+    for r in run
+        .rig
+        .iter()
+        .take_while(|r| r.state == crate::ipc::messages::rig_state::RUNNING)
+    {
+        let x_ref = reference[r.step_idx as usize];
+        e2 += (r.x_m - x_ref).powi(2);
+        r2 += x_ref * x_ref;
+    }
+    let mut analyser = CompensationAnalyser::new(cfg.loop_.dt_s(), duration_s);
+    for r in &run.controller {
+        analyser.controller(r);
+    }
+    for r in &run.emulator {
+        analyser.emulator(r);
+    }
+    let c = analyser.finish(cfg);
+    FidelityCell {
+        actuator: actuator.to_string(),
+        initial_delay_us: cfg.compensation.initial_delay_s * 1e6,
+        fault,
+        displacement_error_pct: if r2 > 0.0 {
+            (e2 / r2).sqrt() * 100.0
+        } else {
+            f64::NAN
+        },
+        identified_delay_us: c.identified_delay_us,
+        final_lead_us: c.final_lead_us,
+        settled_at_s: c.settled_at_s,
+        faithful_band_hz: c.faithful_band_hz,
+        guard_active_s: c.guard.active_s,
+        guard_max_damping_ns_per_m: c.guard.max_damping_ns_per_m,
+    }
+}
+
+/// The fidelity table as text.
+pub fn fidelity_table(cells: &[FidelityCell]) -> String {
+    let mut s = String::from(
+        "| actuator | initial delay, us | fault | displacement error, % | identified delay, us | settled at, s | faithful band, Hz | guard active, s | guard max, kN s/m |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
+    );
+    let opt =
+        |v: Option<f64>, digits: usize| v.map_or("-".to_string(), |x| format!("{x:.digits$}"));
+    for c in cells {
+        s.push_str(&format!(
+            "| {} | {:.0} | {} | {:.3} | {} | {} | {} | {:.2} | {:.1} |\n",
+            c.actuator,
+            c.initial_delay_us,
+            c.fault.as_deref().unwrap_or("none"),
+            c.displacement_error_pct,
+            opt(c.identified_delay_us, 0),
+            opt(c.settled_at_s, 2),
+            opt(c.faithful_band_hz, 0),
+            c.guard_active_s,
+            c.guard_max_damping_ns_per_m * 1e-3,
+        ));
+    }
+    s
+}
+
+/// The actuators to compare: the configuration's own, then the simulated rig's others.
+pub fn actuator_variants(cfg: &HilConfig) -> Vec<(String, HilConfig)> {
+    let own = format!(
+        "config: lag-delay {:.0} us + {:.0} us",
+        cfg.rig.actuator_delay_s * 1e6,
+        cfg.rig.actuator_lag_s * 1e6
+    );
+    let mut out = vec![(own, cfg.clone())];
+    for (tau, lag) in [(0.0, 0.0), (200e-6, 150e-6)] {
+        let mut c = cfg.clone();
+        c.rig.actuator_delay_s = tau;
+        c.rig.actuator_lag_s = lag;
+        out.push((
+            format!("lag-delay {:.0} us + {:.0} us", tau * 1e6, lag * 1e6),
+            c,
+        ));
+    }
+    out
+}
