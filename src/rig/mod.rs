@@ -5,6 +5,7 @@
 //! Physics and servo logic here are pure (no I/O, no clock); `process` runs them as the
 //! `bench_rig` process on its own fixed-step clock.
 
+pub mod actuator;
 pub mod core;
 pub mod load;
 pub mod physics;

@@ -15,6 +15,7 @@ use crate::model::file::ModelSpec;
 use crate::rig::servo::ServoConfig;
 use crate::tomlerr;
 
+mod actuator;
 mod controller;
 mod emulator;
 mod injections;
@@ -145,7 +146,19 @@ impl HilConfig {
 }
 
 /// Keys of earlier versions and what replaced them (a clearer error than "unknown key").
-const REMOVED_KEYS: [(&str, &str); 6] = [
+const REMOVED_KEYS: [(&str, &str); 9] = [
+    (
+        "actuator_lag_us",
+        "moved: [rig.actuator] kind = \"lag-delay\", lag_us",
+    ),
+    (
+        "actuator_delay_us",
+        "moved: [rig.actuator] transport_delay_us",
+    ),
+    (
+        "actuator_force_max_n",
+        "moved: [rig.actuator] force_max_n",
+    ),
     (
         "safe_force_n",
         "removed: a constant force on a free mass is not a safe state; faults now hold the specimen's position (see [safety])",

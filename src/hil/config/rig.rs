@@ -2,16 +2,16 @@
 
 use serde::Deserialize;
 
+use super::actuator::parse_actuator;
 use super::{Check, ConfigError};
+use crate::rig::actuator::ActuatorConfig;
 
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct RawRig {
     specimen_mass_kg: f64,
     damping_ns_per_m: f64,
-    actuator_lag_us: f64,
-    actuator_delay_us: f64,
-    actuator_force_max_n: f64,
+    actuator: toml::Table,
     sensor_noise_m: f64,
     sensor_resolution_m: f64,
     seed: u64,
@@ -27,9 +27,8 @@ pub(super) struct RawRig {
 pub struct RigConfig {
     pub specimen_mass_kg: f64,
     pub damping_ns_per_m: f64,
-    pub actuator_lag_s: f64,
-    pub actuator_delay_s: f64,
-    pub actuator_force_max_n: f64,
+    /// `[rig.actuator]`: the actuator's kind and nominal parameters.
+    pub actuator: ActuatorConfig,
     pub sensor_noise_m: f64,
     pub sensor_resolution_m: f64,
     pub seed: u64,
@@ -59,23 +58,12 @@ pub(super) fn parse_rig(check: &Check, r: &RawRig) -> Result<RigConfig, ConfigEr
             format!("{} is not valid: expected 0, 1, 2 or 3", r.law_lead_order),
         ));
     }
-    let actuator_delay_s = check.non_negative("rig.actuator_delay_us", r.actuator_delay_us)? * 1e-6;
-    if actuator_delay_s > 0.1 {
-        return Err(check.err(
-            "rig.actuator_delay_us",
-            format!(
-                "{} is not valid: expected <= 100000 us",
-                r.actuator_delay_us
-            ),
-        ));
-    }
+    let actuator = parse_actuator(check, &r.actuator, r.seed)?;
     let hold_damping_ratio = check.positive("rig.hold_damping_ratio", r.hold_damping_ratio)?;
     Ok(RigConfig {
         specimen_mass_kg: check.positive("rig.specimen_mass_kg", r.specimen_mass_kg)?,
         damping_ns_per_m: check.non_negative("rig.damping_ns_per_m", r.damping_ns_per_m)?,
-        actuator_lag_s: check.non_negative("rig.actuator_lag_us", r.actuator_lag_us)? * 1e-6,
-        actuator_delay_s,
-        actuator_force_max_n: check.positive("rig.actuator_force_max_n", r.actuator_force_max_n)?,
+        actuator,
         sensor_noise_m: check.non_negative("rig.sensor_noise_m", r.sensor_noise_m)?,
         sensor_resolution_m: check
             .non_negative("rig.sensor_resolution_m", r.sensor_resolution_m)?,
