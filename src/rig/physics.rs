@@ -216,8 +216,6 @@ mod tests {
 
     /// The physics before the actuator plants (lag-delay only), kept to show the default
     /// runs bit-identically.
-
-    /// The rig's mechanical and actuator state.
     #[derive(Debug, Clone)]
     pub struct LegacyPhysics {
         mass_kg: f64,

@@ -17,6 +17,7 @@ use std::net::SocketAddr;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+use super::actuator::{ActuatorParamRecord, ActuatorTruthRecord, MAX_PARAMS};
 use super::core::{RigCore, RigRecord};
 use crate::hil::config::{HilConfig, LoopProcess};
 use crate::hil::process::{
@@ -222,6 +223,8 @@ fn run_rig_loop(
     let mut builder = RecorderBuilder::new(context.out_dir, "rig");
     let records = builder.sink::<RigRecord>(cfg.loop_.record_queue_capacity);
     let events = builder.sink::<EventRecord>(256);
+    let actuator_truth = builder.sink::<ActuatorTruthRecord>(2);
+    let actuator_params = builder.sink::<ActuatorParamRecord>(2 * MAX_PARAMS);
     let recorder = builder.spawn()?;
     let mut core = RigCore::new(cfg);
 
@@ -238,6 +241,12 @@ fn run_rig_loop(
             start.start_unix_ns,
         ),
     );
+    // Once per run, before the loop: what the rig's actuator truly is.
+    let (truth, params) = core.actuator_truth(cfg);
+    actuator_truth.push(truth);
+    for p in params {
+        actuator_params.push(p);
+    }
     let clock = MonotonicClock;
     let mut scheduler = Scheduler::new(
         cfg.loop_.period_ns,

@@ -521,4 +521,103 @@ mod tests {
             "{e}"
         );
     }
+
+    /// The default configuration with its `[rig.actuator]` table replaced by `table`.
+    fn with_actuator(table: &str) -> Result<HilConfig, ConfigError> {
+        let start = DEFAULT_CONFIG_TOML.find("[rig.actuator]").unwrap();
+        let end = start + DEFAULT_CONFIG_TOML[start..].find("\n[safety]").unwrap();
+        let text = format!(
+            "{}[rig.actuator]\n{table}\n{}",
+            &DEFAULT_CONFIG_TOML[..start],
+            &DEFAULT_CONFIG_TOML[end..]
+        );
+        parse_hil_config(&text, "x.toml", None)
+    }
+
+    #[test]
+    fn actuator_kinds_presets_overrides_and_perturbation_parse() {
+        use crate::rig::actuator::ActuatorKind;
+        let c = with_actuator("preset = \"fatigue-150kn\"")
+            .unwrap()
+            .rig
+            .actuator;
+        assert_eq!(c.nominal.kind, ActuatorKind::ServoHydraulic);
+        assert_eq!(c.preset, Some("fatigue-150kn"));
+        assert_eq!(c.nominal.get("valve_frequency_hz"), Some(100.0));
+        assert_eq!(c.perturb_seed, 1, "defaults to [rig] seed");
+        let c = with_actuator(
+            "kind = \"servo-hydraulic\"\npreset = \"fatigue-150kn\"\nvalve_frequency_hz = 120\ntransport_delay_us = 700.0\nperturb = 0.3\nperturb_seed = 9",
+        )
+        .unwrap()
+        .rig
+        .actuator;
+        assert_eq!(c.nominal.get("valve_frequency_hz"), Some(120.0));
+        assert_eq!(c.nominal.transport_delay_s(), 700.0 * 1e-6);
+        assert_eq!((c.perturb, c.perturb_seed), (0.3, 9));
+        assert_eq!(c.truth(), c.truth());
+        assert_ne!(c.truth(), c.nominal);
+        let e = with_actuator(
+            "kind = \"electrodynamic\"\ntransport_delay_us = 100.0\nforce_max_n = 1e4\namplifier_bandwidth_hz = 1500.0\ncoil_resistance_ohm = 0.2\ncoil_inductance_h = 3e-4\nforce_constant_n_per_a = 60.0\nsuspension_stiffness_n_per_m = 6e4\nsuspension_damping_ns_per_m = 300.0\nmoving_mass_kg = 12.0",
+        )
+        .unwrap();
+        assert_eq!(e.rig.actuator.nominal.kind, ActuatorKind::Electrodynamic);
+    }
+
+    #[test]
+    fn actuator_errors_name_the_key_and_what_is_valid() {
+        let e = with_actuator("kind = \"pneumatic\"")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("rig.actuator.kind")
+                && e.contains("pneumatic")
+                && e.contains("\"servo-hydraulic\""),
+            "{e}"
+        );
+        let e = with_actuator("kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_us = 80.0\nforce_max_n = 1e5\nvalve_frequency_hz = 100.0")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("rig.actuator.valve_frequency_hz")
+                && e.contains("lag-delay")
+                && e.contains("lag_us"),
+            "{e}"
+        );
+        let e = with_actuator("kind = \"lag-delay\"\ntransport_delay_us = 50.0\nforce_max_n = 1e5")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("rig.actuator.lag_us") && e.contains("missing"),
+            "{e}"
+        );
+        let e = with_actuator("preset = \"fatigue-150kn\"\nbulk_modulus_pa = -1.0")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("x.toml") && e.contains("rig.actuator.bulk_modulus_pa") && e.contains("-1"),
+            "{e}"
+        );
+        let e = with_actuator("kind = \"electrodynamic\"\npreset = \"fatigue-150kn\"")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("rig.actuator.preset") && e.contains("shaker-10kn"),
+            "{e}"
+        );
+        let e = with_actuator("preset = \"fatigue-150kn\"\nperturb = 1.5")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("rig.actuator.perturb") && e.contains("1.5"),
+            "{e}"
+        );
+        let old = DEFAULT_CONFIG_TOML.replace("seed = 1\n", "seed = 1\nactuator_lag_us = 80.0\n");
+        let e = parse_hil_config(&old, "x.toml", None)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("actuator_lag_us") && e.contains("[rig.actuator]"),
+            "{e}"
+        );
+    }
 }
