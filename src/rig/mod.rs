@@ -13,8 +13,10 @@ pub mod process;
 pub mod programme;
 pub mod reference;
 pub mod servo;
+pub mod transport;
 
 pub use load::LoadProgramme;
 pub use physics::{RigPhysics, Sensor};
 pub use programme::ProgrammeRunner;
 pub use servo::{Servo, ServoConfig};
+pub use transport::RigTransport;
