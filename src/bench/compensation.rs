@@ -212,22 +212,24 @@ pub fn fidelity_table(cells: &[FidelityCell]) -> String {
     s
 }
 
-/// The actuators to compare: the configuration's own, then the simulated rig's others.
+/// The actuators to compare: the configuration's own, then every preset of the
+/// simulated rig (`[rig.actuator] preset`, nominal values).
 pub fn actuator_variants(cfg: &HilConfig) -> Vec<(String, HilConfig)> {
+    use crate::rig::actuator::{ActuatorParams, PRESETS};
     let own = format!(
-        "config: lag-delay {:.0} us + {:.0} us",
-        cfg.rig.actuator_delay_s * 1e6,
-        cfg.rig.actuator_lag_s * 1e6
+        "config: {}",
+        cfg.rig.actuator.preset.unwrap_or(cfg.rig.actuator.nominal.kind.name())
     );
     let mut out = vec![(own, cfg.clone())];
-    for (tau, lag) in [(0.0, 0.0), (200e-6, 150e-6)] {
+    for p in PRESETS {
+        if Some(p.name) == cfg.rig.actuator.preset {
+            continue;
+        }
         let mut c = cfg.clone();
-        c.rig.actuator_delay_s = tau;
-        c.rig.actuator_lag_s = lag;
-        out.push((
-            format!("lag-delay {:.0} us + {:.0} us", tau * 1e6, lag * 1e6),
-            c,
-        ));
+        c.rig.actuator.nominal = ActuatorParams::from_config_units(p.kind, p.values);
+        c.rig.actuator.preset = Some(p.name);
+        c.rig.actuator.perturb = 0.0;
+        out.push((format!("{} ({})", p.name, p.kind.name()), c));
     }
     out
 }

@@ -711,6 +711,7 @@ fn summarise(
         "compensation": value(analysis.map(|a| serde_json::to_value(&a.compensation).unwrap_or_default())),
         "latency_ns": value(analysis.map(|a| serde_json::to_value(&a.latency_ns).unwrap_or_default())),
         "events": value(analysis.map(|a| json!(a.events))),
+        "actuator_truth": value(analysis.and_then(|a| a.actuator_truth.as_ref()).map(|t| serde_json::to_value(t).unwrap_or_default())),
         "model": {
             "form": cfg.model.element.form().name(),
             "length_m": cfg.model.length_m,
@@ -759,6 +760,9 @@ fn summarise(
             a.latency_ns.end_to_end.p50 / 1000,
             a.latency_ns.end_to_end.p99 / 1000
         );
+        if let Some(t) = &a.actuator_truth {
+            eprintln!("hil: {}", t.describe());
+        }
         print_programme_and_operator(a, summary["operator_stop"] == true);
         for f in &a.safety.faults {
             eprintln!(

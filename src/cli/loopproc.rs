@@ -156,27 +156,46 @@ pub fn run_controller_command(args: LoopProcessArgs) -> anyhow::Result<ExitCode>
 
 pub fn run_rig_command(args: RigArgs) -> anyhow::Result<ExitCode> {
     use crate::link::socket::parse_link_address;
-    use crate::rig::process::RigConnection;
     quiet_iceoryx2_logs();
-    let connection = match (&args.link_bind, &args.link_peer) {
-        (Some(bind), Some(peer)) => RigConnection::Udp {
-            bind: parse_link_address("--link-bind", bind)?,
-            peer: parse_link_address("--link-peer", peer)?,
-        },
-        _ => RigConnection::Ipc,
+    let link = match (&args.link_bind, &args.link_peer) {
+        (Some(bind), Some(peer)) => Some((
+            parse_link_address("--link-bind", bind)?,
+            parse_link_address("--link-peer", peer)?,
+        )),
+        _ => None,
     };
     let start_timeout = args.process.start_timeout()?;
     let args = args.process;
     let c = args.load()?;
-    let s = crate::rig::process::run_rig(
-        &c.cfg,
-        &c.text,
-        c.base_dir.as_deref(),
-        &args.run_id,
-        &args.out,
-        connection,
-        start_timeout,
-    )
+    // The rig's loop takes its transport from here: iceoryx2 inside `rig`, or the far
+    // end of the UDP rig link from `link` (so `rig/` never imports `link/`).
+    let s = match link {
+        None => crate::rig::process::run_rig_ipc(
+            &c.cfg,
+            &c.text,
+            c.base_dir.as_deref(),
+            &args.run_id,
+            &args.out,
+            start_timeout,
+        ),
+        Some((bind, peer)) => {
+            let mut transport = crate::link::rig_end::UdpRigEnd::open(
+                bind,
+                peer,
+                c.cfg.loop_.period_ns,
+                start_timeout,
+            )
+            .context("bench_rig: the UDP rig link")?;
+            crate::rig::process::run_rig(
+                &c.cfg,
+                &c.text,
+                c.base_dir.as_deref(),
+                &args.run_id,
+                &args.out,
+                &mut transport,
+            )
+        }
+    }
     .context("bench_rig")?;
     say_line(format!(
         "bench_rig: {} steps, {} missed deadlines, {} periods without a new command{}{}",

@@ -23,26 +23,38 @@ use realfft::num_complex::Complex64;
 use super::config::HilConfig;
 use crate::model::equiv::equivalent;
 use crate::plot::{draw_png, Panel, Series};
+use crate::rig::actuator::ActuatorPlant;
 use crate::rig::servo::lead_weights;
 
-/// The simulated rig's actuator (`[rig]` today): force per command and per specimen
-/// velocity at circular frequency `w`.
+/// The simulated rig's actuator as configured (`[rig.actuator]`, its nominal values: the
+/// perturbed truth is the rig's alone): force per command and per specimen velocity at
+/// circular frequency `w`.
 pub fn actuator_response(cfg: &HilConfig) -> impl Fn(f64) -> (Complex64, Complex64) {
-    let (tau, lag) = (cfg.rig.actuator_delay_s, cfg.rig.actuator_lag_s);
-    move |w| {
-        (
-            Complex64::from_polar(1.0, -w * tau) / Complex64::new(1.0, w * lag),
-            Complex64::new(0.0, 0.0),
-        )
-    }
+    let nominal = cfg.rig.actuator.nominal;
+    let plant = ActuatorPlant::new(&nominal, &nominal);
+    move |w| plant.response(w)
 }
 
-/// One line naming the simulated rig's actuator.
+/// One line naming the simulated rig's actuator: kind, preset, its parameters.
 pub fn describe_actuator(cfg: &HilConfig) -> String {
+    let a = &cfg.rig.actuator;
+    let kind = a.nominal.kind;
+    let params: Vec<String> = kind
+        .keys()
+        .iter()
+        .enumerate()
+        .map(|(i, k)| format!("{} = {}", k.name, a.nominal.config_value(i)))
+        .collect();
     format!(
-        "lag-delay, transport {:.0} us + lag {:.0} us",
-        cfg.rig.actuator_delay_s * 1e6,
-        cfg.rig.actuator_lag_s * 1e6
+        "{}{}: {}{}",
+        kind.name(),
+        a.preset.map_or(String::new(), |p| format!(" (preset {p})")),
+        params.join(", "),
+        if a.perturb > 0.0 {
+            format!("; the rig perturbs each by up to {:.0} %", a.perturb * 100.0)
+        } else {
+            String::new()
+        }
     )
 }
 

@@ -17,7 +17,7 @@ use crate::hil::process::{termination_requested, ControlRequests, ProcessError, 
 use crate::ipc::messages::{
     rig_state, run_command, ActuatorCommand, DisplacementSample, Heartbeat, HEARTBEAT_READY,
 };
-use crate::rig::process::RigTransport;
+use crate::rig::transport::RigTransport;
 use crate::rt::clock::monotonic_now_ns;
 
 /// Most datagrams read per period; the rest wait for the next period (a flood of
@@ -213,6 +213,9 @@ impl RigTransport for UdpRigEnd {
         std::mem::take(&mut self.pending)
     }
 
+    fn counts_json(&self) -> Option<serde_json::Value> {
+        Some(self.summary_json())
+    }
     fn finish(&mut self, last: &DisplacementSample, heartbeat: &Heartbeat) {
         self.send_sample(last);
         for _ in 0..FINISHED_REPEATS {

@@ -147,6 +147,23 @@ impl RigCore {
         &self.physics
     }
 
+    /// The actuator's truth, recorded once per run: its parameters after perturbation,
+    /// the nominal ones, the effective delay on the element's tangent stiffness at the
+    /// configured preload.
+    pub fn actuator_truth(
+        &self,
+        cfg: &HilConfig,
+    ) -> (
+        super::actuator::ActuatorTruthRecord,
+        Vec<super::actuator::ActuatorParamRecord>,
+    ) {
+        let k = cfg
+            .model
+            .element
+            .high_frequency_stiffness_n_per_m(cfg.scenario.preload_n);
+        super::actuator::actuator_truth_records(&cfg.rig.actuator, self.physics.plant(), k)
+    }
+
     pub fn servo(&self) -> &Servo {
         &self.servo
     }

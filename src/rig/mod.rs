@@ -5,6 +5,7 @@
 //! Physics and servo logic here are pure (no I/O, no clock); `process` runs them as the
 //! `bench_rig` process on its own fixed-step clock.
 
+pub mod actuator;
 pub mod core;
 pub mod load;
 pub mod physics;
@@ -12,8 +13,10 @@ pub mod process;
 pub mod programme;
 pub mod reference;
 pub mod servo;
+pub mod transport;
 
 pub use load::LoadProgramme;
 pub use physics::{RigPhysics, Sensor};
 pub use programme::ProgrammeRunner;
 pub use servo::{Servo, ServoConfig};
+pub use transport::RigTransport;

@@ -6,17 +6,18 @@
 //! records until the specimen is at rest, writes its records, clears the run's shared
 //! memory and exits.
 //!
-//! The same loop runs on iceoryx2 (`RigConnection::Ipc`: the simulated rig started by
-//! `hil`, or started by hand as an external rig) or as the far end of the UDP rig link
-//! (`RigConnection::Udp`), through `RigTransport`.
+//! The same loop runs on iceoryx2 (`run_rig_ipc`: the simulated rig started by `hil`, or
+//! started by hand as an external rig) or over any `RigTransport` its caller builds
+//! (`run_rig`: the far end of the UDP rig link, `link::rig_end::UdpRigEnd`, built by the
+//! CLI; `rig/` never imports `link/`).
 //!
 //! Must not: allocate or do I/O in the loop body beyond the transport's send and receive
 //! (records go through `RecordSink`).
 
-use std::net::SocketAddr;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+use super::actuator::{ActuatorParamRecord, ActuatorTruthRecord, MAX_PARAMS};
 use super::core::{RigCore, RigRecord};
 use crate::hil::config::{HilConfig, LoopProcess};
 use crate::hil::process::{
@@ -34,30 +35,7 @@ use crate::records::{EventRecord, RecordSink, RecorderBuilder, SinkCounts};
 use crate::rt::clock::monotonic_now_ns;
 use crate::rt::{MonotonicClock, Scheduler, WaitMode};
 
-/// Where the rig's samples go and where its commands, run control and start come from:
-/// the run's iceoryx2 services, or the far end of the UDP rig link
-/// (`crate::link::rig_end::UdpRigEnd`).
-pub trait RigTransport {
-    /// Announces readiness until the start; returns the time base on this machine's clock.
-    fn wait_for_start(&mut self) -> Result<StartInfo, ProcessError>;
-    /// Sends one sample (every period: must not allocate, lock or block).
-    fn send_sample(&mut self, sample: &DisplacementSample);
-    /// Hands over every command received since the last call, oldest first (every period).
-    fn receive_commands(&mut self, on_command: &mut dyn FnMut(&ActuatorCommand));
-    /// At heartbeat rate: reports the rig's state, returns the run control received.
-    fn heartbeat(&mut self, heartbeat: &Heartbeat) -> ControlRequests;
-    /// After the last period: the end-of-run sample and the final heartbeat.
-    fn finish(&mut self, last: &DisplacementSample, heartbeat: &Heartbeat);
-}
-
-/// How the rig connects to the loop.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum RigConnection {
-    /// The run's iceoryx2 services (`fastemu/<run_id>/...`).
-    Ipc,
-    /// The UDP rig link: this rig is its far end, bound to `bind`, talking to `peer`.
-    Udp { bind: SocketAddr, peer: SocketAddr },
-}
+pub use super::transport::RigTransport;
 
 /// The rig's iceoryx2 ports.
 struct IpcRigTransport {
@@ -112,8 +90,8 @@ pub struct RigSummary {
     pub records: SinkCounts,
     pub events: SinkCounts,
     pub record_error: Option<String>,
-    /// The rig's end of the UDP link (`RigConnection::Udp`): datagrams sent, received,
-    /// rejected by reason, lost.
+    /// The transport's own counts (the rig's end of the UDP link: datagrams sent,
+    /// received, rejected by reason, lost).
     pub link: Option<serde_json::Value>,
 }
 
@@ -143,16 +121,61 @@ fn run_period(
     core.drain_events(|e| events.push(e));
 }
 
-/// Runs the rig until the scenario ends, a hold is over, or STOP; `start_timeout` bounds
-/// the wait for the start (a rig started by hand waits longer than one `hil` started).
+/// Runs the rig over its iceoryx2 services (the simulated rig `hil` starts, or an external
+/// rig started by hand) until the scenario ends, a hold is over, or STOP; `start_timeout`
+/// bounds the wait for the start (a rig started by hand waits longer than one `hil`
+/// started). When the orchestrator died, the last one out clears the run's shared memory.
+pub fn run_rig_ipc(
+    cfg: &HilConfig,
+    config_text: &str,
+    config_base_dir: Option<&Path>,
+    run_id: &str,
+    out_dir: &Path,
+    start_timeout: Duration,
+) -> Result<RigSummary, ProcessError> {
+    install_termination_handler();
+    std::fs::create_dir_all(out_dir)?;
+    let node = IpcNode::new(run_id, "rig")?;
+    let mut transport = IpcRigTransport {
+        samples: node.displacement_out()?,
+        commands: node.command_in()?,
+        heartbeat: node.heartbeat_out()?,
+        control: node.control_in()?,
+        start_timeout,
+    };
+    let context = RunContext {
+        cfg,
+        config_text,
+        config_base_dir,
+        run_id,
+        out_dir,
+    };
+    let summary = run_rig_loop(&context, &mut transport)?;
+    if summary.orchestrator_lost {
+        // Last one out of a run whose orchestrator died: wait (bounded) for the
+        // other processes to go, then clear the run's shared memory.
+        drop(transport);
+        drop(node);
+        let t = Instant::now();
+        while count_nodes(run_id).unwrap_or(0) > 0 && t.elapsed() < Duration::from_secs(3) {
+            let _ = crate::ipc::cleanup_dead_nodes(run_id);
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        crate::ipc::cleanup::clear_run(run_id);
+    }
+    write_summary(out_dir, "rig", &summary)?;
+    Ok(summary)
+}
+
+/// Runs the rig over a transport its caller built (the far end of the UDP rig link, from
+/// `link::rig_end`), as `run_rig_ipc` does over iceoryx2.
 pub fn run_rig(
     cfg: &HilConfig,
     config_text: &str,
     config_base_dir: Option<&Path>,
     run_id: &str,
     out_dir: &Path,
-    connection: RigConnection,
-    start_timeout: Duration,
+    transport: &mut impl RigTransport,
 ) -> Result<RigSummary, ProcessError> {
     install_termination_handler();
     std::fs::create_dir_all(out_dir)?;
@@ -163,44 +186,8 @@ pub fn run_rig(
         run_id,
         out_dir,
     };
-    let summary = match connection {
-        RigConnection::Ipc => {
-            let node = IpcNode::new(run_id, "rig")?;
-            let mut transport = IpcRigTransport {
-                samples: node.displacement_out()?,
-                commands: node.command_in()?,
-                heartbeat: node.heartbeat_out()?,
-                control: node.control_in()?,
-                start_timeout,
-            };
-            let summary = run_rig_loop(&context, &mut transport)?;
-            if summary.orchestrator_lost {
-                // Last one out of a run whose orchestrator died: wait (bounded) for the
-                // other processes to go, then clear the run's shared memory.
-                drop(transport);
-                drop(node);
-                let t = Instant::now();
-                while count_nodes(run_id).unwrap_or(0) > 0 && t.elapsed() < Duration::from_secs(3) {
-                    let _ = crate::ipc::cleanup_dead_nodes(run_id);
-                    std::thread::sleep(Duration::from_millis(50));
-                }
-                crate::ipc::cleanup::clear_run(run_id);
-            }
-            summary
-        }
-        RigConnection::Udp { bind, peer } => {
-            let mut transport = crate::link::rig_end::UdpRigEnd::open(
-                bind,
-                peer,
-                cfg.loop_.period_ns,
-                start_timeout,
-            )
-            .map_err(|e| ProcessError(e.to_string()))?;
-            let mut summary = run_rig_loop(&context, &mut transport)?;
-            summary.link = Some(transport.summary_json());
-            summary
-        }
-    };
+    let mut summary = run_rig_loop(&context, transport)?;
+    summary.link = transport.counts_json();
     write_summary(out_dir, "rig", &summary)?;
     Ok(summary)
 }
@@ -222,6 +209,8 @@ fn run_rig_loop(
     let mut builder = RecorderBuilder::new(context.out_dir, "rig");
     let records = builder.sink::<RigRecord>(cfg.loop_.record_queue_capacity);
     let events = builder.sink::<EventRecord>(256);
+    let actuator_truth = builder.sink::<ActuatorTruthRecord>(2);
+    let actuator_params = builder.sink::<ActuatorParamRecord>(2 * MAX_PARAMS);
     let recorder = builder.spawn()?;
     let mut core = RigCore::new(cfg);
 
@@ -238,6 +227,12 @@ fn run_rig_loop(
             start.start_unix_ns,
         ),
     );
+    // Once per run, before the loop: what the rig's actuator truly is.
+    let (truth, params) = core.actuator_truth(cfg);
+    actuator_truth.push(truth);
+    for p in params {
+        actuator_params.push(p);
+    }
     let clock = MonotonicClock;
     let mut scheduler = Scheduler::new(
         cfg.loop_.period_ns,

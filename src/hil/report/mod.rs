@@ -6,6 +6,7 @@
 //! Offline code: never runs inside a loop.
 
 pub mod compensation;
+pub mod actuator;
 pub mod decimate;
 pub mod fidelity;
 pub mod latency;
@@ -24,6 +25,7 @@ use super::emulator::EmulatorRecord;
 use crate::ipc::messages::rig_state;
 use crate::plot::{draw_png, Panel, Series};
 use crate::records::{EventRecord, RecordSet};
+use crate::rig::actuator::{ActuatorParamRecord, ActuatorTruthRecord};
 use crate::rig::core::RigRecord;
 use crate::rig::reference::{OperatorPause, PauseStep, ReferenceStepper};
 use decimate::Decimator;
@@ -87,6 +89,9 @@ pub struct Analysis {
     /// Where the rig's view comes from: its own records, or (an external rig) what it
     /// sent in its samples, from the emulator's records.
     pub rig_view: String,
+    /// The rig's actuator as it truly was (its `/rig/actuator` records; none for an
+    /// external rig).
+    pub actuator_truth: Option<actuator::ActuatorTruth>,
 }
 
 /// `Analysis::rig_view` when the rig's own records exist.
@@ -137,6 +142,8 @@ struct SideStreams {
     /// The first fault an external rig reported in its samples: (t_s, sample, code).
     sample_rig_fault: Option<(f64, u64, u32)>,
     compensation: compensation::CompensationAnalyser,
+    actuator_truth: Option<ActuatorTruthRecord>,
+    actuator_params: Vec<ActuatorParamRecord>,
 }
 
 /// Pass 1: events, the emulator's and the controller's records.
@@ -154,6 +161,8 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
         rig_records: 0,
         sample_rig_fault: None,
         compensation: compensation::CompensationAnalyser::new(dt, cfg.programme.end_s),
+        actuator_truth: None,
+        actuator_params: Vec::new(),
     };
     let mut last_cycle: Option<u64> = None;
     let mut last_command_t: Option<f64> = None;
@@ -167,6 +176,16 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
                 }
             }
             t if t == RigRecord::TOPIC => side.rig_records += 1,
+            t if t == ActuatorTruthRecord::TOPIC => {
+                side.actuator_truth = side.actuator_truth.or(ActuatorTruthRecord::decode(data));
+            }
+            t if t == ActuatorParamRecord::TOPIC => {
+                if let Some(p) = ActuatorParamRecord::decode(data) {
+                    if side.actuator_params.len() < 64 {
+                        side.actuator_params.push(p);
+                    }
+                }
+            }
             t if t == EmulatorRecord::TOPIC => {
                 if let Some(r) = EmulatorRecord::decode(data) {
                     side.emulator_steps += 1;
@@ -480,6 +499,10 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
             RIG_VIEW_EXTERNAL
         }
         .to_string(),
+        actuator_truth: actuator::ActuatorTruth::from_records(
+            side.actuator_truth.as_ref(),
+            &side.actuator_params,
+        ),
     })
 }
 

@@ -1,0 +1,170 @@
+//! The plants against independent calculations: lag-delay's delay in closed form, every
+//! kind's frequency response against a time simulation, presets' effective delays.
+
+use super::*;
+
+const K_ELEMENT: f64 = 57e6;
+
+fn preset_params(name: &str) -> ActuatorParams {
+    let p = preset(name).unwrap();
+    ActuatorParams::from_config_units(p.kind, p.values)
+}
+
+#[test]
+fn lag_delay_effective_delay_is_transport_plus_lag() {
+    let cfg = ActuatorConfig::lag_delay(50e-6, 80e-6, 150e3);
+    let d = cfg.nominal.effective_delay(K_ELEMENT);
+    // -phase / w = tau + atan(w T) / w = tau + T (1 - (w T)^2 / 3 + ...).
+    assert!((d.delay_s - 130e-6).abs() < 1e-8, "{d:?}");
+    assert!((d.amplitude_ratio - 1.0).abs() < 1e-4, "{d:?}");
+    let (h_u, h_v) =
+        ActuatorPlant::new(&cfg.nominal, &cfg.nominal).response(2.0 * std::f64::consts::PI * 10.0);
+    let w = 2.0 * std::f64::consts::PI * 10.0;
+    let exact = Complex64::from_polar(1.0, -w * 50e-6) / Complex64::new(1.0, w * 80e-6);
+    assert!((h_u - exact).norm() < 1e-15 && h_v.norm() == 0.0);
+}
+
+/// The plant alone (no specimen) under `u(t - tau) = a_u sin(w (t - tau))` and
+/// `v(t) = a_v sin(w t)`, RK4 at step `h`; the force's fundamental over the last whole
+/// cycles, as a phasor against `sin(w t)`.
+fn simulated_phasor(plant: &ActuatorPlant, f_hz: f64, a_u: f64, a_v: f64) -> Complex64 {
+    let w = 2.0 * std::f64::consts::PI * f_hz;
+    let tau = plant.transport_delay_s();
+    let h: f64 = 2e-6;
+    let settle_s: f64 = 1.0;
+    let cycles = (f_hz * 0.2).ceil().max(2.0);
+    let n_settle = (settle_s / h).round() as usize;
+    let n_measure = (cycles / f_hz / h).round() as usize;
+    let inputs = |t: f64| {
+        let u = if t >= tau {
+            a_u * (w * (t - tau)).sin()
+        } else {
+            0.0
+        };
+        (u, a_v * (w * t).sin(), a_v * w * (w * t).cos())
+    };
+    let mut s = plant.rest_state(0.0);
+    let add = |s: &PlantState, k: &PlantState, f: f64| {
+        [
+            s[0] + f * k[0],
+            s[1] + f * k[1],
+            s[2] + f * k[2],
+            s[3] + f * k[3],
+        ]
+    };
+    let mut acc = Complex64::new(0.0, 0.0);
+    for i in 0..n_settle + n_measure {
+        let t = i as f64 * h;
+        if i >= n_settle {
+            let (_, v, a) = inputs(t);
+            // The force on the specimen includes what accelerates the moving mass.
+            let f = plant.force_n(&s, v) + plant.moving_mass_kg() * a;
+            acc += f * Complex64::from_polar(1.0, -w * t) * h;
+        }
+        let (u0, v0, _) = inputs(t);
+        let (um, vm, _) = inputs(t + 0.5 * h);
+        let (u1, v1, _) = inputs(t + h);
+        let k1 = plant.derivative(&s, u0, v0);
+        let k2 = plant.derivative(&add(&s, &k1, 0.5 * h), um, vm);
+        let k3 = plant.derivative(&add(&s, &k2, 0.5 * h), um, vm);
+        let k4 = plant.derivative(&add(&s, &k3, h), u1, v1);
+        for (j, sj) in s.iter_mut().enumerate() {
+            *sj += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j]);
+        }
+    }
+    let duration = n_measure as f64 * h;
+    // f = Im(H e^{jwt}): acc = H duration / (2 j).
+    acc * 2.0 / duration * Complex64::new(0.0, 1.0)
+}
+
+#[test]
+fn frequency_response_matches_the_time_simulation_for_every_kind() {
+    for name in ["this-rig", "fatigue-150kn", "slow-250kn", "shaker-10kn"] {
+        let p = preset_params(name);
+        let plant = ActuatorPlant::new(&p, &p);
+        for f_hz in [5.0, 20.0, 80.0] {
+            let w = 2.0 * std::f64::consts::PI * f_hz;
+            let (h_u, h_v) = plant.response(w);
+            let sim_u = simulated_phasor(&plant, f_hz, 1000.0, 0.0) / 1000.0;
+            assert!(
+                (sim_u - h_u).norm() < 2e-3 * h_u.norm().max(1e-3),
+                "{name} {f_hz} Hz: H_u {h_u} simulated {sim_u}"
+            );
+            if p.kind != ActuatorKind::LagDelay {
+                let a_v = 1e-3;
+                let sim_v = simulated_phasor(&plant, f_hz, 0.0, a_v) / a_v;
+                assert!(
+                    (sim_v - h_v).norm() < 2e-3 * h_v.norm(),
+                    "{name} {f_hz} Hz: H_v {h_v} simulated {sim_v}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn presets_lag_as_their_kind_does_on_the_specimen() {
+    for p in PRESETS {
+        let params = ActuatorParams::from_config_units(p.kind, p.values);
+        let d = params.effective_delay(K_ELEMENT);
+        eprintln!(
+            "{:16} {:16} delay {:.3} ms, amplitude ratio {:.4} ({:.4}-{:.4})",
+            p.name,
+            p.kind.name(),
+            d.delay_s * 1e3,
+            d.amplitude_ratio,
+            d.amplitude_ratio_min,
+            d.amplitude_ratio_max
+        );
+        let (lo, hi) = match p.kind {
+            ActuatorKind::LagDelay => (0.0, 1e-3),
+            ActuatorKind::ServoHydraulic => (1e-3, 5e-3),
+            ActuatorKind::Electrodynamic => (0.1e-3, 1e-3),
+        };
+        assert!(d.delay_s > lo && d.delay_s < hi, "{}: {d:?}", p.name);
+        assert!((d.amplitude_ratio - 1.0).abs() < 0.2, "{}: {d:?}", p.name);
+    }
+}
+
+#[test]
+fn perturbation_is_seeded_deterministic_and_within_its_range() {
+    let nominal = preset_params("fatigue-150kn");
+    let a = nominal.perturbed(0.3, 7);
+    assert_eq!(a, nominal.perturbed(0.3, 7));
+    assert_ne!(a, nominal.perturbed(0.3, 8));
+    let mut lowest = f64::INFINITY;
+    let mut highest = 0.0f64;
+    for seed in 0..200 {
+        let p = nominal.perturbed(0.3, seed);
+        for (i, k) in nominal.kind.keys().iter().enumerate() {
+            if nominal.si[i] == 0.0 {
+                continue;
+            }
+            let r = p.si[i] / nominal.si[i];
+            if k.physical {
+                assert!((0.7..=1.3).contains(&r), "{} {r}", k.name);
+                lowest = lowest.min(r);
+                highest = highest.max(r);
+            } else {
+                assert_eq!(r, 1.0, "{} is a controller setting", k.name);
+            }
+        }
+    }
+    assert!(lowest < 0.72 && highest > 1.28, "{lowest} {highest}");
+}
+
+#[test]
+fn a_perturbed_servo_hydraulic_still_holds_its_force_and_tracks() {
+    let nominal = preset_params("fatigue-150kn");
+    for seed in 0..20 {
+        let truth = nominal.perturbed(0.3, seed);
+        let plant = ActuatorPlant::new(&truth, &nominal);
+        let d = plant.effective_delay(K_ELEMENT);
+        assert!(d.delay_s > 0.5e-3 && d.delay_s < 8e-3, "seed {seed}: {d:?}");
+        let (h_u, _) = plant.response(1e-3);
+        assert!(
+            (h_u.norm() - 1.0).abs() < 1e-3,
+            "seed {seed}: DC gain {h_u}"
+        );
+    }
+}
