@@ -218,7 +218,10 @@ pub fn actuator_variants(cfg: &HilConfig) -> Vec<(String, HilConfig)> {
     use crate::rig::actuator::{ActuatorParams, PRESETS};
     let own = format!(
         "config: {}",
-        cfg.rig.actuator.preset.unwrap_or(cfg.rig.actuator.nominal.kind.name())
+        cfg.rig
+            .actuator
+            .preset
+            .unwrap_or(cfg.rig.actuator.nominal.kind.name())
     );
     let mut out = vec![(own, cfg.clone())];
     for p in PRESETS {

@@ -51,7 +51,10 @@ pub fn describe_actuator(cfg: &HilConfig) -> String {
         a.preset.map_or(String::new(), |p| format!(" (preset {p})")),
         params.join(", "),
         if a.perturb > 0.0 {
-            format!("; the rig perturbs each by up to {:.0} %", a.perturb * 100.0)
+            format!(
+                "; the rig perturbs each by up to {:.0} %",
+                a.perturb * 100.0
+            )
         } else {
             String::new()
         }

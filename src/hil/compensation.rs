@@ -434,8 +434,9 @@ impl Compensator {
             return;
         }
         let k = (self.dt_s / self.cfg.adapt_time_s).min(1.0);
-        // At most 2 ms of lead per second (0.5 us per sample at 4096 Hz).
-        let max_step = 2e-3 * self.dt_s;
+        // At most 20 ms of lead per second (5 us per sample at 4096 Hz): a servo-hydraulic
+        // actuator a few ms slower than the first guess is reached within the first second.
+        let max_step = 20e-3 * self.dt_s;
         let step = (k * difference).clamp(-max_step, max_step);
         self.lead_s = (self.lead_s + step).clamp(0.0, self.cfg.max_delay_s);
         let gain_step = (k * (e.residual_gain - self.gain)).clamp(-1e-4, 1e-4);

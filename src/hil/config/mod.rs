@@ -33,11 +33,11 @@ pub use rig::RigConfig;
 pub use safety::SafetyConfig;
 pub use scenario::{BlockConfig, ProgrammeConfig, ScenarioConfig, SCENARIO_BLOCK};
 
+use compensation::{parse_compensation, RawCompensation};
 use controller::{parse_controller, RawController};
 use emulator::{parse_emulator, parse_model, RawEmulator};
 use injections::{parse_injection, RawInjection};
 use loop_::{parse_loop, RawLoop};
-use compensation::{parse_compensation, RawCompensation};
 use rig::{parse_rig, RawRig};
 use safety::{parse_safety, RawSafety};
 use scenario::{parse_programme, parse_scenario, RawProgramme, RawScenario};

@@ -3,8 +3,8 @@
 use serde::Deserialize;
 
 use super::{Check, ConfigError};
-use crate::hil::passivity::StabilityBounds;
 use crate::hil::fault::{FaultAction, FaultActions, FaultClass};
+use crate::hil::passivity::StabilityBounds;
 
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -163,4 +163,3 @@ fn parse_stability(check: &Check, s: &RawSafety) -> Result<StabilityBounds, Conf
         )?,
     })
 }
-

@@ -5,8 +5,8 @@
 //! stalls and their transients, what each fault did to the specimen), then decimated plots.
 //! Offline code: never runs inside a loop.
 
-pub mod compensation;
 pub mod actuator;
+pub mod compensation;
 pub mod decimate;
 pub mod fidelity;
 pub mod latency;
