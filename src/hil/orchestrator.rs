@@ -714,8 +714,10 @@ fn wait_for_external_rig(
         }
         if t0.elapsed() > wait {
             sup.push_fault(format!(
-                "hil: no rig connected within {} s (see README \"Connecting a rig\")",
-                wait.as_secs_f64()
+                "hil: no rig connected within {} s (docs/rig-interface.md; a rig built for rig ABI 2 cannot open this run's command service: ABI {}'s ActuatorCommand is {} bytes, carrying the controller's compensation, and iceoryx2 refuses the old 120-byte type)",
+                wait.as_secs_f64(),
+                crate::ipc::messages::ABI_VERSION,
+                std::mem::size_of::<crate::ipc::messages::ActuatorCommand>()
             ));
             return Ok(false);
         }

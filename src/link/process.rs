@@ -103,6 +103,8 @@ struct Shared {
     ready: AtomicBool,
     /// The rig's period when it differs from the configuration's (0: fine).
     wrong_period_ns: AtomicU64,
+    /// The link protocol version of a rig that speaks another one (0: none seen).
+    peer_version: std::sync::atomic::AtomicU32,
     first_sample: AtomicBool,
     finished: AtomicBool,
     end_of_run_published: AtomicBool,
@@ -163,6 +165,12 @@ fn receive_loop(
                 shared
                     .wrong_period_ns
                     .store(receiver.wrong_period_ns, Ordering::Relaxed);
+                continue;
+            }
+            Receive::Rejected(Reject::BadVersion) => {
+                shared
+                    .peer_version
+                    .store(u32::from(receiver.peer_version), Ordering::Relaxed);
                 continue;
             }
             _ => continue,
@@ -356,6 +364,14 @@ fn serve(
     // 1. The rig announces itself with status datagrams.
     let waited_since = monotonic_now_ns();
     while !shared.ready.load(Ordering::Relaxed) {
+        let version = shared.peer_version.load(Ordering::Relaxed);
+        if version != 0 {
+            return Err(ProcessError(format!(
+                "the rig at {} speaks link protocol {version}; this fastemu speaks {} (include/fastemu_rig.h, docs/rig-interface.md): since protocol 2 every COMMAND carries the controller's compensation (184 bytes), which the rig must apply",
+                plan.peer,
+                super::protocol::LINK_VERSION
+            )));
+        }
         let wrong = shared.wrong_period_ns.load(Ordering::Relaxed);
         if wrong != 0 {
             return Err(ProcessError(format!(

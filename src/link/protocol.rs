@@ -650,7 +650,7 @@ mod tests {
         let mut buf = [0u8; MAX_DATAGRAM_BYTES];
         encode_sample(&mut buf, 0x0102_0304_0506_0708, 0x1112, &sample());
         assert_eq!(&buf[0..4], b"FEMU");
-        assert_eq!(&buf[4..6], &[1, 0]);
+        assert_eq!(&buf[4..6], &[2, 0]);
         assert_eq!(&buf[6..8], &[1, 0]);
         assert_eq!(&buf[8..16], &[8, 7, 6, 5, 4, 3, 2, 1]);
         assert_eq!(&buf[16..18], &[0x12, 0x11]);

@@ -202,6 +202,9 @@ pub struct LinkReceiver {
     expected_period_ns: Option<u64>,
     /// The period named by the newest datagram rejected for naming another, ns (0 none).
     pub wrong_period_ns: u64,
+    /// The link protocol version named by the newest datagram from the peer rejected for
+    /// its version (0 none): a rig of another version, told apart from noise.
+    pub peer_version: u16,
     buf: [u8; MAX_DATAGRAM_BYTES + 1],
 }
 
@@ -273,6 +276,7 @@ pub fn open_link_socket(
             counts: ReceiveCounts::default(),
             expected_period_ns: None,
             wrong_period_ns: 0,
+            peer_version: 0,
             buf: [0; MAX_DATAGRAM_BYTES + 1],
         },
     ))
@@ -400,7 +404,12 @@ impl LinkReceiver {
         }
         let (header, datagram) = match decode(&self.buf[..len], self.side) {
             Ok(x) => x,
-            Err(reason) => return self.reject(reason),
+            Err(reason) => {
+                if reason == Reject::BadVersion {
+                    self.peer_version = u16::from_le_bytes([self.buf[4], self.buf[5]]);
+                }
+                return self.reject(reason);
+            }
         };
         // Content before sequence: a rejected datagram moves no window and counts as no
         // sign of life.

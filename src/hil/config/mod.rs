@@ -538,7 +538,10 @@ mod tests {
     /// The default configuration with its `[rig.actuator]` table replaced by `table`.
     fn with_actuator(table: &str) -> Result<HilConfig, ConfigError> {
         let start = DEFAULT_CONFIG_TOML.find("[rig.actuator]").unwrap();
-        let end = start + DEFAULT_CONFIG_TOML[start..].find("\n[safety]").unwrap();
+        let end = start
+            + DEFAULT_CONFIG_TOML[start..]
+                .find("\n[compensation]")
+                .unwrap();
         let text = format!(
             "{}[rig.actuator]\n{table}\n{}",
             &DEFAULT_CONFIG_TOML[..start],
