@@ -330,6 +330,11 @@ fn merge_records(out_dir: &std::path::Path) -> serde_json::Value {
 /// plot. Exit 0 when the loop is stable, 1 when not.
 fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     use crate::hil::check::{actuator_response, describe_actuator, LinearLoop};
+    anyhow::ensure!(
+        cfg.controller.command_mode == crate::hil::config::CommandMode::Law,
+        "{}: [controller] command_mode = \"force\": --check models local-law commands (the rig's prediction over the controller's lead) only",
+        cfg.origin
+    );
     let lead_s = cfg.compensation.initial_delay_s;
     let lin = LinearLoop::new(cfg, actuator_response(cfg), lead_s, 1.0);
     let m = lin.margins();
@@ -369,6 +374,15 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
         "  actuator: {} (the simulated rig's [rig.actuator]; a rig of its own is unknown to fastemu, which learns it with adapt = true)",
         describe_actuator(cfg)
     );
+    // The actuator must carry the preload and the load programme's peak.
+    let peak_load_n = cfg.scenario.preload_n + cfg.scenario.harmonic_amplitude_n.abs();
+    let force_max_n = cfg.rig.actuator.nominal.force_max_n();
+    if force_max_n < peak_load_n {
+        eprintln!(
+            "  WARNING: the actuator's force_max_n = {:.0} N is below the preload plus the harmonic load ({:.0} N): it saturates and cannot render the element",
+            force_max_n, peak_load_n
+        );
+    }
     eprintln!(
         "  compensation: lead {:.0} us ([compensation] initial_delay_us), prediction order {}",
         lead_s * 1e6,
@@ -743,7 +757,21 @@ fn summarise(
     let text = serde_json::to_string_pretty(&summary)?;
     std::fs::write(out_dir.join("summary.json"), &text)?;
     if args.json {
-        println!("{}", serde_json::to_string(&summary)?);
+        // Stdout stays one compact line: the compensation's per-frequency rendering and
+        // its trajectory are in summary.json only.
+        let mut compact = summary.clone();
+        if let Some(c) = compact
+            .get_mut("compensation")
+            .and_then(|c| c.as_object_mut())
+        {
+            for key in ["rendering", "trajectory"] {
+                if let Some(v) = c.remove(key) {
+                    let n = v.as_array().map_or(0, Vec::len);
+                    c.insert(format!("{key}_points"), n.into());
+                }
+            }
+        }
+        println!("{}", serde_json::to_string(&compact)?);
     }
     if let Some(a) = analysis {
         eprintln!(

@@ -43,7 +43,7 @@ pub fn describe_actuator(cfg: &HilConfig) -> String {
         .keys()
         .iter()
         .enumerate()
-        .map(|(i, k)| format!("{} = {}", k.name, a.nominal.config_value(i)))
+        .map(|(i, k)| format!("{} = {}", k.name, round_sig(a.nominal.config_value(i))))
         .collect();
     format!(
         "{}{}: {}{}",
@@ -61,6 +61,15 @@ pub fn describe_actuator(cfg: &HilConfig) -> String {
     )
 }
 
+/// `x` to 6 significant digits (unit conversions leave 500.00000000000006 behind).
+fn round_sig(x: f64) -> f64 {
+    if x == 0.0 || !x.is_finite() {
+        return x;
+    }
+    let scale = 10f64.powi(5 - x.abs().log10().floor() as i32);
+    (x * scale).round() / scale
+}
+
 /// The linearised loop.
 #[derive(Debug, Clone)]
 pub struct LinearLoop {
@@ -70,6 +79,9 @@ pub struct LinearLoop {
     pub lead_s: f64,
     pub lead_order: u32,
     pub gain: f64,
+    /// Damping the guard adds on the velocity high-passed at `guard_corner_hz`, N s/m.
+    pub guard_damping_ns_per_m: f64,
+    pub guard_corner_hz: f64,
     /// The element's modulus `k_eq(w) + j w c_eq(w)` at the preload, on the frequency grid.
     element: Vec<Complex64>,
     /// Actuator responses on the grid: force per command, force per specimen velocity.
@@ -133,6 +145,8 @@ impl LinearLoop {
             lead_s,
             lead_order: cfg.compensation.lead_order,
             gain,
+            guard_damping_ns_per_m: 0.0,
+            guard_corner_hz: cfg.compensation.guard_band_hz,
             element,
             actuator_u,
             actuator_v,

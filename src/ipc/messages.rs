@@ -231,7 +231,7 @@ pub struct ActuatorCommand {
 /// corner `added_damping_corner_hz`; 0 = the whole velocity), clamps to the command's
 /// limits and divides by `gain` (the actuator's identified force per commanded force):
 ///
-/// `u = clamp(law(z(t + lead), v(t + lead)) - D v_hp(t + lead), min, max) / gain`.
+/// `u = clamp(law(z(t + lead), v(t + lead)) + D v_hp(t + lead), min, max) / gain`.
 ///
 /// The added damping opposes the specimen's velocity: it pushes like the element's own
 /// damping (force positive in compression, so `+ D v` in the element's reaction).

@@ -16,14 +16,18 @@ use crate::common::TempDir;
 
 const FASTEMU: &str = env!("CARGO_BIN_EXE_fastemu");
 const DEFAULT: &str = include_str!("../../configs/hil-default.toml");
-const KNOB: &str = "law_lead_us = 252.0";
+const KNOB: &str = "initial_delay_us = 252.0";
 
-/// Runs the default passage in process with `law_lead_us` and writes its records to
+/// Runs the default passage in process with the controller's lead fixed at `lead_us`
+/// (`[compensation] initial_delay_us`, adaptation off) and writes its records to
 /// `run_dir`.
-fn recorded_run(run_dir: &Path, law_lead_us: f64) -> Recorded {
+fn recorded_run(run_dir: &Path, lead_us: f64) -> Recorded {
     recorded_run_with(
         run_dir,
-        &[(KNOB, &format!("law_lead_us = {law_lead_us:.1}"))],
+        &[
+            (KNOB, &format!("initial_delay_us = {lead_us:.1}")),
+            ("adapt = true", "adapt = false"),
+        ],
     )
 }
 
@@ -113,10 +117,10 @@ fn a_law_lead_set_125_us_too_long_is_named_from_the_run_records() {
     let json = diagnose(&run_dir, &dir.path.join("diagnosis"));
     // The applied force leads by the 125 us the lead is too long (the law's extrapolation
     // is second order, so not exactly).
-    let (lag_s, advice) = named_lead_and_advice(&json, "law_lead_us");
+    let (lag_s, advice) = named_lead_and_advice(&json, "initial_delay_us");
     assert!(
         advice.starts_with("applied force leads the emulated force by")
-            && advice.contains("[rig] law_lead_us (377 us) is about")
+            && advice.contains("[compensation] initial_delay_us (377 us) is about")
             && advice.ends_with("too long"),
         "{advice}"
     );
@@ -241,7 +245,7 @@ fn a_law_lead_that_matches_the_loop_names_no_delay() {
     assert_eq!(advice.len(), 1, "{json}");
     let advice = advice[0].as_str().unwrap();
     assert!(advice.starts_with("no loop artefact found"), "{advice}");
-    assert!(!advice.contains("law_lead_us") && !advice.contains("compensation_delay_us"));
+    assert!(!advice.contains("initial_delay_us") && !advice.contains("compensation_delay_us"));
 }
 
 #[test]
