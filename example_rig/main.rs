@@ -33,6 +33,8 @@ use iceoryx2::prelude::*;
 
 // ---- the messages, as fastemu_rig.h declares them ---------------------------------------
 
+/// Header: FASTEMU_LINK_VERSION.
+const LINK_VERSION: u16 = 2;
 const HEARTBEAT_READY: u32 = 100;
 const RIG_RUNNING: u32 = 1;
 const RIG_HOLD: u32 = 2;
@@ -357,7 +359,7 @@ impl Udp {
     fn header(&mut self, kind: u16, out: &mut Vec<u8>) {
         out.clear();
         out.extend_from_slice(b"FEMU");
-        out.extend_from_slice(&1u16.to_le_bytes());
+        out.extend_from_slice(&LINK_VERSION.to_le_bytes());
         out.extend_from_slice(&kind.to_le_bytes());
         out.extend_from_slice(&self.sent[kind as usize].to_le_bytes());
         out.extend_from_slice(&monotonic_ns().to_le_bytes());
@@ -388,7 +390,7 @@ impl Udp {
             let u32_at = |o: usize| u32::from_le_bytes(d[o..o + 4].try_into().unwrap());
             let u64_at = |o: usize| u64::from_le_bytes(d[o..o + 8].try_into().unwrap());
             let f64_at = |o: usize| f64::from_le_bytes(d[o..o + 8].try_into().unwrap());
-            if from != self.peer || len < 24 || &d[0..4] != b"FEMU" || u16_at(4) != 2 {
+            if from != self.peer || len < 24 || &d[0..4] != b"FEMU" || u16_at(4) != LINK_VERSION {
                 self.rejected += 1;
                 continue;
             }

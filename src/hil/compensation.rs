@@ -113,8 +113,8 @@ pub struct DelayEstimator {
 impl DelayEstimator {
     pub fn new(band_hz: f64, memory_s: f64, dt_s: f64) -> DelayEstimator {
         DelayEstimator {
-            lp_element: [LowPass2::new(band_hz, dt_s); 2],
-            lp_measured: [LowPass2::new(band_hz, dt_s); 2],
+            lp_element: [LowPass2::low_pass(band_hz, dt_s); 2],
+            lp_measured: [LowPass2::low_pass(band_hz, dt_s); 2],
             forget: (-dt_s / memory_s).exp(),
             dt_s,
             last_x: 0.0,

@@ -173,7 +173,7 @@ fn a_law_lead_set_125_us_too_long_is_named_from_the_run_records() {
         from_samples["advice"].as_array().unwrap().iter().any(|a| a
             .as_str()
             .unwrap()
-            .contains("the external rig's own law lead L")),
+            .contains("the lead the external rig applied")),
         "{from_samples}"
     );
 }

@@ -343,7 +343,7 @@ fn tiny_run_reports_every_transport_and_writes_its_files() {
     assert_eq!(report["message_bytes"], 56);
     assert_eq!(
         report["socket_datagram_bytes"],
-        serde_json::json!([88, 144])
+        serde_json::json!([88, 184])
     );
     assert!(report["loop"]["end_to_end_udp_link"]["note"].is_string());
     assert_eq!(report["out_dir"], out.to_str().unwrap());

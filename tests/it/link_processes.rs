@@ -102,7 +102,7 @@ fn link_counts_loss_duplicates_reordering_and_garbage_by_reason_and_uses_none_of
     let mut bad_magic = good.clone();
     bad_magic[0] = b'X';
     let mut bad_version = good.clone();
-    bad_version[4] = 2;
+    bad_version[4] = 1; // the previous link protocol
     let mut unknown_kind = good.clone();
     unknown_kind[6] = 9;
     let mut command = [0u8; MAX_DATAGRAM_BYTES];

@@ -116,7 +116,14 @@ fn a_5_ms_emulator_stall_at_the_first_axle_leaves_a_few_um_with_the_law_and_ring
         "force commands: {} um",
         with_forces * 1e6
     );
-    assert!(faults(&run).is_empty());
+    // Ringing beyond 0.1 mm for 100 ms hammers the specimen: the stability monitor names
+    // it (`loop-unstable`) and the rig holds.
+    let f = faults(&run);
+    assert!(
+        f.first()
+            .is_some_and(|x| x.0 == 1 && x.1 == Fault::LoopUnstable),
+        "{f:?}"
+    );
 }
 
 #[test]

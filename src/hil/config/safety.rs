@@ -33,6 +33,8 @@ pub(super) struct RawSafety {
     max_generated_energy_j: Option<f64>,
     #[serde(default)]
     max_oscillation_m: Option<f64>,
+    #[serde(default)]
+    stability_persist_ms: Option<f64>,
 }
 
 /// Fault actions, the hold and its end, and the report's transient bound.
@@ -160,6 +162,12 @@ fn parse_stability(check: &Check, s: &RawSafety) -> Result<StabilityBounds, Conf
             s.max_oscillation_m,
             1.0,
             d.max_oscillation_m,
+        )?,
+        persist_s: opt(
+            "stability_persist_ms",
+            s.stability_persist_ms,
+            1e-3,
+            d.persist_s,
         )?,
     })
 }
