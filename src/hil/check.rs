@@ -299,7 +299,7 @@ impl LinearLoop {
             }
         }
         let bode_mag = Panel::new(
-            &format!("{title}: loop gain |L|"),
+            format!("{title}: loop gain |L|"),
             "frequency, Hz",
             "|L|, dB",
         )

@@ -176,7 +176,9 @@ impl DelayEstimator {
         s[5] = l * s[5] + y * y;
         s[6] = l * s[6] + 1.0;
         let det = s[0] * s[2] - s[1] * s[1];
-        if !(det > 1e-12 * s[0] * s[2]) || s[2] <= 0.0 {
+        // Determined: a determinant clear of rounding (false for NaN too).
+        let determined = det > 1e-12 * s[0] * s[2];
+        if !determined || s[2] <= 0.0 {
             return None;
         }
         let a = (s[2] * s[3] - s[1] * s[4]) / det;

@@ -361,7 +361,7 @@ pub fn draw(dir: &std::path::Path, r: &CompensationReport) -> anyhow::Result<()>
     let gain_panel = Panel::new("identified actuator gain", "time, s", "force / command")
         .with(Series::line("gain", t.clone(), gain, 2));
     let guard_panel = Panel::new(
-        &format!(
+        format!(
             "passivity guard ({:.0}-{:.0} Hz): damping added",
             r.guard.band_hz.0, r.guard.band_hz.1
         ),
