@@ -184,7 +184,8 @@ pub struct StabilityBounds {
     pub max_oscillation_m: f64,
     /// A bound must stay crossed this long to trip, s: a stall's ride-through or the
     /// ringing after an axle generates a burst of energy or a transient that decays
-    /// within tens of ms; an unstable loop keeps generating.
+    /// within tens of ms; an unstable loop keeps generating. Beyond 10 times the energy
+    /// bound or 3 times the oscillation bound the monitor trips at once.
     pub persist_s: f64,
 }
 
@@ -198,6 +199,11 @@ impl StabilityBounds {
         persist_s: 0.1,
     };
 }
+
+/// Beyond these multiples of its bound the monitor trips without waiting for the
+/// persistence.
+const IMMEDIATE_FACTOR_ENERGY: f64 = 10.0;
+const IMMEDIATE_FACTOR_OSCILLATION: f64 = 3.0;
 
 /// Which bound tripped the monitor.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -281,6 +287,14 @@ impl StabilityMonitor {
             self.crossed_samples += 1;
         } else {
             self.crossed_samples = 0;
+        }
+        // A loop diverging within the persistence (an actuator far slower than the lead:
+        // e-folding in a few ms) trips at once beyond a multiple of a bound.
+        if s.generated_high_j > IMMEDIATE_FACTOR_ENERGY * self.bounds.max_generated_energy_j {
+            return Some(InstabilityKind::GeneratedEnergy);
+        }
+        if self.envelope_m > IMMEDIATE_FACTOR_OSCILLATION * self.bounds.max_oscillation_m {
+            return Some(InstabilityKind::Oscillation);
         }
         crossed.filter(|_| self.crossed_samples >= self.persist_samples)
     }
@@ -427,13 +441,25 @@ mod tests {
         }
         let (kind, a) = tripped.expect("the monitor trips");
         assert_eq!(kind, InstabilityKind::Oscillation);
-        // The envelope crossed 0.1 mm and stayed above it for 100 ms: e^(20 * 0.1) more.
-        let expected = 1e-4 * (20.0f64 * 0.1).exp();
-        // (The envelope sags 27 % between peaks: near the bound it dips below and the
-        // count restarts, so the crossing that holds comes up to a third later.)
-        assert!(
-            (0.9 * expected..1.5 * expected).contains(&a),
-            "{a} vs {expected}"
-        );
+        // Growing at 20 /s the envelope reaches 3 x 0.1 mm (55 ms after crossing 0.1 mm)
+        // before the 100 ms persistence is over: it trips there at once.
+        let expected = IMMEDIATE_FACTOR_OSCILLATION * 1e-4;
+        assert!((expected..1.2 * expected).contains(&a), "{a} vs {expected}");
+        // Growing slowly (2 /s), it trips on the persistence, below the 3 x bound.
+        let mut m = StabilityMonitor::new(StabilityBounds::DEFAULT, DT);
+        let mut slow = None;
+        for i in 0..(4096 * 10) {
+            let t = i as f64 * DT;
+            let a = 5e-5 * (2.0 * t).exp();
+            let z = a * (2.0 * PI * 155.0 * t).sin();
+            if let Some(kind) = m.update(z, k * z, f64::NAN) {
+                slow = Some((kind, a));
+                break;
+            }
+        }
+        let (kind, a) = slow.expect("the monitor trips");
+        assert_eq!(kind, InstabilityKind::Oscillation);
+        // (e^0.2 past the bound, later where the envelope sags below it between peaks.)
+        assert!((1e-4..2e-4).contains(&a), "{a}");
     }
 }
