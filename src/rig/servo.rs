@@ -358,7 +358,16 @@ impl Servo {
 
     fn enter_hold(&mut self, step_idx: u64, unload: bool, operator: bool) {
         self.hold_position_m = self.z_history_m[0];
-        self.hold_feedforward_n = self.last_output_n;
+        // The force that holds the specimen at rest there is the load it carries; the last
+        // output may be far from it when the hold ends an unstable loop (an actuator
+        // slamming between its limits), and fed forward it would push the specimen away.
+        // Within the normal band the last output is kept (a bumpless hold).
+        let deviation = (self.last_output_n - self.load_now_n).abs();
+        self.hold_feedforward_n = if deviation <= 0.2 * self.load_now_n.abs().max(1e3) {
+            self.last_output_n
+        } else {
+            self.load_now_n
+        };
         self.hold_load_at_start_n = self.load_now_n;
         self.hold_integral_m_s = 0.0;
         self.at_rest_since_step = None;

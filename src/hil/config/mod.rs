@@ -110,7 +110,7 @@ impl HilConfig {
     pub fn servo_config(&self) -> ServoConfig {
         let (hold_kp, hold_ki, hold_kd) = ServoConfig::hold_gains(
             self.rig.specimen_mass_kg,
-            self.rig.hold_bandwidth_hz,
+            self.hold_bandwidth_hz(),
             self.rig.hold_damping_ratio,
         );
         ServoConfig {
@@ -128,6 +128,32 @@ impl HilConfig {
             unload_rate_n_per_s: self.safety.unload_rate_n_per_s,
             resume_blend_s: self.safety.resume_blend_s,
         }
+    }
+
+    /// The position hold's bandwidth the rig's servo uses: `[rig] hold_bandwidth_hz`, at
+    /// most `0.05 / d` for an actuator of effective delay `d` (its phase lag at the hold's
+    /// crossover stays under 18 degrees). A servo controller is tuned for its own
+    /// actuator: a 50 Hz position loop through a servo-hydraulic actuator milliseconds
+    /// late is itself unstable, and the interlock must hold whatever the actuator. Only
+    /// the rig calls this (it knows its actuator's truth; the controller never does).
+    pub fn hold_bandwidth_hz(&self) -> f64 {
+        let k = self
+            .model
+            .element
+            .high_frequency_stiffness_n_per_m(self.scenario.preload_n);
+        let delay_s = self
+            .rig
+            .actuator
+            .truth()
+            .effective_delay(k)
+            .delay_s
+            .max(0.0);
+        let limit_hz = if delay_s > 0.0 {
+            0.05 / delay_s
+        } else {
+            f64::INFINITY
+        };
+        self.rig.hold_bandwidth_hz.min(limit_hz)
     }
 
     /// The ride-through limit in loop periods.
