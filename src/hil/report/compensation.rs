@@ -349,7 +349,11 @@ pub fn draw(dir: &std::path::Path, r: &CompensationReport) -> anyhow::Result<()>
         .filter(|p| p.identified_delay_us.is_finite())
         .map(|p| (p.t_s, p.identified_delay_us))
         .unzip();
-    let gain: Vec<f64> = r.trajectory.iter().map(|p| p.gain).collect();
+    let gain: Vec<f64> = r
+        .trajectory
+        .iter()
+        .map(|p| (p.gain - 1.0) * 100.0)
+        .collect();
     let guard: Vec<f64> = r
         .trajectory
         .iter()
@@ -358,8 +362,12 @@ pub fn draw(dir: &std::path::Path, r: &CompensationReport) -> anyhow::Result<()>
     let estimate = Panel::new("delay compensation over the run", "time, s", "us")
         .with(Series::line("lead sent", t.clone(), lead, 0))
         .with(Series::points("identified delay", ti, id, 1));
-    let gain_panel = Panel::new("identified actuator gain", "time, s", "force / command")
-        .with(Series::line("gain", t.clone(), gain, 2));
+    let gain_panel = Panel::new(
+        "identified actuator gain, departure from 1",
+        "time, s",
+        "gain - 1, %",
+    )
+    .with(Series::line("gain - 1", t.clone(), gain, 2));
     let guard_panel = Panel::new(
         format!(
             "passivity guard ({:.0}-{:.0} Hz): damping added",
