@@ -616,3 +616,64 @@ fn an_external_rig_that_never_connects_is_a_named_fault_that_leaves_nothing() {
     assert_eq!(json["run_id"], run_id.as_str());
     assert_nothing_left(&json);
 }
+
+/// A rig of the previous link protocol (1: commands without the compensation) is named at
+/// once with its version and fastemu's, instead of waiting out the rig's time-out.
+#[test]
+fn a_rig_of_the_previous_link_protocol_is_named_with_its_version() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = scratch_dir("link-old-version");
+    let config = write_config(&dir, &[], "");
+    let (link, rig) = free_loopback_pair().unwrap();
+    let mut hil = spawn_hil_with(
+        &config,
+        &dir.join("report"),
+        2.0,
+        &[
+            "--rig",
+            "external",
+            "--rig-link",
+            "udp",
+            "--link-bind",
+            &link.to_string(),
+            "--link-peer",
+            &rig.to_string(),
+            "--rig-wait-s",
+            "20",
+        ],
+    );
+    // The old rig announces itself: READY status datagrams whose header says version 1,
+    // every 10 ms until hil has ended.
+    let socket = UdpSocket::bind(rig).unwrap();
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let sender = {
+        let stop = stop.clone();
+        std::thread::spawn(move || {
+            let mut buf = [0u8; MAX_DATAGRAM_BYTES];
+            let status = StatusDatagram {
+                rig_state: 100,
+                rig_fault_code: 0,
+                period_ns: 244_141,
+            };
+            let mut seq = 0;
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                let n = encode_status(&mut buf, seq, 0, &status);
+                buf[4] = 1; // the previous protocol's version
+                let _ = socket.send_to(&buf[..n], link);
+                seq += 1;
+                std::thread::sleep(Duration::from_millis(10));
+            }
+        })
+    };
+    // Named at once: well before the 20 s the rig was given.
+    let (code, json) = hil.finish(Duration::from_secs(15));
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    sender.join().unwrap();
+    let stderr = hil.stderr();
+    assert_ne!(code, 0, "{stderr}");
+    assert!(
+        stderr.contains("speaks link protocol 1; this fastemu speaks 2"),
+        "{stderr}"
+    );
+    assert_nothing_left(&json);
+}
