@@ -293,9 +293,12 @@ impl RigCore {
     #[inline]
     pub fn finish_period(&mut self, wake_late_ns: u64, catch_up: bool) -> RigRecord {
         let t = self.time_s();
-        let (out, request) =
-            self.servo
-                .update(self.step_idx, self.z_measured_m, self.programme.force_n());
+        let (out, request) = self.servo.update(
+            self.step_idx,
+            self.z_measured_m,
+            self.programme.force_n(),
+            self.physics.actuator_force_n,
+        );
         if let Some(trip) = self.servo.take_new_trip() {
             self.push_event(
                 event_kind::FAULT,
@@ -359,8 +362,14 @@ impl RigCore {
             self.servo.on_unloaded();
             self.push_event(event_kind::UNLOADED, 0, 0, action_code::NONE, 0, 0.0);
         }
-        self.physics
-            .advance(t, self.dt_s, out.command_n, f_start, f_end);
+        self.physics.advance(
+            t,
+            self.dt_s,
+            out.command_n,
+            out.stroke_target_m,
+            f_start,
+            f_end,
+        );
         self.step_idx += 1;
         record
     }

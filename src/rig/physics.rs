@@ -27,6 +27,8 @@ pub struct RigPhysics {
     pub actuator_force_n: f64,
     /// The actuator plant's states.
     actuator_state: PlantState,
+    /// Whether the plant was in stroke control (position hold) last period.
+    stroke_control: bool,
     /// Commands as (time they were issued, s; value, N), a ring.
     delay_line: Vec<(f64, f64)>,
     delay_head: usize,
@@ -64,6 +66,7 @@ impl RigPhysics {
             v_m_per_s: 0.0,
             actuator_force_n: plant.applied_force_n(&actuator_state, 0.0),
             actuator_state,
+            stroke_control: false,
             plant,
             delay_line,
             delay_head: 0,
@@ -92,23 +95,46 @@ impl RigPhysics {
 
     /// Derivatives of `(x, v, plant states)`.
     #[inline]
-    fn derivative(&self, v: f64, s: &PlantState, u: f64, f_ext: f64) -> (f64, f64, PlantState) {
+    fn derivative(
+        &self,
+        (x, v): (f64, f64),
+        s: &PlantState,
+        u: f64,
+        stroke_target_m: f64,
+        f_ext: f64,
+    ) -> (f64, f64, PlantState) {
         let applied = self.plant.applied_force_n(s, v);
         let dv = (f_ext - self.damping_ns_per_m * v - applied) / self.mass_kg;
-        (v, dv, self.plant.derivative(s, u, v))
+        let ds = if stroke_target_m.is_finite() {
+            self.plant.stroke_derivative(s, x - stroke_target_m, v)
+        } else {
+            self.plant.derivative(s, u, v)
+        };
+        (v, dv, ds)
     }
 
     /// Advances one loop period from `t0_s` with command `command_n` issued at `t0_s`; the
     /// external force goes linearly from `f_ext_start_n` to `f_ext_end_n` over the period
-    /// (as in the offline reference, so both see the same load).
+    /// (as in the offline reference, so both see the same load). With `stroke_target_m`
+    /// finite the actuator holds that position in stroke control instead (its own
+    /// position loop, `ActuatorPlant::stroke_derivative`; only a plant that has one,
+    /// `ActuatorPlant::has_stroke_control`, is asked to); the command still enters the
+    /// transport delay line, so force control resumes from it.
     pub fn advance(
         &mut self,
         t0_s: f64,
         dt_s: f64,
         command_n: f64,
+        stroke_target_m: f64,
         f_ext_start_n: f64,
         f_ext_end_n: f64,
     ) {
+        debug_assert!(!stroke_target_m.is_finite() || self.plant.has_stroke_control());
+        let stroke = stroke_target_m.is_finite();
+        if stroke != self.stroke_control {
+            self.plant.switch_control(&mut self.actuator_state, stroke);
+            self.stroke_control = stroke;
+        }
         self.delay_head = (self.delay_head + 1) % DELAY_LINE_LEN;
         self.delay_line[self.delay_head] = (t0_s, command_n);
         self.delay_len = (self.delay_len + 1).min(DELAY_LINE_LEN);
@@ -130,10 +156,14 @@ impl RigPhysics {
             let u = self.delayed_command_n(t0_s + ta + 0.5 * h);
             self.plant.begin_substep(&mut s, u);
             let (fe0, fe_mid, fe1) = (load(ta), load(ta + 0.5 * h), load(ta + h));
-            let k1 = self.derivative(v, &s, u, fe0);
-            let k2 = self.derivative(v + 0.5 * h * k1.1, &step(&s, &k1.2, 0.5 * h), u, fe_mid);
-            let k3 = self.derivative(v + 0.5 * h * k2.1, &step(&s, &k2.2, 0.5 * h), u, fe_mid);
-            let k4 = self.derivative(v + h * k3.1, &step(&s, &k3.2, h), u, fe1);
+            let st = stroke_target_m;
+            let k1 = self.derivative((x, v), &s, u, st, fe0);
+            let mid1 = (x + 0.5 * h * k1.0, v + 0.5 * h * k1.1);
+            let k2 = self.derivative(mid1, &step(&s, &k1.2, 0.5 * h), u, st, fe_mid);
+            let mid2 = (x + 0.5 * h * k2.0, v + 0.5 * h * k2.1);
+            let k3 = self.derivative(mid2, &step(&s, &k2.2, 0.5 * h), u, st, fe_mid);
+            let end = (x + h * k3.0, v + h * k3.1);
+            let k4 = self.derivative(end, &step(&s, &k3.2, h), u, st, fe1);
             x += h / 6.0 * (k1.0 + 2.0 * k2.0 + 2.0 * k3.0 + k4.0);
             v += h / 6.0 * (k1.1 + 2.0 * k2.1 + 2.0 * k3.1 + k4.1);
             for (j, sj) in s.iter_mut().enumerate() {
@@ -365,7 +395,7 @@ mod tests {
                 let (u, f_ext) = drive(k);
                 let (u2, f_ext2) = drive(k + 1);
                 let _ = u2;
-                new.advance(k as f64 * dt, dt, u, f_ext, f_ext2);
+                new.advance(k as f64 * dt, dt, u, f64::NAN, f_ext, f_ext2);
                 old.advance(k as f64 * dt, dt, u, f_ext, f_ext2);
                 assert_eq!(new.x_m.to_bits(), old.x_m.to_bits(), "step {k}");
                 assert_eq!(new.v_m_per_s.to_bits(), old.v_m_per_s.to_bits(), "step {k}");
@@ -411,7 +441,7 @@ mod tests {
             // At rest in equilibrium: the load equals the command.
             let mut p = RigPhysics::new(&cfg, 3.5e-4, 8e3);
             for k in 0..4096 {
-                p.advance(k as f64 * dt, dt, 8e3, 8e3, 8e3);
+                p.advance(k as f64 * dt, dt, 8e3, f64::NAN, 8e3, 8e3);
             }
             assert!(
                 (p.actuator_force_n - 8e3).abs() < 1e-6 * 8e3,
@@ -421,7 +451,7 @@ mod tests {
             assert!(p.v_m_per_s.abs() < 1e-9, "{name}: {}", p.v_m_per_s);
             // A step of the load, the command following it: the force settles on it.
             for k in 4096..8192 {
-                p.advance(k as f64 * dt, dt, 9e3, 9e3, 9e3);
+                p.advance(k as f64 * dt, dt, 9e3, f64::NAN, 9e3, 9e3);
             }
             assert!(
                 (p.actuator_force_n - 9e3).abs() < 1e-3 * 9e3,
@@ -434,7 +464,14 @@ mod tests {
             // (The load pushes the specimen into the actuator, as a test would.)
             let mut largest = 0.0f64;
             for k in 0..40 {
-                p.advance(k as f64 * dt, dt, 10.0 * f_max, 2.0 * f_max, 2.0 * f_max);
+                p.advance(
+                    k as f64 * dt,
+                    dt,
+                    10.0 * f_max,
+                    f64::NAN,
+                    2.0 * f_max,
+                    2.0 * f_max,
+                );
                 assert!(p.actuator_force_n.abs() <= f_max, "{name}");
                 largest = largest.max(p.actuator_force_n);
             }

@@ -83,6 +83,10 @@ pub struct ServoConfig {
     pub unload_rate_n_per_s: f64,
     /// Back to force control after an operator hold: blend over this long, s.
     pub resume_blend_s: f64,
+    /// The actuator holds position itself (a servo-hydraulic actuator's stroke control on
+    /// its own displacement transducer) instead of through a position PID on its force:
+    /// the hold then asks it for a position (`ServoOutput::stroke_target_m`).
+    pub stroke_hold: bool,
 }
 
 impl ServoConfig {
@@ -126,6 +130,10 @@ pub struct ServoOutput {
     pub command_age_periods: u64,
     /// Periods since the law last changed (a new setpoint behind the command).
     pub law_age_periods: u64,
+    /// Position the actuator must hold in stroke control, m; NaN in force control (and
+    /// always with `ServoConfig::stroke_hold` false). While it is finite `command_n` is
+    /// the force the actuator measures (what a switch back to force control starts from).
+    pub stroke_target_m: f64,
 }
 
 /// What the programme must do this period (the servo owns the decision).
@@ -179,6 +187,10 @@ pub struct Servo {
     load_now_n: f64,
     hold_integral_m_s: f64,
     last_output_n: f64,
+    /// The actuator's measured force this period (its load cell), N.
+    measured_force_n: f64,
+    /// Stroke-control hold: the measured force when the resume began (the blend's start).
+    resume_from_n: f64,
     /// The current period (set by `update`).
     step_idx: u64,
     trip: Option<Trip>,
@@ -220,6 +232,8 @@ impl Servo {
             load_now_n: force0_n,
             hold_integral_m_s: 0.0,
             last_output_n: force0_n,
+            measured_force_n: force0_n,
+            resume_from_n: force0_n,
             step_idx: 0,
             trip: None,
             new_trip: false,
@@ -336,6 +350,7 @@ impl Servo {
                 self.phase = Phase::Resuming {
                     since_step: step_idx,
                 };
+                self.resume_from_n = self.measured_force_n;
             }
         }
     }
@@ -505,18 +520,22 @@ impl Servo {
         }
     }
 
-    /// One actuator period `step_idx` with the displacement measured at its start and the
+    /// One actuator period `step_idx` with the displacement measured at its start, the
     /// external load the programme applies now (a servo controller generates its load
-    /// programme, so it knows it). Returns the actuator command and what the load programme
-    /// must do.
+    /// programme, so it knows it) and the force the actuator's load cell measures. Returns
+    /// the actuator command and what the load programme must do.
     #[inline]
     pub fn update(
         &mut self,
         step_idx: u64,
         z_measured_m: f64,
         external_load_n: f64,
+        measured_force_n: f64,
     ) -> (ServoOutput, ProgrammeRequest) {
         self.load_now_n = external_load_n;
+        if measured_force_n.is_finite() {
+            self.measured_force_n = measured_force_n;
+        }
         // A non-finite reading is never used: the last good one stands in.
         let z_measured_m = if z_measured_m.is_finite() {
             z_measured_m
@@ -554,7 +573,13 @@ impl Servo {
             }
             Phase::Resuming { since_step } => {
                 let (f, mode) = self.force_control_n();
-                let hold = self.hold_force_n(z_measured_m);
+                // A stroke-control hold ended at the resume: the blend starts from the
+                // force the actuator carried then (bumpless), the PID's otherwise.
+                let hold = if self.cfg.stroke_hold {
+                    self.resume_from_n
+                } else {
+                    self.hold_force_n(z_measured_m)
+                };
                 let w = ((step_idx - since_step) as f64 * self.cfg.period_s
                     / self.cfg.resume_blend_s.max(self.cfg.period_s))
                 .min(1.0);
@@ -574,6 +599,12 @@ impl Servo {
                 operator,
             } => self.hold_step(step_idx, z_measured_m, since_step, unload, operator),
         };
+        let holding = matches!(self.phase, Phase::Awaiting | Phase::Holding { .. });
+        let (command_n, stroke_target_m) = if self.cfg.stroke_hold && holding {
+            (self.measured_force_n, self.hold_position_m)
+        } else {
+            (command_n, f64::NAN)
+        };
         self.last_output_n = command_n;
         let law_age = step_idx.saturating_sub(self.law_since_step);
         (
@@ -583,6 +614,7 @@ impl Servo {
                 mode,
                 command_age_periods: command_age,
                 law_age_periods: law_age,
+                stroke_target_m,
             },
             request,
         )

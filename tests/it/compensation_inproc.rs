@@ -169,3 +169,84 @@ fn compensation_is_deterministic() {
         );
     }
 }
+
+/// The default configuration's text with `[rig.actuator]` replaced by `actuator` (TOML
+/// lines) and `[compensation]`'s three switches set.
+fn config_with_actuator(
+    actuator: &str,
+    initial_delay_us: f64,
+    adapt: bool,
+    guard: bool,
+) -> HilConfig {
+    let text = include_str!("../../configs/hil-default.toml")
+        .replace(
+            "kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_us = 80.0\nforce_max_n = 150000.0",
+            actuator,
+        )
+        .replace(
+            "initial_delay_us = 252.0",
+            &format!("initial_delay_us = {initial_delay_us:.1}"),
+        )
+        .replace("adapt = true", &format!("adapt = {adapt}"))
+        .replace("passivity_guard = true", &format!("passivity_guard = {guard}"));
+    let cfg = fastemu::hil::config::parse_hil_config(&text, "actuator.toml", None).unwrap();
+    assert_eq!(cfg.compensation.adapt, adapt);
+    assert_eq!(cfg.compensation.passivity_guard, guard);
+    cfg
+}
+
+/// A servo-hydraulic actuator (a perturbed preset) in front of a loop left without any
+/// compensation goes unstable; after `loop-unstable` the rig's hold (stroke control, as
+/// the actuator's own controller holds) keeps the specimen where it tripped: bounded
+/// excursion, then at rest at the hold position under the load, to the end of the hold.
+#[test]
+fn a_servo_hydraulic_actuator_holds_in_stroke_control_after_loop_unstable() {
+    let cfg = config_with_actuator(
+        "preset = \"fatigue-150kn\"\nperturb = 0.3\nperturb_seed = 1",
+        0.0,
+        false,
+        false,
+    );
+    let run = run_in_process(&cfg, &script(4.0));
+    let f = faults(&run);
+    let trip_t = f
+        .iter()
+        .find(|(p, fault, _)| *p == process_id::EMULATOR && *fault == Fault::LoopUnstable)
+        .unwrap_or_else(|| panic!("no loop-unstable: {f:?}"))
+        .2;
+    let held: Vec<_> = run
+        .rig
+        .iter()
+        .filter(|r| r.state == rig_state::HOLD)
+        .collect();
+    assert!(!held.is_empty(), "the rig never held");
+    let hold_start = held[0].t_s;
+    assert!(
+        hold_start - trip_t < 0.05,
+        "hold {hold_start} s, trip {trip_t} s"
+    );
+    let last = run.rig.last().unwrap();
+    assert!(last.t_s < 4.0 - 0.5, "the run did not end in the hold");
+    // From the hold on, the specimen stays within 0.5 mm of where it was then, and ends
+    // at rest: the last 0.2 s within 5 um, under the load the actuator carries.
+    let x_hold = held[0].x_m;
+    let excursion = held
+        .iter()
+        .map(|r| (r.x_m - x_hold).abs())
+        .fold(0.0f64, f64::max);
+    assert!(excursion < 0.5e-3, "excursion {} mm", excursion * 1e3);
+    let tail: Vec<_> = held.iter().filter(|r| r.t_s > last.t_s - 0.2).collect();
+    let (lo, hi) = tail
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), r| {
+            (a.min(r.x_m), b.max(r.x_m))
+        });
+    assert!(hi - lo < 5e-6, "not at rest: {} um", (hi - lo) * 1e6);
+    let r = tail.last().unwrap();
+    assert!(
+        (r.actuator_force_n - r.external_force_n).abs() < 0.01 * r.external_force_n.abs(),
+        "actuator {} N against load {} N",
+        r.actuator_force_n,
+        r.external_force_n
+    );
+}

@@ -521,7 +521,7 @@ fn the_c_headers_compensated_force_is_the_servos() {
     for k in 0..8u64 {
         let kf = k as f64;
         let z = 3.5e-4 + 2.0e-5 * kf * kf - 1.0e-6 * kf * kf * kf;
-        let (out, _) = servo.update(k, z, 2.0e4);
+        let (out, _) = servo.update(k, z, 2.0e4, f64::NAN);
         let c = m[&format!("comp.{k}")];
         assert!(
             (out.command_n - c).abs() <= 1e-9 * c.abs().max(1.0),

@@ -568,7 +568,7 @@ fn commands_with_bad_content_are_dropped_and_end_in_commands_stale() {
     ];
     // Period 0: the good command is taken; its force is what the actuator is told.
     servo.on_command(&good, 0);
-    let (out, _) = servo.update(0, z0, f0);
+    let (out, _) = servo.update(0, z0, f0, f0);
     assert_eq!(out.command_n, 2.5e4);
     assert_eq!(out.mode, command_mode::FORCE);
     let mut tripped_at = None;
@@ -577,7 +577,7 @@ fn commands_with_bad_content_are_dropped_and_end_in_commands_stale() {
         c.sequence = step;
         c.setpoint_sequence = step;
         servo.on_command(&c, step);
-        let (out, _) = servo.update(step, z0, f0);
+        let (out, _) = servo.update(step, z0, f0, f0);
         if tripped_at.is_none() {
             if let Some(trip) = servo.trip() {
                 tripped_at = Some(trip.step_idx);

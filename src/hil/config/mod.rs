@@ -127,6 +127,8 @@ impl HilConfig {
             hold_max_s: self.safety.hold_max_s,
             unload_rate_n_per_s: self.safety.unload_rate_n_per_s,
             resume_blend_s: self.safety.resume_blend_s,
+            stroke_hold: crate::rig::actuator::ActuatorPlant::from_config(&self.rig.actuator)
+                .has_stroke_control(),
         }
     }
 

@@ -115,6 +115,32 @@ impl ActuatorPlant {
         }
     }
 
+    /// Whether the actuator can hold position itself (stroke control on its own
+    /// displacement transducer): a servo-hydraulic actuator can; the others hold through
+    /// a position loop on their force (`rig::servo`).
+    pub fn has_stroke_control(&self) -> bool {
+        matches!(self.kind, PlantKind::ServoHydraulic(_))
+    }
+
+    /// The states' time derivative in stroke control, `error_m` the displacement beyond
+    /// the position to hold (m, positive in compression), `v` the specimen's velocity.
+    /// Only for a plant with `has_stroke_control`; the others keep their last force.
+    #[inline]
+    pub fn stroke_derivative(&self, s: &PlantState, error_m: f64, v: f64) -> PlantState {
+        match &self.kind {
+            PlantKind::ServoHydraulic(p) => p.stroke_derivative(s, error_m, v),
+            _ => [0.0; 4],
+        }
+    }
+
+    /// Called when the plant switches between force control and stroke control
+    /// (`stroke` true: into stroke control), so the switch is bumpless.
+    pub fn switch_control(&self, s: &mut PlantState, stroke: bool) {
+        if let PlantKind::ServoHydraulic(p) = &self.kind {
+            p.switch_control(s, stroke);
+        }
+    }
+
     /// The force the states make (before saturation), N.
     #[inline]
     pub fn force_n(&self, s: &PlantState, v: f64) -> f64 {

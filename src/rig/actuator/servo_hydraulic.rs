@@ -16,6 +16,14 @@
 //! servo-hydraulic actuators needs against their natural velocity feedback (Dyke et al.
 //! 1995; Dimig et al. 1999 and Shield et al. 2001, effective force testing). It acts
 //! through the valve, so the valve's lag leaves a residual `H_v = P (1 - G) / (1 + P G C)`.
+//!
+//! Stroke control (the interlock's position hold, as a servo-hydraulic controller holds
+//! on its own displacement transducer): `q_c = Kx (x - x_hold)`, the piston following the
+//! flow through the oil column (`x = F / k_h - int q`, quasi-statically), so the hold is
+//! as stiff as the oil column at once and the flow removes the offset. `Kx = wv / 10`
+//! (nominal valve), far below the valve and the oil column's resonance with the specimen
+//! (a gain margin near 9 at the presets). A force-loop hold through a servo-hydraulic
+//! actuator milliseconds slow on a free specimen (the element gone) diverged.
 
 use super::{params::ActuatorParams, Complex64, PlantState};
 
@@ -31,6 +39,8 @@ pub struct ServoHydraulic {
     pub kp: f64,
     /// Integral gain, (m/s) per N s.
     pub ki: f64,
+    /// Stroke control's gain, (m/s) per m.
+    pub kx_per_s: f64,
 }
 
 /// Hydraulic stiffness and leakage rate of a parameter set.
@@ -55,6 +65,7 @@ impl ServoHydraulic {
             valve_zeta: truth.si[3],
             kp,
             ki: kp * omega_c / 10.0,
+            kx_per_s: 2.0 * std::f64::consts::PI * nominal.si[2] / 10.0,
         }
     }
 
@@ -75,6 +86,28 @@ impl ServoHydraulic {
             w * w * (q_c - s[1]) - 2.0 * self.valve_zeta * w * s[2],
             e,
         ]
+    }
+
+    /// In stroke control: the valve commanded from the position error (no force loop,
+    /// its integral frozen).
+    #[inline]
+    pub fn stroke_derivative(&self, s: &PlantState, error_m: f64, v: f64) -> PlantState {
+        let q_c = self.kx_per_s * error_m;
+        let w = self.valve_omega;
+        [
+            self.k_h_n_per_m * (s[1] + v) - self.leak_per_s * s[0],
+            s[2],
+            w * w * (q_c - s[1]) - 2.0 * self.valve_zeta * w * s[2],
+            0.0,
+        ]
+    }
+
+    /// Back to force control: the integral is set as at rest under the force carried now,
+    /// so the force loop starts without a step (its command is that force, `rig::servo`).
+    pub fn switch_control(&self, s: &mut PlantState, stroke: bool) {
+        if !stroke {
+            s[3] = self.rest_state(s[0])[3];
+        }
     }
 
     /// The pressure limit (relief valves): the force state stays within `force_max_n`.
