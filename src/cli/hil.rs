@@ -326,6 +326,34 @@ fn merge_records(out_dir: &std::path::Path) -> serde_json::Value {
     }
 }
 
+/// Before a run on the simulated rig (whose actuator fastemu's config describes): a
+/// warning when the linearised loop (`hil --check`) is not stable with the starting lead,
+/// naming the leads that would be, or that none is. `None` when stable or in force mode.
+fn stability_warning(cfg: &HilConfig) -> Option<String> {
+    use crate::hil::check::{actuator_response, LinearLoop};
+    if cfg.controller.command_mode != crate::hil::config::CommandMode::Law {
+        return None;
+    }
+    let lead_s = cfg.compensation.initial_delay_s;
+    let lin = LinearLoop::new(cfg, actuator_response(cfg), lead_s, 1.0);
+    if lin.margins().stable {
+        return None;
+    }
+    let max = cfg.compensation.max_delay_s;
+    Some(match lin.stable_leads(max) {
+        Some((lo, hi)) => format!(
+            "the linearised loop is not stable with the starting lead of {:.0} us ([compensation] initial_delay_us); it is with {:.0}-{:.0} us. The run relies on the adaptation and the guard, and ends in loop-unstable and a hold if they do not make up for it (fastemu hil --check)",
+            lead_s * 1e6,
+            lo * 1e6,
+            hi * 1e6
+        ),
+        None => format!(
+            "no lead from 0 to {:.0} us makes the linearised loop stable: this actuator is too slow for the specimen's resonance on this element (SPEC 6.1, docs/compensation.md); expect loop-unstable and a hold (fastemu hil --check)",
+            max * 1e6
+        ),
+    })
+}
+
 /// `hil --check`: the linearised loop's margins, printed, as JSON with `--json`, and its
 /// plot. Exit 0 when the loop is stable, 1 when not.
 fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
@@ -601,6 +629,11 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         out_dir.display()
     );
     print_rig_instructions(&run_id, &rig_setup);
+    if !matches!(rig_setup, RigSetup::External { .. }) {
+        if let Some(warning) = stability_warning(&cfg) {
+            eprintln!("hil: WARNING: {warning}");
+        }
+    }
     for inj in &cfg.injections {
         eprintln!("hil: injected fault configured: {}", inj.describe());
     }
@@ -856,5 +889,29 @@ mod tests {
     fn timestamp_is_utc_civil_time() {
         assert_eq!(super::utc_timestamp(0), "19700101T000000Z");
         assert_eq!(super::utc_timestamp(1_700_000_000), "20231114T221320Z");
+    }
+
+    /// The pre-run warning: none on the default configuration; the leads that would be
+    /// stable when the starting lead is far off; "no lead" for an actuator too slow.
+    #[test]
+    fn a_run_is_warned_when_its_linearised_loop_is_not_stable() {
+        use crate::hil::config::{default_hil_config, parse_hil_config, DEFAULT_CONFIG_TOML};
+        assert_eq!(
+            super::stability_warning(&default_hil_config().unwrap()),
+            None
+        );
+        let mut far = default_hil_config().unwrap();
+        far.compensation.initial_delay_s = 0.0;
+        let w = super::stability_warning(&far).expect("a lead of 0 is unstable");
+        assert!(
+            w.contains("starting lead of 0 us") && w.contains("it is with"),
+            "{w}"
+        );
+        let slow = DEFAULT_CONFIG_TOML
+            .replace("transport_delay_us = 50.0", "transport_delay_us = 3000.0")
+            .replace("lag_us = 80.0", "lag_us = 2000.0");
+        let slow = parse_hil_config(&slow, "slow.toml", None).unwrap();
+        let w = super::stability_warning(&slow).expect("3 ms + 2 ms is unstable");
+        assert!(w.contains("no lead from 0 to"), "{w}");
     }
 }

@@ -78,7 +78,8 @@ impl CompensationConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct DelayEstimate {
     /// The actuator side's effective output delay (zero-order hold, transport, lag): how
-    /// late the rendered force would follow the element's force without a lead, s.
+    /// late the rendered force would follow the element's force without a lead, s; NaN when
+    /// the data hold no rate (a static load: the gain alone is estimated).
     pub delay_s: f64,
     /// Its standard error, s.
     pub delay_sigma_s: f64,
@@ -179,6 +180,14 @@ impl DelayEstimator {
         // Determined: a determinant clear of rounding (false for NaN too).
         let determined = det > 1e-12 * s[0] * s[2];
         if !determined || s[2] <= 0.0 {
+            // No rate in the data (a static load): the gain alone, `y = a x`.
+            if s[0] > 0.0 && s[3].is_finite() {
+                return Some(DelayEstimate {
+                    delay_s: f64::NAN,
+                    delay_sigma_s: f64::NAN,
+                    residual_gain: s[3] / s[0],
+                });
+            }
             return None;
         }
         let a = (s[2] * s[3] - s[1] * s[4]) / det;
@@ -422,27 +431,33 @@ impl Compensator {
     }
 
     /// Moves the lead and gain towards the estimate: a first-order step of `dt /
-    /// adapt_time` of the difference, each step bounded (no jump the loop could feel),
-    /// only when the data resolve the estimate (its standard error under 20 us, or under a
-    /// quarter of the difference).
+    /// adapt_time` of the difference, each step bounded (no jump the loop could feel).
+    /// The gain, which the preload alone determines, follows as soon as the regression
+    /// does; the lead only when the data resolve the delay (its standard error under
+    /// 20 us, or under a quarter of the difference).
     #[inline]
     fn adapt(&mut self, e: DelayEstimate) {
         self.status.identified_delay_s = e.delay_s;
         self.status.identified_delay_sigma_s = e.delay_sigma_s;
-        let difference = e.delay_s - self.lead_s;
-        let resolved = e.delay_sigma_s.is_finite()
-            && (e.delay_sigma_s < 20e-6 || e.delay_sigma_s < 0.25 * difference.abs());
-        if !resolved || !(0.5..=2.0).contains(&e.residual_gain) || !e.delay_s.is_finite() {
+        if !(0.5..=2.0).contains(&e.residual_gain) {
             return;
         }
         let k = (self.dt_s / self.cfg.adapt_time_s).min(1.0);
+        // At most 4 per second (0.1 % of the rendered stiffness per sample at 4096 Hz).
+        let max_gain_step = 4.0 * self.dt_s;
+        let gain_step = (k * (e.residual_gain - self.gain)).clamp(-max_gain_step, max_gain_step);
+        self.gain = (self.gain + gain_step).clamp(0.5, 2.0);
+        let difference = e.delay_s - self.lead_s;
+        let resolved = e.delay_sigma_s.is_finite()
+            && (e.delay_sigma_s < 20e-6 || e.delay_sigma_s < 0.25 * difference.abs());
+        if !resolved || !e.delay_s.is_finite() {
+            return;
+        }
         // At most 20 ms of lead per second (5 us per sample at 4096 Hz): a servo-hydraulic
         // actuator a few ms slower than the first guess is reached within the first second.
         let max_step = 20e-3 * self.dt_s;
         let step = (k * difference).clamp(-max_step, max_step);
         self.lead_s = (self.lead_s + step).clamp(0.0, self.cfg.max_delay_s);
-        let gain_step = (k * (e.residual_gain - self.gain)).clamp(-1e-4, 1e-4);
-        self.gain = (self.gain + gain_step).clamp(0.5, 2.0);
     }
 }
 
@@ -515,6 +530,30 @@ mod tests {
             let s = c.status();
             assert!((s.identified_delay_s - true_delay).abs() < 0.02 * true_delay);
         }
+    }
+
+    /// The gain follows the preload before the delay is resolved: a static load with a
+    /// little noise leaves the delay undetermined (the lead stays at the guess) while the
+    /// gain reaches the actuator's 0.8 within a second.
+    #[test]
+    fn the_gain_is_learned_from_the_preload_before_the_delay() {
+        let guess = 300e-6;
+        let mut cfg = CompensationConfig::with_initial_delay(guess);
+        cfg.passivity_guard = false;
+        let mut c = Compensator::new(cfg, DT);
+        let mut comp = c.status().compensation;
+        let mut state = 0x1234_5678_u64;
+        for i in 0..4096 {
+            // A uniform +-5 N of measurement noise on a 20 kN preload.
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let noise = ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 10.0;
+            let measured = 0.8 * 20e3 / comp.gain + noise;
+            comp = c.on_sample(i as u64, 0.0, 20e3, measured);
+        }
+        assert!((comp.gain - 0.8).abs() < 0.005, "gain {}", comp.gain);
+        assert_eq!(comp.lead_s, guess);
     }
 
     #[test]
