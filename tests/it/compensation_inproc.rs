@@ -250,3 +250,62 @@ fn a_servo_hydraulic_actuator_holds_in_stroke_control_after_loop_unstable() {
         r.external_force_n
     );
 }
+
+/// The servo-hydraulic actuator's switches into stroke control (an operator hold) and
+/// back (the resume) are bumpless: under a constant load, commanded the same force, the
+/// actuator's force stays within 0.5 % of the load and the specimen within 2 um of where
+/// it was, through force control, the hold and the blend back.
+#[test]
+fn a_servo_hydraulic_hold_and_resume_switch_control_without_a_bump() {
+    use fastemu::ipc::messages::{command_mode, ActuatorCommand, Compensation, LocalLaw};
+    use fastemu::rig::{RigPhysics, Servo};
+    let cfg = config_with_actuator("preset = \"fatigue-150kn\"", 2500.0, false, false);
+    let servo_cfg = cfg.servo_config();
+    assert!(servo_cfg.stroke_hold);
+    let load = 2.0e4;
+    let x0 = 4.0e-4;
+    let mut servo = Servo::new(servo_cfg, x0, load);
+    let mut physics = RigPhysics::new(&cfg.rig, x0, load);
+    let command = ActuatorCommand {
+        sequence: 0,
+        setpoint_sequence: 0,
+        sample_sequence: 0,
+        sample_publish_time_ns: 0,
+        law: LocalLaw::constant(load),
+        force_min_n: -5e3,
+        force_max_n: 1.2e5,
+        mode: command_mode::FORCE,
+        controller_state: 1,
+        fault_code: 0,
+        reserved: 0,
+        compensation: Compensation::NONE,
+    };
+    let dt = cfg.loop_.dt_s();
+    let (hold_at, resume_at, end) = (4096u64, 2 * 4096, 3 * 4096);
+    let (mut stroke_periods, mut worst_force, mut worst_x) = (0, 0.0f64, 0.0f64);
+    for k in 0..end {
+        if k == hold_at {
+            servo.operator_hold(k);
+        }
+        if k == resume_at {
+            servo.operator_resume(k);
+        }
+        // The controller goes on commanding through an operator hold.
+        servo.on_command(&command, k);
+        let (out, _) = servo.update(k, physics.x_m, load, physics.actuator_force_n);
+        stroke_periods += usize::from(out.stroke_target_m.is_finite());
+        physics.advance(
+            k as f64 * dt,
+            dt,
+            out.command_n,
+            out.stroke_target_m,
+            load,
+            load,
+        );
+        worst_force = worst_force.max((physics.actuator_force_n - load).abs());
+        worst_x = worst_x.max((physics.x_m - x0).abs());
+    }
+    assert_eq!(stroke_periods as u64, resume_at - hold_at);
+    assert!(worst_force < 0.005 * load, "force off by {worst_force} N");
+    assert!(worst_x < 2e-6, "moved {} um", worst_x * 1e6);
+}
