@@ -15,8 +15,9 @@ pub struct SynthArgs {
     pub out: PathBuf,
     /// What the campaign hides: none, a library effect (preload-stiffening,
     /// amplitude-friction, fractional-damping, temperature-shift, channel-delay,
-    /// moving-mass), friction-passages-only (one harmonic amplitude), or a truth outside
-    /// the library (load-path-resonance, softening-specimen).
+    /// moving-mass, load-train-resonance, specimen-drift, self-heating),
+    /// friction-passages-only (one harmonic amplitude), or the older truths
+    /// load-path-resonance and softening-specimen (other laws of the same causes).
     #[arg(long, default_value = "amplitude-friction")]
     pub hidden: String,
     /// Seed of the noise.

@@ -95,6 +95,9 @@ impl RepeatCheck {
 #[derive(Debug, Clone)]
 pub struct Verdict {
     pub unexplained: Option<Unexplained>,
+    /// A residual beyond noise (the evidence above, at least `MIN_RATIO` x the noise
+    /// floor) held back only because it is below `MIN_GAP`: its gap over the noise floor.
+    pub held_back_by_materiality: Option<f64>,
     /// Wilcoxon z of the harmonic tests' held-out errors against their noise shares.
     pub harmonic_z: f64,
     pub trend: Option<OrderTrend>,
@@ -148,6 +151,10 @@ pub fn verdict(
     let changed = repeats.iter().any(RepeatCheck::significant)
         || trend.as_ref().is_some_and(OrderTrend::significant);
     let beyond = harmonic_z > MIN_Z || !history_ids.is_empty() || changed;
+    let held_back_by_materiality = (beyond
+        && gap >= MIN_RATIO * noise_floor
+        && gap < MIN_GAP)
+        .then(|| gap / noise_floor.max(1e-300));
     let unexplained = (material && beyond).then(|| Unexplained {
         gap,
         noise_floor,
@@ -157,6 +164,7 @@ pub fn verdict(
     });
     Verdict {
         unexplained,
+        held_back_by_materiality,
         harmonic_z,
         trend,
         repeats,
@@ -168,7 +176,11 @@ fn signed_residuals(model: &AugmentedModel, data: &[CycleData]) -> Vec<f64> {
     data.iter()
         .map(|d| match &d.history {
             Some(h) => {
-                let predicted = predict_history(model, h, d.temperature_c);
+                let predicted = predict_history(
+                    &crate::ident::fit::model_for_test(model, d),
+                    h,
+                    d.temperature_c,
+                );
                 let n = predicted.len().min(h.force_n.len()) as f64;
                 let mean_m = h.force_n.iter().sum::<f64>() / n;
                 let mean_p = predicted.iter().sum::<f64>() / n;

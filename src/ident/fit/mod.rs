@@ -14,11 +14,14 @@ pub mod lm;
 
 use std::f64::consts::PI;
 
-use super::campaign::{cabs, cmul, Campaign, CampaignError, Complex, N_HARMONICS};
+use super::campaign::{cabs, Campaign, CampaignError, Complex, N_HARMONICS};
 use super::history::{
     history_residuals, predict_history, prepare_history, HistoryData, SharedHistory,
 };
-use crate::model::effects::{AugmentedModel, Effect, FrictionLaw, ModelStepper, StepperMode};
+use crate::model::effects::{
+    AugmentedModel, DriftClock, Effect, FrictionLaw, ModelStepper, StepperMode,
+};
+use crate::model::thermal::{campaign_temperature_rise_k, ThermalInterval};
 use crate::model::params::ElementModel;
 
 pub use lm::{levenberg_marquardt, LmFit};
@@ -61,6 +64,40 @@ pub struct CycleData {
     /// then stand for its force-weighted mean frequency, mean force and half force range;
     /// its harmonics are zero and unused).
     pub history: Option<SharedHistory>,
+    /// Where the test sits in the campaign's time (`assign_campaign_time`).
+    pub time: TestTime,
+}
+
+/// Where a test sits in the campaign's time, for `specimen-drift` and `self-heating`.
+#[derive(Debug, Clone, Default)]
+pub struct TestTime {
+    /// Drift clocks at the test's analysed data, relative to the reference instant (the
+    /// start of the campaign's first test), in `DriftClock::ALL` order: tests run before,
+    /// hours, kJ dissipated.
+    pub clocks: [f64; 3],
+    /// The campaign's tests in time order as the thermal model sees them, and this test's
+    /// place among them.
+    pub schedule: Option<std::sync::Arc<Vec<ThermalInterval>>>,
+    pub schedule_index: usize,
+    /// Energy the specimen dissipated over the whole record (measured `sum F dz`), J.
+    pub dissipated_j: f64,
+}
+
+impl TestTime {
+    pub fn clock(&self, clock: DriftClock) -> f64 {
+        self.clocks[DriftClock::ALL
+            .iter()
+            .position(|c| *c == clock)
+            .unwrap_or(0)]
+    }
+
+    /// Mean power dissipated over the record, W.
+    pub fn power_w(&self) -> f64 {
+        self.schedule
+            .as_ref()
+            .and_then(|s| s.get(self.schedule_index))
+            .map_or(0.0, |t| t.power_w)
+    }
 }
 
 impl CycleData {
@@ -90,6 +127,7 @@ impl CycleData {
             weight: 1.0,
             order,
             history: Some(std::sync::Arc::new(history)),
+            time: TestTime::default(),
         }
     }
 
@@ -133,7 +171,109 @@ pub fn test_data(campaign: &Campaign) -> Result<Vec<CycleData>, CampaignError> {
         }
     }
     assign_noise_weights(&mut data);
+    assign_campaign_time(&mut data, campaign);
     Ok(data)
+}
+
+/// Sets each test's `TestTime` from the campaign: start times from `started_at` when every
+/// test states it, else the tests back to back in file order (no rests); each record's
+/// duration and measured dissipated energy (`sum F dz`, trapezoid); the analysed data of a
+/// harmonic test sit in the middle of its last analysed cycles, a history test's in its
+/// middle. `data` must be `test_data`'s (one unit per test, campaign order).
+pub fn assign_campaign_time(data: &mut [CycleData], campaign: &Campaign) {
+    if data.len() != campaign.tests.len() || data.is_empty() {
+        return;
+    }
+    let mut intervals: Vec<ThermalInterval> = Vec::with_capacity(data.len());
+    let mut energies = Vec::with_capacity(data.len());
+    let mut back_to_back_s = 0.0;
+    let clocked = campaign.has_start_times();
+    for (test, d) in campaign.tests.iter().zip(data.iter()) {
+        let n = test.displacement_m.len();
+        let duration_s = (n.max(1) as f64) * test.dt_s;
+        let energy_j: f64 = test
+            .displacement_m
+            .windows(2)
+            .zip(test.force_n.windows(2))
+            .map(|(z, f)| 0.5 * (f[0] + f[1]) * (z[1] - z[0]))
+            .sum::<f64>()
+            .max(0.0);
+        let probe_s = if d.is_history() {
+            0.5 * duration_s
+        } else {
+            (duration_s - 0.5 * d.duration_s).clamp(0.0, duration_s)
+        };
+        let start_s = if clocked {
+            test.started_at_s.unwrap_or(0.0)
+        } else {
+            back_to_back_s
+        };
+        back_to_back_s += duration_s;
+        intervals.push(ThermalInterval {
+            start_s,
+            duration_s,
+            power_w: energy_j / duration_s.max(1e-300),
+            probe_s,
+        });
+        energies.push(energy_j);
+    }
+    let mut order: Vec<usize> = (0..data.len()).collect();
+    order.sort_by(|&a, &b| intervals[a].start_s.total_cmp(&intervals[b].start_s));
+    let schedule: Vec<ThermalInterval> = order.iter().map(|&i| intervals[i]).collect();
+    let reference_s = schedule[0].start_s;
+    let shared = std::sync::Arc::new(schedule);
+    let mut energy_before_j = 0.0;
+    for (rank, &i) in order.iter().enumerate() {
+        let t = intervals[i];
+        let fraction = t.probe_s / t.duration_s.max(1e-300);
+        data[i].time = TestTime {
+            clocks: [
+                rank as f64,
+                // Back-to-back times are not a clock: without `started_at` only order.
+                if clocked {
+                    (t.start_s + t.probe_s - reference_s) / 3600.0
+                } else {
+                    0.0
+                },
+                (energy_before_j + fraction * energies[i]) / 1e3,
+            ],
+            schedule: Some(shared.clone()),
+            schedule_index: rank,
+            dissipated_j: energies[i],
+        };
+        energy_before_j += energies[i];
+    }
+}
+
+/// The model as it was during a test: its temperature, the self-heating rise the
+/// campaign's schedule gives it, the drift clocks' positions.
+pub fn model_for_test(model: &AugmentedModel, data: &CycleData) -> AugmentedModel {
+    let mut out = model.at_temperature(data.temperature_c);
+    for effect in &mut out.effects {
+        match effect {
+            Effect::SpecimenDrift {
+                clock,
+                clock_position,
+                ..
+            } => *clock_position = data.time.clock(*clock),
+            Effect::SelfHeating {
+                heat_capacity_j_per_k,
+                heat_transfer_w_per_k,
+                temperature_rise_k,
+            } => {
+                *temperature_rise_k = data.time.schedule.as_ref().map_or(0.0, |s| {
+                    campaign_temperature_rise_k(
+                        s,
+                        data.time.schedule_index,
+                        *heat_capacity_j_per_k,
+                        *heat_transfer_w_per_k,
+                    )
+                })
+            }
+            _ => {}
+        }
+    }
+    out
 }
 
 fn harmonic_units(campaign: &Campaign) -> Vec<CycleData> {
@@ -158,6 +298,7 @@ fn harmonic_units(campaign: &Campaign) -> Vec<CycleData> {
                 weight: 1.0,
                 order: index as f64,
                 history: None,
+                time: TestTime::default(),
             })
         })
         .collect()
@@ -259,7 +400,7 @@ pub fn predict_cycle_with_waveform(
     data: &CycleData,
 ) -> ([Complex; N_HARMONICS], Vec<f64>, Vec<f64>) {
     let m = SAMPLES_PER_CYCLE;
-    let model_t = model.at_temperature(data.temperature_c);
+    let model_t = model_for_test(model, data);
     let element = model_t.effective_element();
     let z_mean = element.static_displacement_m(data.force_mean_n);
     let omega = 2.0 * PI * data.frequency_hz;
@@ -287,7 +428,8 @@ pub fn predict_cycle_with_waveform(
             *bh = (c, -s);
         }
     }
-    let mut stepper = ModelStepper::new(&model_t, StepperMode::Emulation, dt_s, z_cycle[0]);
+    let mut stepper = ModelStepper::new(&model_t, StepperMode::Emulation, dt_s, z_cycle[0])
+        .with_frozen_temperature();
     for step_idx in 1..=n_warm * m {
         stepper.step(z_cycle[step_idx % m]);
     }
@@ -302,14 +444,11 @@ pub fn predict_cycle_with_waveform(
             harmonics[h].1 += force * basis[idx][h].1 * 2.0 / m as f64;
         }
     }
-    let (mass_kg, lag_s) = artefacts(&model_t);
-    for (h, fh) in harmonics.iter_mut().enumerate() {
-        let w = (h + 1) as f64 * omega;
-        let zh = data.displacement_harmonics_m[h];
-        fh.0 -= mass_kg * w * w * zh.0;
-        fh.1 -= mass_kg * w * w * zh.1;
-        if lag_s != 0.0 {
-            *fh = cmul(*fh, ((w * lag_s).cos(), -(w * lag_s).sin()));
+    let artefacts = model_t.rig_artefacts();
+    if !artefacts.is_none() {
+        for (h, fh) in harmonics.iter_mut().enumerate() {
+            let w = (h + 1) as f64 * omega;
+            *fh = artefacts.measured(w, *fh, data.displacement_harmonics_m[h]);
         }
     }
     (harmonics, waveform, z_cycle)
@@ -318,19 +457,6 @@ pub fn predict_cycle_with_waveform(
 /// Force harmonics the model predicts for a test (see `predict_cycle_with_waveform`).
 pub fn predict_cycle(model: &AugmentedModel, data: &CycleData) -> [Complex; N_HARMONICS] {
     predict_cycle_with_waveform(model, data).0
-}
-
-fn artefacts(model: &AugmentedModel) -> (f64, f64) {
-    let mut mass_kg = 0.0;
-    let mut lag_s = 0.0;
-    for effect in &model.effects {
-        match *effect {
-            Effect::MovingMass { mass_kg: m } => mass_kg = m,
-            Effect::ChannelDelay { force_lag_s } => lag_s = force_lag_s,
-            _ => {}
-        }
-    }
-    (mass_kg, lag_s)
 }
 
 /// Relative squared residual of one test: `|F_sim,1 - F_1|^2 / |F_1|^2` (harmonic), the
@@ -343,7 +469,7 @@ pub fn relative_error(model: &AugmentedModel, data: &CycleData) -> f64 {
 pub fn test_residuals(model: &AugmentedModel, data: &CycleData) -> Vec<f64> {
     match &data.history {
         Some(history) => history_residuals(
-            &predict_history(model, history, data.temperature_c),
+            &predict_history(&model_for_test(model, data), history, data.temperature_c),
             history,
         ),
         None => residual_terms(&predict_cycle(model, data), data).to_vec(),
@@ -371,17 +497,31 @@ pub enum EffectKind {
     TemperatureShift,
     ChannelDelay,
     MovingMass,
+    LoadTrainResonance,
+    SpecimenDrift,
+    SelfHeating,
 }
 
 impl EffectKind {
-    pub const ALL: [EffectKind; 6] = [
+    pub const ALL: [EffectKind; 9] = [
         EffectKind::PreloadStiffening,
         EffectKind::AmplitudeFriction,
         EffectKind::FractionalDamping,
         EffectKind::TemperatureShift,
         EffectKind::ChannelDelay,
         EffectKind::MovingMass,
+        EffectKind::LoadTrainResonance,
+        EffectKind::SpecimenDrift,
+        EffectKind::SelfHeating,
     ];
+
+    /// Rig artefacts: how the rig measures, not the elastomer (never emulated).
+    pub fn is_rig_artefact(self) -> bool {
+        matches!(
+            self,
+            EffectKind::ChannelDelay | EffectKind::MovingMass | EffectKind::LoadTrainResonance
+        )
+    }
 
     pub fn name(self) -> &'static str {
         crate::model::effects::EFFECT_NAMES[self as usize]
@@ -389,7 +529,10 @@ impl EffectKind {
 
     pub fn n_params(self) -> usize {
         match self {
-            EffectKind::PreloadStiffening | EffectKind::ChannelDelay | EffectKind::MovingMass => 1,
+            EffectKind::PreloadStiffening
+            | EffectKind::ChannelDelay
+            | EffectKind::MovingMass
+            | EffectKind::SpecimenDrift => 1,
             EffectKind::AmplitudeFriction => 3,
             _ => 2,
         }
@@ -431,10 +574,55 @@ impl EffectKind {
                     "1/degC",
                 )
             }),
+            Effect::LoadTrainResonance {
+                natural_frequency_hz,
+                damping_ratio,
+            } => check(
+                "natural_frequency_hz",
+                natural_frequency_hz,
+                LOAD_TRAIN_FREQUENCY_RANGE_HZ,
+                "Hz",
+            )
+            .or_else(|| {
+                check(
+                    "damping_ratio",
+                    damping_ratio,
+                    LOAD_TRAIN_DAMPING_RANGE,
+                    "",
+                )
+            }),
+            Effect::SelfHeating {
+                heat_capacity_j_per_k,
+                heat_transfer_w_per_k,
+                ..
+            } => check(
+                "heat_transfer_w_per_k",
+                heat_transfer_w_per_k,
+                crate::model::thermal::HEAT_TRANSFER_RANGE_W_PER_K,
+                "W/K",
+            )
+            .or_else(|| {
+                check(
+                    "heat_capacity_j_per_k",
+                    heat_capacity_j_per_k,
+                    crate::model::thermal::HEAT_CAPACITY_RANGE_J_PER_K,
+                    "J/K",
+                )
+            }),
             _ => None,
         }
     }
 }
+
+/// Admissible first mode of a load train (fixture, load cell, frame) seen through the
+/// force channel: above the slowest test frequencies a lab runs, below which the mode would
+/// be the test; beyond 5 kHz it plays no part in tests up to a few hundred Hz.
+pub const LOAD_TRAIN_FREQUENCY_RANGE_HZ: (f64, f64) = (10.0, 5000.0);
+/// Admissible damping ratio of that mode: bolted steel (a few 0.1 %) to rubber-mounted
+/// fixtures (30 %). Above, the "mode" is a low-pass filter of another kind.
+pub const LOAD_TRAIN_DAMPING_RANGE: (f64, f64) = (0.001, 0.3);
+/// Largest relative change of the moduli over a campaign a `specimen-drift` may have.
+pub const DRIFT_CHANGE_LIMIT: f64 = 0.5;
 
 /// Admissible moving mass between load cell and sample: not negative; a tonne is far more
 /// than any loading head or fixture.
@@ -510,6 +698,12 @@ pub struct Template {
     pub start_prefix: Option<Vec<f64>>,
     /// Law of an added `amplitude-friction`: generalised Dahl (true) or Iwan (false).
     pub friction_dahl: bool,
+    /// Clock of an added `specimen-drift`.
+    pub drift_clock: DriftClock,
+    /// Each drift clock's span over the campaign (`DriftClock::ALL` order; 0: the campaign
+    /// lacks that clock): the drift's fitted parameter is its change over the campaign,
+    /// `rate x span`.
+    pub clock_spans: [f64; 3],
 }
 
 const CHI_MAX: f64 = 0.95;
@@ -524,6 +718,15 @@ fn dahl_exponent(theta: f64) -> f64 {
 
 fn dahl_theta(exponent: f64) -> f64 {
     logit((exponent - DAHL_EXPONENT_FIT.0) / (DAHL_EXPONENT_FIT.1 - DAHL_EXPONENT_FIT.0))
+}
+
+/// Fitted damping ratio of a load train: a logistic map onto (0, 0.3].
+fn damping_ratio(theta: f64) -> f64 {
+    LOAD_TRAIN_DAMPING_RANGE.1 * logistic(theta)
+}
+
+fn damping_theta(ratio: f64) -> f64 {
+    logit(ratio / LOAD_TRAIN_DAMPING_RANGE.1)
 }
 
 fn logit(x: f64) -> f64 {
@@ -545,7 +748,53 @@ impl Template {
             reference_temperature_c,
             start_prefix: None,
             friction_dahl: false,
+            drift_clock: DriftClock::TestOrder,
+            clock_spans: [0.0; 3],
         }
+    }
+
+    /// Sets the drift clocks' spans from the campaign's tests.
+    pub fn with_clock_spans(mut self, data: &[CycleData]) -> Template {
+        for (k, span) in self.clock_spans.iter_mut().enumerate() {
+            *span = data.iter().map(|d| d.time.clocks[k]).fold(0.0, f64::max);
+        }
+        self
+    }
+
+    fn drift_span(&self) -> f64 {
+        self.clock_spans[DriftClock::ALL
+            .iter()
+            .position(|c| *c == self.drift_clock)
+            .unwrap_or(0)]
+        .max(1e-300)
+    }
+
+    /// The model for the parameters of `fit`, with the standard errors the fit gives
+    /// where an effect states one (a drift's rate).
+    pub fn model_with_errors(&self, fit: &LmFit) -> AugmentedModel {
+        let mut model = self.model(&fit.params);
+        let errors = fit.standard_errors();
+        let mut i = self.n_element_params();
+        for kind in &self.added {
+            if *kind == EffectKind::SpecimenDrift {
+                let span = self.drift_span();
+                for effect in &mut model.effects {
+                    if let Effect::SpecimenDrift {
+                        rate_standard_error,
+                        ..
+                    } = effect
+                    {
+                        *rate_standard_error = errors
+                            .get(i)
+                            .copied()
+                            .flatten()
+                            .map_or(f64::NAN, |e| e / span);
+                    }
+                }
+            }
+            i += kind.n_params();
+        }
+        model
     }
 
     /// The law variants to try when adding `kind`: both friction laws for
@@ -553,12 +802,26 @@ impl Template {
     /// neither imitates the other closely), else the one template.
     pub fn variants_with_effect(&self, kind: EffectKind, fitted: Option<&[f64]>) -> Vec<Template> {
         let plain = self.with_effect(kind, fitted);
-        if kind != EffectKind::AmplitudeFriction {
-            return vec![plain];
+        match kind {
+            EffectKind::AmplitudeFriction => {
+                let mut dahl = plain.clone();
+                dahl.friction_dahl = true;
+                vec![plain, dahl]
+            }
+            // Every clock the campaign has (time only with `started_at`, energy only when
+            // dissipated energy was measured); the data pick one.
+            EffectKind::SpecimenDrift => DriftClock::ALL
+                .iter()
+                .enumerate()
+                .filter(|(k, _)| self.clock_spans[*k] > 0.0)
+                .map(|(_, &clock)| {
+                    let mut t = plain.clone();
+                    t.drift_clock = clock;
+                    t
+                })
+                .collect(),
+            _ => vec![plain],
         }
-        let mut dahl = plain.clone();
-        dahl.friction_dahl = true;
-        vec![plain, dahl]
     }
 
     /// This template plus one effect, starting from `fitted` (this template's fit).
@@ -623,6 +886,15 @@ impl Template {
                 }
                 EffectKind::ChannelDelay => names.push("force_lag_0.1ms".into()),
                 EffectKind::MovingMass => names.push("mass_10kg".into()),
+                EffectKind::LoadTrainResonance => names.extend([
+                    "ln_natural_frequency_hz".into(),
+                    "logit_damping_ratio".into(),
+                ]),
+                EffectKind::SpecimenDrift => names.push("drift_change_over_campaign".into()),
+                EffectKind::SelfHeating => names.extend([
+                    "ln_heat_transfer_w_per_k".into(),
+                    "ln_thermal_time_constant_s".into(),
+                ]),
             }
         }
         names
@@ -665,6 +937,12 @@ impl Template {
         let mut freqs: Vec<f64> = data.iter().map(|d| d.frequency_hz).collect();
         freqs.sort_by(f64::total_cmp);
         let omega_mid = 2.0 * PI * freqs.get(freqs.len() / 2).copied().unwrap_or(5.0);
+        let f_max = freqs.last().copied().unwrap_or(20.0);
+        let power_max_w = data
+            .iter()
+            .map(|d| d.time.power_w())
+            .fold(0.0, f64::max)
+            .max(1e-3);
         let mut n_prefix_effects = 0;
         let mut prefix_start = None;
         if let Some(prefix) = &self.start_prefix {
@@ -719,6 +997,21 @@ impl Template {
                 EffectKind::TemperatureShift => vec![vec![0.0, 0.0]],
                 EffectKind::ChannelDelay => vec![vec![0.0]],
                 EffectKind::MovingMass => vec![vec![0.0]],
+                EffectKind::LoadTrainResonance => [3.0, 8.0]
+                    .iter()
+                    .map(|&x: &f64| {
+                        vec![
+                            (x * f_max).clamp(20.0, 4000.0).ln(),
+                            damping_theta(0.05),
+                        ]
+                    })
+                    .collect(),
+                EffectKind::SpecimenDrift => vec![vec![0.0]],
+                // A rise of about 1 K at the most dissipative test, short and long memory.
+                EffectKind::SelfHeating => [60.0, 1000.0]
+                    .iter()
+                    .map(|&tau: &f64| vec![power_max_w.ln(), tau.ln()])
+                    .collect(),
             }
         };
         let extend = |starts: Vec<Vec<f64>>, kinds: &[EffectKind]| -> Vec<Vec<f64>> {
@@ -812,6 +1105,24 @@ impl Template {
                 EffectKind::MovingMass => Effect::MovingMass {
                     mass_kg: theta[i] * 10.0,
                 },
+                EffectKind::LoadTrainResonance => Effect::LoadTrainResonance {
+                    natural_frequency_hz: theta[i].clamp(-50.0, 50.0).exp(),
+                    damping_ratio: damping_ratio(theta[i + 1]),
+                },
+                EffectKind::SpecimenDrift => Effect::SpecimenDrift {
+                    clock: self.drift_clock,
+                    rate_per_unit: theta[i] / self.drift_span(),
+                    rate_standard_error: 0.0,
+                    clock_position: 0.0,
+                },
+                EffectKind::SelfHeating => {
+                    let h = theta[i].clamp(-50.0, 50.0).exp();
+                    Effect::SelfHeating {
+                        heat_transfer_w_per_k: h,
+                        heat_capacity_j_per_k: h * theta[i + 1].clamp(-50.0, 50.0).exp(),
+                        temperature_rise_k: 0.0,
+                    }
+                }
             };
             i += kind.n_params();
             model.effects.retain(|e| e.name() != effect.name());
