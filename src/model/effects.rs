@@ -1374,10 +1374,21 @@ impl ModelStepper {
     /// Advances one step to displacement `z_m`; returns the force at the step's end.
     #[inline]
     pub fn step(&mut self, z_m: f64) -> (f64, StepFlags) {
+        self.step_with_static_force(z_m, None)
+    }
+
+    /// `step` with the element's static force given (see
+    /// `ForceStepper::step_with_static_force`): offline, for a periodic input.
+    #[inline]
+    pub fn step_with_static_force(
+        &mut self,
+        z_m: f64,
+        static_force: Option<(f64, bool)>,
+    ) -> (f64, StepFlags) {
         if !z_m.is_finite() {
             return (self.force_n, StepFlags::NONFINITE_INPUT);
         }
-        let (mut force, flags) = self.base.step(z_m);
+        let (mut force, flags) = self.base.step_with_static_force(z_m, static_force);
         let z_prev = self.z_history_m[0];
         let dz = z_m - z_prev;
         if let Some(friction) = &mut self.friction {

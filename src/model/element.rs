@@ -213,6 +213,18 @@ impl ForceStepper {
     /// Advances one step to displacement `z_m`; returns the force at the step's end.
     #[inline]
     pub fn step(&mut self, z_m: f64) -> (f64, StepFlags) {
+        self.step_with_static_force(z_m, None)
+    }
+
+    /// `step`, with the consistent form's static force `Fs(z_m)` (and whether it was
+    /// clamped) given by the caller when it has it already (a periodic input evaluated
+    /// once per period); it must be `consistent_static_force(model, z_m)`.
+    #[inline]
+    pub fn step_with_static_force(
+        &mut self,
+        z_m: f64,
+        static_force: Option<(f64, bool)>,
+    ) -> (f64, StepFlags) {
         if !z_m.is_finite() {
             return (self.force_n(), StepFlags::NONFINITE_INPUT);
         }
@@ -221,7 +233,8 @@ impl ForceStepper {
         let mut flags = StepFlags::NONE;
         match (&self.model, &mut self.state) {
             (ElementModel::Consistent(p), State::Consistent { fs_n, fm_n }) => {
-                let (fs1, clamped) = consistent_static_force(p, z_m);
+                let (fs1, clamped) =
+                    static_force.unwrap_or_else(|| consistent_static_force(p, z_m));
                 if clamped {
                     flags |= StepFlags::TENSION_CLAMPED;
                 }

@@ -44,7 +44,7 @@ pub mod run;
 pub mod verdict;
 
 use crate::ident::fit::{
-    assign_folds, cross_validate, run_parallel, CrossValidation, CycleData, EffectKind, OutOfRange,
+    assign_folds, correlation, cross_validate, run_parallel, CrossValidation, CycleData, EffectKind, OutOfRange,
     Template,
 };
 use crate::model::effects::{AugmentedModel, Effect};
@@ -347,26 +347,6 @@ pub fn identifiability(kind: EffectKind, data: &[CycleData]) -> Result<(), Strin
         }
     }
     Ok(())
-}
-
-/// Pearson correlation (0 when either side is constant).
-fn correlation(x: &[f64], y: &[f64]) -> f64 {
-    let n = x.len().min(y.len()) as f64;
-    if n < 2.0 {
-        return 0.0;
-    }
-    let mx = x.iter().sum::<f64>() / n;
-    let my = y.iter().sum::<f64>() / n;
-    let (mut sxy, mut sxx, mut syy) = (0.0, 0.0, 0.0);
-    for (a, b) in x.iter().zip(y) {
-        sxy += (a - mx) * (b - my);
-        sxx += (a - mx) * (a - mx);
-        syy += (b - my) * (b - my);
-    }
-    if sxx <= 0.0 || syy <= 0.0 {
-        return 0.0;
-    }
-    sxy / (sxx * syy).sqrt()
 }
 
 /// One-sided Wilcoxon signed-rank statistic (normal approximation with tie correction)
@@ -847,7 +827,7 @@ pub fn diagnose(
                 let model = candidate.model_with_errors(&cv.full_fit);
                 let out_of_range = out_of_range(&model, &[kind]);
                 let law_note = (kind == EffectKind::SpecimenDrift)
-                    .then(|| drift_clock_note(&drift_fits, data));
+                    .then(|| drift_clock_note(&drift_fits, &candidate.clocks_like_order, data));
                 CandidateResult {
                     law_note,
                     kind,
@@ -1019,6 +999,7 @@ fn held_back_by_simpler_artefact(
 /// more than 4 noise variances (a likelihood-ratio test at about 95 %), else "cannot tell".
 fn drift_clock_note(
     fits: &[(crate::model::effects::DriftClock, f64, usize)],
+    like_order: &[crate::model::effects::DriftClock],
     data: &[CycleData],
 ) -> String {
     let Some(&(best, best_sse, dof)) = fits.iter().min_by(|a, b| a.1.total_cmp(&b.1)) else {
@@ -1047,11 +1028,20 @@ fn drift_clock_note(
             untold.join(" and ")
         ));
     }
-    if fits.len() < 3 {
-        let has_time = data.iter().any(|d| d.time.clocks[1] > 0.0);
-        if !has_time {
-            note.push_str("; time not tried (no `started_at` on every test)");
-        }
+    if !like_order.is_empty() {
+        note.push_str(&format!(
+            "; {} proportional to test order in this campaign, so the data cannot tell {} from it",
+            like_order
+                .iter()
+                .map(|c| c.name())
+                .collect::<Vec<_>>()
+                .join(" and "),
+            if like_order.len() == 1 { "that clock" } else { "those clocks" }
+        ));
+    }
+    let has_time = data.iter().any(|d| d.time.clocks[1] > 0.0);
+    if !has_time {
+        note.push_str("; time not tried (no `started_at` on every test)");
     }
     note
 }

@@ -418,26 +418,46 @@ pub fn predict_cycle_with_waveform(
     let t_start = (-0.5 * PI - z1.1.atan2(z1.0)).rem_euclid(2.0 * PI) / omega;
     let mut z_cycle = vec![0.0; m];
     let mut basis = vec![[(0.0, 0.0); N_HARMONICS]; m];
-    for (k, (z, b)) in z_cycle.iter_mut().zip(basis.iter_mut()).enumerate() {
-        let t = t_start + k as f64 * dt_s;
+    // Each harmonic's phasor at the first sample, advanced sample by sample by a rotation
+    // (64 samples: the recurrence's rounding stays near 1e-15).
+    let mut phasor = [(0.0, 0.0); N_HARMONICS];
+    let mut rotation = [(0.0, 0.0); N_HARMONICS];
+    for h in 0..N_HARMONICS {
+        let (s, c) = ((h + 1) as f64 * omega * t_start).sin_cos();
+        phasor[h] = (c, s);
+        let (s, c) = ((h + 1) as f64 * omega * dt_s).sin_cos();
+        rotation[h] = (c, s);
+    }
+    for (z, b) in z_cycle.iter_mut().zip(basis.iter_mut()) {
         *z = z_mean;
         for (h, (bh, zh)) in b.iter_mut().zip(&data.displacement_harmonics_m).enumerate() {
-            let phase = (h + 1) as f64 * omega * t;
-            let (s, c) = phase.sin_cos();
+            let (c, s) = phasor[h];
             *z += zh.0 * c - zh.1 * s;
             *bh = (c, -s);
+            let (rc, rs) = rotation[h];
+            phasor[h] = (c * rc - s * rs, s * rc + c * rs);
         }
     }
+    // The static force of the consistent form at each sample of the cycle, once: the
+    // warm-up steps the same 64 displacements over and over.
+    let static_forces: Vec<Option<(f64, bool)>> = match &element {
+        ElementModel::Consistent(p) => z_cycle
+            .iter()
+            .map(|&z| Some(crate::model::params::consistent_static_force(p, z)))
+            .collect(),
+        _ => vec![None; m],
+    };
     let mut stepper = ModelStepper::new(&model_t, StepperMode::Emulation, dt_s, z_cycle[0])
         .with_frozen_temperature();
     for step_idx in 1..=n_warm * m {
-        stepper.step(z_cycle[step_idx % m]);
+        let idx = step_idx % m;
+        stepper.step_with_static_force(z_cycle[idx], static_forces[idx]);
     }
     let mut harmonics = [(0.0, 0.0); N_HARMONICS];
     let mut waveform = vec![0.0; m];
     for k in 1..=m {
         let idx = k % m;
-        let (force, _) = stepper.step(z_cycle[idx]);
+        let (force, _) = stepper.step_with_static_force(z_cycle[idx], static_forces[idx]);
         waveform[idx] = force;
         for h in 0..N_HARMONICS {
             harmonics[h].0 += force * basis[idx][h].0 * 2.0 / m as f64;
@@ -704,6 +724,9 @@ pub struct Template {
     /// lacks that clock): the drift's fitted parameter is its change over the campaign,
     /// `rate x span`.
     pub clock_spans: [f64; 3],
+    /// Clocks left out because they are proportional to test order in this campaign
+    /// (evenly spaced tests; tests that dissipate alike): the data cannot tell them apart.
+    pub clocks_like_order: Vec<DriftClock>,
 }
 
 const CHI_MAX: f64 = 0.95;
@@ -718,6 +741,26 @@ fn dahl_exponent(theta: f64) -> f64 {
 
 fn dahl_theta(exponent: f64) -> f64 {
     logit((exponent - DAHL_EXPONENT_FIT.0) / (DAHL_EXPONENT_FIT.1 - DAHL_EXPONENT_FIT.0))
+}
+
+/// Pearson correlation (0 when either side is constant).
+pub fn correlation(x: &[f64], y: &[f64]) -> f64 {
+    let n = x.len().min(y.len()) as f64;
+    if n < 2.0 {
+        return 0.0;
+    }
+    let mx = x.iter().sum::<f64>() / n;
+    let my = y.iter().sum::<f64>() / n;
+    let (mut sxy, mut sxx, mut syy) = (0.0, 0.0, 0.0);
+    for (a, b) in x.iter().zip(y) {
+        sxy += (a - mx) * (b - my);
+        sxx += (a - mx) * (a - mx);
+        syy += (b - my) * (b - my);
+    }
+    if sxx <= 0.0 || syy <= 0.0 {
+        return 0.0;
+    }
+    sxy / (sxx * syy).sqrt()
 }
 
 /// Fitted damping ratio of a load train: a logistic map onto (0, 0.3].
@@ -750,6 +793,7 @@ impl Template {
             friction_dahl: false,
             drift_clock: DriftClock::TestOrder,
             clock_spans: [0.0; 3],
+            clocks_like_order: Vec::new(),
         }
     }
 
@@ -757,6 +801,15 @@ impl Template {
     pub fn with_clock_spans(mut self, data: &[CycleData]) -> Template {
         for (k, span) in self.clock_spans.iter_mut().enumerate() {
             *span = data.iter().map(|d| d.time.clocks[k]).fold(0.0, f64::max);
+        }
+        let order: Vec<f64> = data.iter().map(|d| d.time.clocks[0]).collect();
+        self.clocks_like_order.clear();
+        for k in 1..3 {
+            let clock: Vec<f64> = data.iter().map(|d| d.time.clocks[k]).collect();
+            if self.clock_spans[k] > 0.0 && correlation(&order, &clock) > 0.999 {
+                self.clock_spans[k] = 0.0;
+                self.clocks_like_order.push(DriftClock::ALL[k]);
+            }
         }
         self
     }
