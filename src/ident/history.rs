@@ -384,8 +384,7 @@ pub fn band_limit_with_artefacts(
     let mut spectrum = forward(&f_detrended);
     let df = 1.0 / (n as f64 * dt_s);
     let k_band = ((band_hz / df).floor() as usize).min(spectrum.len() - 1);
-    let z_spectrum =
-        (artefacts.mass_kg != 0.0).then(|| forward(&detrend(displacement_m).0));
+    let z_spectrum = (artefacts.mass_kg != 0.0).then(|| forward(&detrend(displacement_m).0));
     let zero = Complex64::new(0.0, 0.0);
     for (k, c) in spectrum.iter_mut().enumerate() {
         if k > k_band {
@@ -456,8 +455,13 @@ mod tests {
         let h = prepare_history(dt, &z, &force).unwrap();
         // The exact model's prediction, band-limited as compared.
         let predicted: Vec<f64> = h.displacement_m.iter().map(|zi| k * zi).collect();
-        let predicted =
-            band_limit_with_artefacts(&predicted, &h.displacement_m, h.dt_s, h.band_hz, &RigArtefacts::default());
+        let predicted = band_limit_with_artefacts(
+            &predicted,
+            &h.displacement_m,
+            h.dt_s,
+            h.band_hz,
+            &RigArtefacts::default(),
+        );
         let e: f64 = history_residuals(&predicted, &h)
             .iter()
             .map(|r| r * r)

@@ -1144,8 +1144,8 @@ impl ModelStepper {
                         let x = springpot.rates_per_s[j] * dt_s;
                         state.decay[j] = (-x).exp();
                         state.gain[j] = springpot.stiffnesses_n_per_m[j] * phi_functions(x).0;
-                        state.inverse_damping[j] = springpot.rates_per_s[j]
-                            / springpot.stiffnesses_n_per_m[j].max(1e-300);
+                        state.inverse_damping[j] =
+                            springpot.rates_per_s[j] / springpot.stiffnesses_n_per_m[j].max(1e-300);
                     }
                     bank = Some(state);
                 }

@@ -1,13 +1,14 @@
 //! Diagnose's honest verdicts (SPEC 5.1) on the project's generator: effects only passages
-//! reveal, truths outside the library (load-path resonance, a specimen that changed during
-//! the campaign, a load-cell nonlinearity), and null campaigns.
+//! reveal, what labs meet (a load-train resonance, a specimen that changed during the
+//! campaign, self-heating), a truth outside the library (a load-cell nonlinearity), and
+//! null campaigns.
 
 use std::path::PathBuf;
 
 use fastemu::ident::campaign::load_campaign;
 use fastemu::ident::diagnose::{diagnose, DiagnoseOptions, Diagnosis};
 use fastemu::ident::fit::{test_data, EffectKind};
-use fastemu::model::effects::AugmentedModel;
+use fastemu::model::effects::{AugmentedModel, DriftClock, Effect};
 use fastemu::model::file::parse_model_toml;
 
 use crate::gen::{
@@ -35,16 +36,29 @@ pub fn diagnose_case(
     noise: &Noise,
     seed: u64,
 ) -> Diagnosis {
-    let dir = scratch_dir(name);
-    write_campaign_full(
-        &dir,
+    diagnose_case_with(
+        name,
         truth,
         design,
         passages,
         noise,
         seed,
         &Acquisition::typical(),
-    );
+    )
+}
+
+/// `diagnose_case` with records of another length.
+pub fn diagnose_case_with(
+    name: &str,
+    truth: &Truth,
+    design: &[TestPoint],
+    passages: &[Passage],
+    noise: &Noise,
+    seed: u64,
+    acquisition: &Acquisition,
+) -> Diagnosis {
+    let dir = scratch_dir(name);
+    write_campaign_full(&dir, truth, design, passages, noise, seed, acquisition);
     let campaign = load_campaign(&dir).expect("campaign loads");
     let data = test_data(&campaign).expect("tests reduce");
     let spec = parse_model_toml(&off_baseline_toml(0.3), "baseline.toml").unwrap();
@@ -145,7 +159,8 @@ fn without_passages_the_same_friction_is_not_identifiable() {
 }
 
 #[test]
-fn load_path_resonance_is_unexplained_and_no_negative_mass_is_named() {
+fn a_load_train_resonance_is_named_with_its_mode_and_no_negative_mass() {
+    // The generator's resonance: Tustin filter of the force at its fine step, 70 Hz, 5 %.
     let truth = Truth {
         load_path_resonance: Some((70.0, 0.05)),
         ..Truth::paper_like()
@@ -158,18 +173,21 @@ fn load_path_resonance_is_unexplained_and_no_negative_mass_is_named() {
         &Noise::typical(),
         22,
     );
+    assert_eq!(names(&d), ["load-train-resonance"]);
+    assert_physical(&d);
+    let params =
+        fastemu::ident::diagnose::effect_params(&d.final_model, EffectKind::LoadTrainResonance);
+    let value = |key: &str| params.iter().find(|(k, _)| *k == key).unwrap().1;
+    let (fn_hz, zeta) = (value("natural_frequency_hz"), value("damping_ratio"));
+    assert!((fn_hz - 70.0).abs() < 3.5, "natural frequency {fn_hz}");
+    assert!((0.025..0.1).contains(&zeta), "damping ratio {zeta}");
     assert!(
-        !d.named.contains(&EffectKind::MovingMass),
-        "named {:?}",
-        names(&d)
+        d.gap_before / d.gap_after >= 3.0,
+        "{} -> {}",
+        d.gap_before,
+        d.gap_after
     );
-    for effect in &d.final_model.effects {
-        let kind = EffectKind::ALL
-            .into_iter()
-            .find(|k| k.name() == effect.name())
-            .unwrap();
-        assert!(kind.out_of_range(effect).is_none(), "{effect:?}");
-    }
+    // What a moving mass would need is still reported: a negative mass.
     let mass = d
         .rounds
         .iter()
@@ -177,42 +195,85 @@ fn load_path_resonance_is_unexplained_and_no_negative_mass_is_named() {
         .find(|c| c.kind == EffectKind::MovingMass)
         .expect("moving-mass was tried");
     let o = mass.out_of_range.expect("the mass fits only negative");
-    assert!(
-        o.value < 0.0 && o.to_string().contains("outside its range"),
-        "{o}"
-    );
-    assert!(
-        d.verdict.unexplained.is_some(),
-        "the resonance is not in the library"
-    );
+    assert!(o.value < 0.0, "{o}");
+    assert!(d.verdict.unexplained.is_none());
 }
 
 #[test]
-fn a_specimen_that_softens_during_the_campaign_is_reported() {
+fn a_specimen_that_softens_during_the_campaign_is_named_as_a_drift_with_its_rate() {
     let truth = Truth {
         softening_over_campaign: 0.06,
         ..Truth::paper_like()
     };
-    let d = diagnose_case(
-        "softening",
+    let design = standard_design();
+    let d = diagnose_case("softening", &truth, &design, &[], &Noise::typical(), 23);
+    assert_eq!(names(&d), ["specimen-drift"]);
+    let Some(&Effect::SpecimenDrift {
+        clock,
+        rate_per_unit,
+        rate_standard_error,
+        clock_position,
+    }) = d.final_model.find("specimen-drift")
+    else {
+        panic!("no drift in {:?}", d.final_model.effects)
+    };
+    // No started_at: test order or dissipated energy; the generator's law is linear in
+    // the test index, 6 % from the first test to the last.
+    let change = rate_per_unit * (design.len() - 1) as f64;
+    assert_eq!(clock, DriftClock::TestOrder, "{clock:?}");
+    assert!(
+        (change + 0.06).abs() < 0.01,
+        "change over the campaign {change}"
+    );
+    assert!(rate_standard_error > 0.0 && rate_standard_error < 0.2 * rate_per_unit.abs());
+    assert_eq!(clock_position, 0.0, "the model describes the first test");
+    assert!(d.gap_before / d.gap_after >= 3.0);
+    assert!(d.verdict.unexplained.is_none());
+}
+
+#[test]
+fn a_self_heating_specimen_is_named_with_a_physical_thermal_circuit() {
+    // 6 J/K on 0.05 W/K: a two-minute time constant; 60-cycle records with 10 s rests, so
+    // heat carries from test to test; moduli -1 %/K (the library's default law: -0.8 %/K,
+    // exponential, with a relaxation-time shift).
+    let truth = Truth {
+        self_heating: Some((6.0, 0.05, 0.01)),
+        rest_s: Some(10.0),
+        ..Truth::paper_like()
+    };
+    let dir_name = "self-heating";
+    let acquisition = Acquisition {
+        cycles_below_2_hz: 20,
+        cycles_above_2_hz: 60,
+        ..Acquisition::typical()
+    };
+    let d = diagnose_case_with(
+        dir_name,
         &truth,
         &standard_design(),
         &[],
         &Noise::typical(),
-        23,
+        24,
+        &acquisition,
     );
-    let u = d
-        .verdict
-        .unexplained
-        .as_ref()
-        .expect("unexplained residual");
-    assert!(d.verdict.specimen_changed(), "{:?}", d.verdict.trend);
-    assert!(u.where_[0].starts_with("test order"), "{:?}", u.where_);
-    let trend = d.verdict.trend.as_ref().unwrap();
+    assert_eq!(names(&d), ["self-heating"]);
+    assert_physical(&d);
+    let Some(&Effect::SelfHeating {
+        heat_capacity_j_per_k,
+        heat_transfer_w_per_k,
+        ..
+    }) = d.final_model.find("self-heating")
+    else {
+        panic!()
+    };
+    // The laws differ (linear vs exponential, no time shift in the truth): within 2x.
     assert!(
-        trend.change > 0.0,
-        "the model overestimates the late, softer tests"
+        (0.025..0.1).contains(&heat_transfer_w_per_k),
+        "h = {heat_transfer_w_per_k}"
     );
+    let tau = heat_capacity_j_per_k / heat_transfer_w_per_k;
+    assert!((40.0..400.0).contains(&tau), "tau = {tau}");
+    assert!(d.gap_before / d.gap_after >= 3.0);
 }
 
 #[test]
@@ -254,7 +315,6 @@ fn a_load_cell_nonlinearity_is_not_passed_off_as_explained() {
 /// or damping; exponents in (0, 1]; a delay of at most a few ms; relaxation that speeds
 /// up as the elastomer warms.
 fn assert_physical(d: &Diagnosis) {
-    use fastemu::model::effects::Effect;
     for e in &d.final_model.effects {
         let ok = match *e {
             Effect::MovingMass { mass_kg } => mass_kg >= 0.0,
@@ -274,6 +334,27 @@ fn assert_physical(d: &Diagnosis) {
                 ..
             } => log10_time_shift_per_c >= 0.0,
             Effect::PreloadStiffening { chi, p0_n } => chi >= 0.0 && p0_n.is_finite(),
+            // Independent of the library's ranges: a load train's first mode above the test
+            // band's slowest tests and below 5 kHz, damped like a structure (< 30 %).
+            Effect::LoadTrainResonance {
+                natural_frequency_hz,
+                damping_ratio,
+            } => {
+                (10.0..=5000.0).contains(&natural_frequency_hz)
+                    && damping_ratio > 0.0
+                    && damping_ratio <= 0.3
+            }
+            Effect::SpecimenDrift { rate_per_unit, .. } => rate_per_unit.is_finite(),
+            // A pad's heat capacity (grams to a 100 kg block) and heat transfer (still air to
+            // water-cooled steel).
+            Effect::SelfHeating {
+                heat_capacity_j_per_k,
+                heat_transfer_w_per_k,
+                ..
+            } => {
+                (1.0..=1e6).contains(&heat_capacity_j_per_k)
+                    && (1e-3..=1e3).contains(&heat_transfer_w_per_k)
+            }
         };
         assert!(ok, "unphysical {e:?}");
     }
@@ -295,10 +376,11 @@ fn null_campaigns_with_passages_name_nothing_and_leave_nothing_unexplained() {
 }
 
 /// The false-alarm rate of the verdicts on null campaigns (the library explains the truth:
-/// only the baseline's parameters are off): 24 campaigns, white noise alone, the typical
+/// only the baseline's parameters are off): 60 campaigns, white noise alone, the typical
 /// white + coloured + drifting noise, and loud coloured noise, half of them with passages.
 /// A false alarm is any named effect, an unexplained residual, or a changed specimen.
-/// Opt-in (`--ignored`): about four minutes on two cores.
+/// No alarm in 59 or more campaigns bounds the rate below 5 % at 95 % confidence
+/// (0.95^59 < 0.05). Opt-in (`--ignored`): about ten minutes on two cores.
 #[test]
 #[ignore = "soak (minutes): cargo test --release --test it soak_ -- --ignored"]
 fn soak_false_alarm_rate_on_null_campaigns() {
@@ -315,7 +397,7 @@ fn soak_false_alarm_rate_on_null_campaigns() {
         drift_force: 0.02,
     };
     let mut alarms = Vec::new();
-    let n = 24;
+    let n = 60;
     for k in 0..n {
         let (label, noise) = match k % 3 {
             0 => ("white", white),
@@ -342,8 +424,8 @@ fn soak_false_alarm_rate_on_null_campaigns() {
     }
     eprintln!("FALSE ALARMS {}/{n}: {alarms:?}", alarms.len());
     assert!(
-        alarms.len() as f64 <= 0.05 * n as f64,
-        "false alarms {}/{n}: {alarms:?}",
+        alarms.is_empty(),
+        "false alarms {}/{n}: {alarms:?} (none allowed for the 5 % bound at 95 %)",
         alarms.len()
     );
 }

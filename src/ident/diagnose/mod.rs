@@ -44,8 +44,8 @@ pub mod run;
 pub mod verdict;
 
 use crate::ident::fit::{
-    assign_folds, correlation, cross_validate, run_parallel, CrossValidation, CycleData, EffectKind, OutOfRange,
-    Template,
+    assign_folds, correlation, cross_validate, run_parallel, CrossValidation, CycleData,
+    EffectKind, OutOfRange, Template,
 };
 use crate::model::effects::{AugmentedModel, Effect};
 use crate::model::params::ElementModel;
@@ -930,7 +930,7 @@ pub fn diagnose(
     }
     let final_model = current_template.model_with_errors(&current_cv.full_fit);
     let gap_after = excess_gap(&current_cv.held_out_error, data);
-    let verdict = verdict(
+    let mut verdict = verdict(
         &final_model,
         data,
         &current_cv.held_out_error,
@@ -938,6 +938,7 @@ pub fn diagnose(
         noise_floor(data),
         options.order_is_clock,
     );
+    verdict.drift_named = named.contains(&EffectKind::SpecimenDrift);
     Diagnosis {
         verdict,
         history_ids: data
@@ -1036,7 +1037,11 @@ fn drift_clock_note(
                 .map(|c| c.name())
                 .collect::<Vec<_>>()
                 .join(" and "),
-            if like_order.len() == 1 { "that clock" } else { "those clocks" }
+            if like_order.len() == 1 {
+                "that clock"
+            } else {
+                "those clocks"
+            }
         ));
     }
     let has_time = data.iter().any(|d| d.time.clocks[1] > 0.0);

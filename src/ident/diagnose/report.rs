@@ -378,10 +378,7 @@ fn render_report(
             "none (nothing beats the calibrated baseline beyond noise, and the residual is at the noise floor)".to_string()
         }
     );
-    if let (None, Some(ratio)) = (
-        &d.verdict.unexplained,
-        d.verdict.held_back_by_materiality,
-    ) {
+    if let (None, Some(ratio)) = (&d.verdict.unexplained, d.verdict.held_back_by_materiality) {
         let _ = writeln!(
             r,
             "- Unexplained residual: not reported, held back only by the materiality rule: the held-out gap after the named effects, {:.3e}, is {ratio:.1}x the noise floor and beyond noise, but below {:.0e} of the force (0.1 %), the smallest residual this workflow calls a discrepancy",
@@ -669,7 +666,7 @@ pub fn write_outputs(
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let model_path = args.out.join("augmented_model.toml");
     let header = format!(
-        "Augmented by `fastemu diagnose` from baseline {} and campaign {}.\nNamed effects: {}. Held-out gap {:.4e} -> {:.4e}.\nSet operating_temperature_c of temperature-shift to the rig temperature. channel-delay and moving-mass\nare rig artefacts: the emulator (StepperMode::Emulation) leaves them out.{}",
+        "Augmented by `fastemu diagnose` from baseline {} and campaign {}.\nNamed effects: {}. Held-out gap {:.4e} -> {:.4e}.\nSet operating_temperature_c of temperature-shift to the rig temperature. channel-delay, moving-mass and\nload-train-resonance are rig artefacts: the emulator (StepperMode::Emulation) leaves them out.{}",
         args.model.display(),
         args.campaign.display(),
         if diagnosis.named.is_empty() { "none".to_string() } else { diagnosis.named.iter().map(|k| k.name()).collect::<Vec<_>>().join(", ") },
@@ -784,6 +781,25 @@ pub fn specimen_sentence(d: &Diagnosis) -> String {
             100.0 * c.change,
             c.z
         ));
+    }
+    if let Some(crate::model::effects::Effect::SpecimenDrift {
+        clock,
+        rate_per_unit,
+        rate_standard_error,
+        ..
+    }) = d.final_model.find("specimen-drift")
+    {
+        parts.push(format!(
+            "named as specimen-drift: the moduli change by {:+.3e} +- {:.1e} per {} of {} (the element parameters describe the first test)",
+            rate_per_unit,
+            rate_standard_error,
+            clock.unit(),
+            clock.name()
+        ));
+        return format!(
+            "The specimen changed during the campaign: {}.",
+            parts.join("; ")
+        );
     }
     format!(
         "The specimen changed during the campaign: {}. Effects named from such a campaign may stand in for the change; repeat the first test at the end to check.",

@@ -102,12 +102,16 @@ pub struct Verdict {
     pub harmonic_z: f64,
     pub trend: Option<OrderTrend>,
     pub repeats: Vec<RepeatCheck>,
+    /// `specimen-drift` is among the named effects (set by `diagnose`): the change is
+    /// described, so the final model's residual no longer trends with order.
+    pub drift_named: bool,
 }
 
 impl Verdict {
     /// The specimen changed during the campaign: a repeated test or the order trend says so.
     pub fn specimen_changed(&self) -> bool {
-        self.repeats.iter().any(RepeatCheck::significant)
+        self.drift_named
+            || self.repeats.iter().any(RepeatCheck::significant)
             || self.trend.as_ref().is_some_and(OrderTrend::significant)
     }
 }
@@ -151,9 +155,7 @@ pub fn verdict(
     let changed = repeats.iter().any(RepeatCheck::significant)
         || trend.as_ref().is_some_and(OrderTrend::significant);
     let beyond = harmonic_z > MIN_Z || !history_ids.is_empty() || changed;
-    let held_back_by_materiality = (beyond
-        && gap >= MIN_RATIO * noise_floor
-        && gap < MIN_GAP)
+    let held_back_by_materiality = (beyond && gap >= MIN_RATIO * noise_floor && gap < MIN_GAP)
         .then(|| gap / noise_floor.max(1e-300));
     let unexplained = (material && beyond).then(|| Unexplained {
         gap,
@@ -168,6 +170,7 @@ pub fn verdict(
         harmonic_z,
         trend,
         repeats,
+        drift_named: false,
     }
 }
 

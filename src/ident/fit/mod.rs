@@ -21,8 +21,8 @@ use super::history::{
 use crate::model::effects::{
     AugmentedModel, DriftClock, Effect, FrictionLaw, ModelStepper, StepperMode,
 };
-use crate::model::thermal::{campaign_temperature_rise_k, ThermalInterval};
 use crate::model::params::ElementModel;
+use crate::model::thermal::{campaign_temperature_rise_k, ThermalInterval};
 
 pub use lm::{levenberg_marquardt, LmFit};
 
@@ -603,14 +603,7 @@ impl EffectKind {
                 LOAD_TRAIN_FREQUENCY_RANGE_HZ,
                 "Hz",
             )
-            .or_else(|| {
-                check(
-                    "damping_ratio",
-                    damping_ratio,
-                    LOAD_TRAIN_DAMPING_RANGE,
-                    "",
-                )
-            }),
+            .or_else(|| check("damping_ratio", damping_ratio, LOAD_TRAIN_DAMPING_RANGE, "")),
             Effect::SelfHeating {
                 heat_capacity_j_per_k,
                 heat_transfer_w_per_k,
@@ -1052,12 +1045,7 @@ impl Template {
                 EffectKind::MovingMass => vec![vec![0.0]],
                 EffectKind::LoadTrainResonance => [3.0, 8.0]
                     .iter()
-                    .map(|&x: &f64| {
-                        vec![
-                            (x * f_max).clamp(20.0, 4000.0).ln(),
-                            damping_theta(0.05),
-                        ]
-                    })
+                    .map(|&x: &f64| vec![(x * f_max).clamp(20.0, 4000.0).ln(), damping_theta(0.05)])
                     .collect(),
                 EffectKind::SpecimenDrift => vec![vec![0.0]],
                 // A rise of about 1 K at the most dissipative test, short and long memory.
