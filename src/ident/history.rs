@@ -341,10 +341,14 @@ pub fn prepare_history(
 
 /// The model's force for a history test (band-limited like the measured force), rig
 /// artefacts included, started in static equilibrium at the first measured force.
+/// With `frozen_temperature` the self-heating rise stays the model's (a campaign's
+/// schedule set it per test); without, the element warms step by step as in the emulator
+/// (a HIL run's record).
 pub fn predict_history(
     model: &AugmentedModel,
     history: &HistoryData,
     temperature_c: f64,
+    frozen_temperature: bool,
 ) -> Vec<f64> {
     let model_t = model.at_temperature(temperature_c);
     let element = model_t.effective_element();
@@ -355,8 +359,10 @@ pub fn predict_history(
         StepperMode::Emulation,
         history.dt_s,
         z[0] + offset,
-    )
-    .with_frozen_temperature();
+    );
+    if frozen_temperature {
+        stepper = stepper.with_frozen_temperature();
+    }
     let mut force = Vec::with_capacity(z.len());
     force.push(stepper.force_n());
     for &zi in &z[1..] {

@@ -306,6 +306,7 @@ pub fn plot_histories(
                 &crate::ident::fit::model_for_test(model, d),
                 history,
                 d.temperature_c,
+                d.time.schedule.is_some(),
             );
             // The comparison removes the mean difference; so does the plot.
             let shift = (history.force_n.iter().sum::<f64>() - predicted.iter().sum::<f64>())

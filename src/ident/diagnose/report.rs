@@ -825,7 +825,7 @@ pub fn write_run_outputs(
     let named: Vec<&str> = d.named.iter().map(|k| k.name()).collect();
     let model_path = out.join("augmented_model.toml");
     let header = format!(
-        "Rig artefacts of run {} fitted by `fastemu diagnose --run` to the model {model_label} (not recalibrated).\nNamed: {}. The emulator (StepperMode::Emulation) leaves channel-delay and moving-mass out.",
+        "Rig artefacts of run {} fitted by `fastemu diagnose --run` to the model {model_label} (not recalibrated).\nNamed: {}. The emulator (StepperMode::Emulation) leaves channel-delay, moving-mass and load-train-resonance out.",
         run_dir.display(),
         if named.is_empty() { "none".to_string() } else { named.join(", ") }
     );
@@ -855,6 +855,12 @@ pub fn write_run_outputs(
         run_dir.display()
     );
     let _ = writeln!(r, "- Record used: {record_used}");
+    if let Some((max_k, last_k)) = record.element_temperature_rise_k {
+        let _ = writeln!(
+            r,
+            "- Element temperature (self-heating, the emulator's `/emulator` records, `element_temperature_rise_k`): rose up to {max_k:.3} K above its ambient, {last_k:.3} K at the end; the model replays it step by step"
+        );
+    }
     let _ = writeln!(
         r,
         "- **Named rig artefacts: {}**",
@@ -930,6 +936,7 @@ pub fn write_run_outputs(
         "model_out": model_path.display().to_string(),
         "unexplained": unexplained_json(d.unexplained.as_ref()),
         "advice": advice,
+        "element_temperature_rise_k": record.element_temperature_rise_k.map(|(max_k, last_k)| json!({"max": max_k, "last": last_k})),
         "force_lag_s": d.force_lag_s(),
         "record_used": record_used,
     }))

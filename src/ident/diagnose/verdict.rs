@@ -183,6 +183,7 @@ fn signed_residuals(model: &AugmentedModel, data: &[CycleData]) -> Vec<f64> {
                     &crate::ident::fit::model_for_test(model, d),
                     h,
                     d.temperature_c,
+                    d.time.schedule.is_some(),
                 );
                 let n = predicted.len().min(h.force_n.len()) as f64;
                 let mean_m = h.force_n.iter().sum::<f64>() / n;

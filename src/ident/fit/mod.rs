@@ -256,19 +256,20 @@ pub fn model_for_test(model: &AugmentedModel, data: &CycleData) -> AugmentedMode
                 clock_position,
                 ..
             } => *clock_position = data.time.clock(*clock),
+            // Without a schedule (a HIL run's record) the model's own rise is kept.
             Effect::SelfHeating {
                 heat_capacity_j_per_k,
                 heat_transfer_w_per_k,
                 temperature_rise_k,
             } => {
-                *temperature_rise_k = data.time.schedule.as_ref().map_or(0.0, |s| {
-                    campaign_temperature_rise_k(
+                if let Some(s) = &data.time.schedule {
+                    *temperature_rise_k = campaign_temperature_rise_k(
                         s,
                         data.time.schedule_index,
                         *heat_capacity_j_per_k,
                         *heat_transfer_w_per_k,
-                    )
-                })
+                    );
+                }
             }
             _ => {}
         }
@@ -489,7 +490,12 @@ pub fn relative_error(model: &AugmentedModel, data: &CycleData) -> f64 {
 pub fn test_residuals(model: &AugmentedModel, data: &CycleData) -> Vec<f64> {
     match &data.history {
         Some(history) => history_residuals(
-            &predict_history(&model_for_test(model, data), history, data.temperature_c),
+            &predict_history(
+                &model_for_test(model, data),
+                history,
+                data.temperature_c,
+                data.time.schedule.is_some(),
+            ),
             history,
         ),
         None => residual_terms(&predict_cycle(model, data), data).to_vec(),
