@@ -15,7 +15,7 @@ pub struct SynthArgs {
     pub out: PathBuf,
     /// What the campaign hides: none, a library effect (preload-stiffening,
     /// amplitude-friction, fractional-damping, temperature-shift, channel-delay,
-    /// moving-mass, load-train-resonance, specimen-drift, self-heating),
+    /// moving-mass, load-train-resonance, specimen-drift, self-heating, cyclic-softening),
     /// friction-passages-only (one harmonic amplitude), or the older truths
     /// load-path-resonance and softening-specimen (other laws of the same causes).
     #[arg(long, default_value = "amplitude-friction")]

@@ -125,6 +125,12 @@ fn truth_model(hidden: &str) -> AugmentedModel {
         }),
         // Poorly cooled (0.05 W/K), a minute's time constant: a 5 kN, 20 Hz test warms it
         // by about 2 K within its 20 s record.
+        // Filled-rubber Mullins softening: up to 5 % below the largest load, over 30 kN.
+        "cyclic-softening" => Some(Effect::CyclicSoftening {
+            softening_limit: 0.05,
+            force_scale_n: 30e3,
+            max_force_n: 0.0,
+        }),
         "self-heating" => Some(Effect::SelfHeating {
             heat_capacity_j_per_k: 3.0,
             heat_transfer_w_per_k: 0.05,
@@ -213,7 +219,7 @@ fn record(
     t_start_s: f64,
     dt_s: f64,
     n: usize,
-) -> (Vec<f64>, Vec<f64>, f64) {
+) -> (Vec<f64>, Vec<f64>, (f64, f64)) {
     let h = dt_s / SUBSTEPS as f64;
     let n_settle = (-t_start_s / dt_s).round() as usize * SUBSTEPS;
     let t_start_s = -(n_settle as f64) * h;
@@ -230,22 +236,26 @@ fn record(
     let f = (0..n)
         .map(|i| fine[(n_settle + i * SUBSTEPS).saturating_sub(1)])
         .collect();
-    (z, f, stepper.temperature_rise_k())
+    (z, f, (stepper.temperature_rise_k(), stepper.max_force_n()))
 }
 
 /// The truth at the start of a test: the self-heating rise carried from the last test's
-/// end, cooled over the rest between them.
-fn carried(truth: &AugmentedModel, rise_k: f64, rest_s: f64) -> AugmentedModel {
+/// end, cooled over the rest between them, and the largest load carried so far.
+fn carried(truth: &AugmentedModel, state: (f64, f64), rest_s: f64) -> AugmentedModel {
+    let (rise_k, max_n) = state;
     let mut out = truth.clone();
     for effect in &mut out.effects {
-        if let Effect::SelfHeating {
-            heat_capacity_j_per_k,
-            heat_transfer_w_per_k,
-            temperature_rise_k,
-        } = effect
-        {
-            let tau_s = *heat_capacity_j_per_k / *heat_transfer_w_per_k;
-            *temperature_rise_k = rise_k * (-rest_s.max(0.0) / tau_s).exp();
+        match effect {
+            Effect::SelfHeating {
+                heat_capacity_j_per_k,
+                heat_transfer_w_per_k,
+                temperature_rise_k,
+            } => {
+                let tau_s = *heat_capacity_j_per_k / *heat_transfer_w_per_k;
+                *temperature_rise_k = rise_k * (-rest_s.max(0.0) / tau_s).exp();
+            }
+            Effect::CyclicSoftening { max_force_n, .. } => *max_force_n = max_n,
+            _ => {}
         }
     }
     out
@@ -259,7 +269,8 @@ pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io:
     let resonance = hidden == "load-path-resonance";
     let heating = hidden == "self-heating";
     let spacing_s = 360.0;
-    let mut rise_k = 0.0;
+    // The specimen's state carried between tests: self-heating rise, largest load.
+    let mut carry = (0.0, 0.0);
     let mut last_end_s = 0.0;
     let softening_total = if hidden == "softening-specimen" || hidden == "specimen-drift" {
         0.06
@@ -309,7 +320,7 @@ pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io:
         let softening = softening_total * idx as f64 / (n_tests - 1) as f64;
         let started_s = spacing_s * idx as f64;
         let model = model_at(
-            &carried(&truth, rise_k, started_s - last_end_s),
+            &carried(&truth, carry, started_s - last_end_s),
             softening,
             p.temperature_c,
         );
@@ -331,8 +342,8 @@ pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io:
         let n = (n_cycles / p.frequency_hz / dt_s).round() as usize;
         // Start at rest 1.5 s early, so the record holds the steady state (the specimen
         // warms over the lead-in too: it is part of the test).
-        let (mut z, mut f, end_rise_k) = record(&model, resonance, &z_of, -1.5, dt_s, n);
-        rise_k = end_rise_k;
+        let (mut z, mut f, end_state) = record(&model, resonance, &z_of, -1.5, dt_s, n);
+        carry = end_state;
         last_end_s = started_s + n as f64 * dt_s;
         let id = format!(
             "T{idx:02}-P{:02.0}-F{}-A{}-T{}",
@@ -352,7 +363,7 @@ pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io:
         let softening = softening_total * idx as f64 / (n_tests - 1) as f64;
         let started_s = spacing_s * idx as f64;
         let model = model_at(
-            &carried(&truth, rise_k, started_s - last_end_s),
+            &carried(&truth, carry, started_s - last_end_s),
             softening,
             23.0,
         );
@@ -371,8 +382,8 @@ pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io:
                     .sum::<f64>()
         };
         let dt_s = 1e-3;
-        let (mut z, mut f, end_rise_k) = record(&model, resonance, &z_of, -0.5, dt_s, 4000);
-        rise_k = end_rise_k;
+        let (mut z, mut f, end_state) = record(&model, resonance, &z_of, -0.5, dt_s, 4000);
+        carry = end_state;
         last_end_s = started_s + 4.0;
         let id = format!("H{k}-passage-{:.0}kN", peak_n / 1e3);
         write_test(
@@ -396,6 +407,8 @@ pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io:
                 "Outside the library: the specimen's moduli fall linearly by 6 % from the first test to the last.",
             "specimen-drift" =>
                 "specimen-drift: the specimen's moduli fall linearly by 6 % from the first test to the last (test order; started_at every 6 min, so time too). The parameters below are the first test's.",
+            "cyclic-softening" =>
+                "cyclic-softening (Mullins): the largest load carried so far carried from test to test; the element parameters are the virgin specimen's.",
             "self-heating" =>
                 "self-heating with the default temperature law (no temperature-shift): each test's thermal state carried from the last and cooled in the 6 min between starts; 20 s records.",
             "friction-passages-only" =>

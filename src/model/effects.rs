@@ -36,6 +36,11 @@
 //!   default); offline the rise of each test comes from the campaign's schedule, in the
 //!   stepper it is integrated step by step (Maxwell dashpots' power) and the element
 //!   retuned whenever it has moved by `RETUNE_STEP_K`.
+//! - `cyclic-softening` (the Mullins effect): the element's force is `eta F_v`, `F_v` the
+//!   virgin element's, `eta = 1 - d tanh((M - F_v) / F_s)` with `M` the largest virgin
+//!   force reached so far (an Ogden-Roxburgh-like damage of stress, in force): on the
+//!   primary curve (`F_v = M`) nothing changes; below the largest load reached the element
+//!   is softer, more so the further below; a new maximum moves `M` up for good.
 //!
 //! Channel delay, moving mass and the load-train resonance are artefacts of how a rig *measures* the element, not
 //! properties of the elastomer. `StepperMode::Emulation` (what the HIL emulator runs)
@@ -51,7 +56,7 @@ use super::file::{render_model_toml, ModelFileError, ModelSpec};
 use super::params::ElementModel;
 
 /// The effect vocabulary of SPEC 5, in the order the library tries them.
-pub const EFFECT_NAMES: [&str; 9] = [
+pub const EFFECT_NAMES: [&str; 10] = [
     "preload-stiffening",
     "amplitude-friction",
     "fractional-damping",
@@ -61,6 +66,7 @@ pub const EFFECT_NAMES: [&str; 9] = [
     "load-train-resonance",
     "specimen-drift",
     "self-heating",
+    "cyclic-softening",
 ];
 
 /// What a `specimen-drift` runs on.
@@ -184,6 +190,15 @@ pub enum Effect {
         /// Rise above the ambient (the operating temperature) of the state modelled, K.
         temperature_rise_k: f64,
     },
+    CyclicSoftening {
+        /// `d`: the largest relative softening, far below the largest load, 0..1.
+        softening_limit: f64,
+        /// `F_s`: the force scale over which the softening sets in below it, N.
+        force_scale_n: f64,
+        /// `M`: the largest virgin force the specimen has carried in the state modelled,
+        /// N (0: a virgin specimen).
+        max_force_n: f64,
+    },
 }
 
 impl Effect {
@@ -198,6 +213,7 @@ impl Effect {
             Effect::LoadTrainResonance { .. } => EFFECT_NAMES[6],
             Effect::SpecimenDrift { .. } => EFFECT_NAMES[7],
             Effect::SelfHeating { .. } => EFFECT_NAMES[8],
+            Effect::CyclicSoftening { .. } => EFFECT_NAMES[9],
         }
     }
 
@@ -265,6 +281,15 @@ impl Effect {
                 ("heat_capacity_j_per_k", heat_capacity_j_per_k),
                 ("heat_transfer_w_per_k", heat_transfer_w_per_k),
                 ("temperature_rise_k", temperature_rise_k),
+            ],
+            Effect::CyclicSoftening {
+                softening_limit,
+                force_scale_n,
+                max_force_n,
+            } => vec![
+                ("softening_limit", softening_limit),
+                ("force_scale_n", force_scale_n),
+                ("max_force_n", max_force_n),
             ],
         }
     }
@@ -350,6 +375,7 @@ fn parse_effect(
             "heat_transfer_w_per_k",
             "temperature_rise_k",
         ],
+        "cyclic-softening" => &["softening_limit", "force_scale_n", "max_force_n"],
         other => {
             return Err(err(format!(
                 "key `name` = \"{other}\": expected one of {}",
@@ -501,6 +527,23 @@ fn parse_effect(
                 0.0
             },
         },
+        "cyclic-softening" => {
+            let softening_limit = number("softening_limit")?;
+            if !(0.0..1.0).contains(&softening_limit) {
+                return Err(err(format!(
+                    "key `softening_limit` = {softening_limit}: must be in [0, 1)"
+                )));
+            }
+            Effect::CyclicSoftening {
+                softening_limit,
+                force_scale_n: positive("force_scale_n")?,
+                max_force_n: if table.contains_key("max_force_n") {
+                    number("max_force_n")?
+                } else {
+                    0.0
+                },
+            }
+        }
         _ => Effect::MovingMass {
             mass_kg: number("mass_kg")?,
         },
@@ -973,6 +1016,35 @@ impl ResonanceFilter {
     }
 }
 
+/// Mullins state of a stepper: the law's constants and the largest virgin force so far.
+#[derive(Debug, Clone, Copy)]
+struct SofteningState {
+    limit: f64,
+    scale_n: f64,
+    max_force_n: f64,
+}
+
+impl SofteningState {
+    /// `eta` and `d eta / d F_v` at virgin force `f`, after raising the maximum to it.
+    #[inline]
+    fn factor(&mut self, f: f64) -> (f64, f64) {
+        if f > self.max_force_n {
+            self.max_force_n = f;
+        }
+        self.eval(f)
+    }
+
+    /// `eta` and `d eta / d F_v` at virgin force `f` (at most the maximum).
+    #[inline]
+    fn eval(&self, f: f64) -> (f64, f64) {
+        let t = ((self.max_force_n - f).max(0.0) / self.scale_n).tanh();
+        (
+            1.0 - self.limit * t,
+            self.limit * (1.0 - t * t) / self.scale_n,
+        )
+    }
+}
+
 /// Self-heating state of a stepper: the thermal state, the element at the rise it was
 /// built for, the temperature law's slopes and the rise the element is tuned to.
 #[derive(Debug, Clone, Copy)]
@@ -1101,6 +1173,7 @@ pub struct ModelStepper {
     /// Load-train resonance (measurement mode only).
     resonance: Option<ResonanceFilter>,
     self_heating: Option<SelfHeatingRuntime>,
+    softening: Option<SofteningState>,
 }
 
 impl ModelStepper {
@@ -1114,6 +1187,7 @@ impl ModelStepper {
         let mut lag_s = 0.0;
         let mut resonance = None;
         let mut self_heating = None;
+        let mut softening = None;
         for effect in &model.effects {
             match *effect {
                 Effect::AmplitudeFriction {
@@ -1182,6 +1256,17 @@ impl ModelStepper {
                         dynamic: true,
                     })
                 }
+                Effect::CyclicSoftening {
+                    softening_limit,
+                    force_scale_n,
+                    max_force_n,
+                } => {
+                    softening = Some(SofteningState {
+                        limit: softening_limit,
+                        scale_n: force_scale_n.max(1e-9),
+                        max_force_n,
+                    })
+                }
                 _ => {}
             }
         }
@@ -1208,6 +1293,7 @@ impl ModelStepper {
             law_effects_ns_per_m: 0.0,
             resonance,
             self_heating,
+            softening,
         };
         let f0 = stepper.undelayed_force_n(z0_m);
         stepper.delay_line.fill(f0);
@@ -1225,6 +1311,12 @@ impl ModelStepper {
             heating.dynamic = false;
         }
         self
+    }
+
+    /// The largest virgin force the element has carried (`cyclic-softening`), N (0
+    /// without it).
+    pub fn max_force_n(&self) -> f64 {
+        self.softening.map_or(0.0, |s| s.max_force_n)
     }
 
     /// Self-heating rise of the element above its ambient now, K (0 without it).
@@ -1306,11 +1398,21 @@ impl ModelStepper {
                 rate -= bank.rates_per_s[j] * bank.force_n[j];
             }
         }
-        let c = if eq.c_eq_ns_per_m.is_finite() {
+        let mut c = if eq.c_eq_ns_per_m.is_finite() {
             eq.c_eq_ns_per_m
         } else {
             0.0
         };
+        // Cyclic softening scales the element's force by eta(F_v): its stiffness by
+        // `eta + F_v d eta / d F_v`, its damping and relaxation by eta.
+        let mut k_eq = eq.k_eq_n_per_m;
+        if let Some(softening) = &self.softening {
+            let f = self.base.force_n();
+            let (eta, slope) = softening.eval(f);
+            k_eq *= eta + f * slope;
+            c *= eta;
+            rate *= eta;
+        }
         // d k_eq / dz = k_eq chi dFs/dz / (P0 + Fs) in the consistent form (g(Fs) scales
         // every coefficient and dFs/dz = k1 g); other forms: left at 0 (linear law).
         let slope = match self.base.model() {
@@ -1326,7 +1428,7 @@ impl ModelStepper {
             force_n: self.force_n,
             displacement_m: z0,
             velocity_m_per_s: (z0 - z1) / self.dt_s,
-            stiffness_n_per_m: eq.k_eq_n_per_m + self.law_effects_n_per_m,
+            stiffness_n_per_m: k_eq + self.law_effects_n_per_m,
             damping_ns_per_m: c + self.law_effects_ns_per_m,
             force_rate_n_per_s: rate,
         }
@@ -1359,8 +1461,11 @@ impl ModelStepper {
         self.force_n
     }
 
-    fn undelayed_force_n(&self, z_m: f64) -> f64 {
+    fn undelayed_force_n(&mut self, z_m: f64) -> f64 {
         let mut force = self.base.force_n();
+        if let Some(softening) = &mut self.softening {
+            force *= softening.factor(force).0;
+        }
         if let Some(friction) = &self.friction {
             force += friction.force_n();
         }
@@ -1389,6 +1494,9 @@ impl ModelStepper {
             return (self.force_n, StepFlags::NONFINITE_INPUT);
         }
         let (mut force, flags) = self.base.step_with_static_force(z_m, static_force);
+        if let Some(softening) = &mut self.softening {
+            force *= softening.factor(force).0;
+        }
         let z_prev = self.z_history_m[0];
         let dz = z_m - z_prev;
         if let Some(friction) = &mut self.friction {

@@ -277,6 +277,46 @@ fn a_self_heating_specimen_is_named_with_a_physical_thermal_circuit() {
 }
 
 #[test]
+fn cyclic_softening_is_named_from_the_load_history_with_passages() {
+    // Mullins: up to 8 % softer well below the largest load, over 25 kN (the generator's
+    // law is exponential, the library's a tanh). The design raises the load preload by
+    // preload, then runs lower loads; the rising passages at the end raise it again.
+    let truth = Truth {
+        mullins: Some((0.08, 25e3)),
+        ..Truth::paper_like()
+    };
+    let d = diagnose_case(
+        "mullins",
+        &truth,
+        &standard_design(),
+        &Passage::rising(3),
+        &Noise::typical(),
+        27,
+    );
+    assert_eq!(names(&d), ["cyclic-softening"]);
+    assert_physical(&d);
+    let Some(&Effect::CyclicSoftening {
+        softening_limit,
+        force_scale_n,
+        max_force_n,
+    }) = d.final_model.find("cyclic-softening")
+    else {
+        panic!()
+    };
+    assert!(
+        (0.04..0.16).contains(&softening_limit),
+        "d = {softening_limit}"
+    );
+    assert!(
+        (10e3..60e3).contains(&force_scale_n),
+        "F_s = {force_scale_n}"
+    );
+    assert_eq!(max_force_n, 0.0, "the model describes the virgin specimen");
+    assert!(d.gap_before / d.gap_after >= 3.0);
+    assert!(d.verdict.unexplained.is_none());
+}
+
+#[test]
 fn a_repeated_first_test_checks_drift_directly() {
     let truth = Truth {
         softening_over_campaign: 0.03,
@@ -355,6 +395,13 @@ fn assert_physical(d: &Diagnosis) {
                 (1.0..=1e6).contains(&heat_capacity_j_per_k)
                     && (1e-3..=1e3).contains(&heat_transfer_w_per_k)
             }
+            // Mullins softening of a filled elastomer: below 60 % far under its largest
+            // load, setting in over tens of newtons to a meganewton.
+            Effect::CyclicSoftening {
+                softening_limit,
+                force_scale_n,
+                ..
+            } => (0.0..=0.6).contains(&softening_limit) && (10.0..=1e6).contains(&force_scale_n),
         };
         assert!(ok, "unphysical {e:?}");
     }

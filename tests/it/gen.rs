@@ -86,6 +86,10 @@ pub struct Truth {
     /// Rest between the end of a test and the start of the next, s: when given, every test
     /// states `started_at`.
     pub rest_s: Option<f64>,
+    /// Mullins softening (largest softening, force scale N): the recorded force times
+    /// `1 - d (1 - exp(-(M - F) / F_s))`, `M` the largest force so far in the campaign
+    /// (the library's law is a tanh and acts on the element's force alone).
+    pub mullins: Option<(f64, f64)>,
 }
 
 impl Truth {
@@ -109,6 +113,7 @@ impl Truth {
             force_sensor_cubic: 0.0,
             self_heating: None,
             rest_s: None,
+            mullins: None,
         }
     }
 
@@ -613,6 +618,15 @@ pub fn write_campaign_full(
     // Campaign clock (s from the first start) and the specimen's temperature rise.
     let mut clock_s = 0.0;
     let mut rise_k = 0.0;
+    let mut largest_n = 0.0f64;
+    let mut soften = |f: &mut [f64]| {
+        if let Some((d, scale)) = truth.mullins {
+            for fi in f.iter_mut() {
+                largest_n = largest_n.max(*fi);
+                *fi *= 1.0 - d * (1.0 - (-(largest_n - *fi) / scale).exp());
+            }
+        }
+    };
     let mut started_at = |duration_s: f64| -> String {
         let Some(rest) = truth.rest_s else {
             return String::new();
@@ -684,6 +698,7 @@ pub fn write_campaign_full(
                 time += h;
             }
         }
+        soften(&mut f);
         let record_s = t.last().copied().unwrap_or(0.0) + t.get(1).copied().unwrap_or(0.0);
         let start_line = started_at(record_s);
         let drift_phase = rng.uniform() * 2.0 * PI;
@@ -708,6 +723,7 @@ pub fn write_campaign_full(
         let id = format!("H{k}-passage-{:.0}kN", passage.peak_n / 1e3);
         let (t, mut z, mut f) =
             simulate_passage(&truth_at(design.len() + k).heated(rise_k), passage);
+        soften(&mut f);
         let start_line = started_at(t.last().copied().unwrap_or(0.0));
         // Passages get no slow drift (their records are short).
         add_noise(

@@ -313,6 +313,31 @@ pub fn identifiability(kind: EffectKind, data: &[CycleData]) -> Result<(), Strin
                 }
             }
         }
+        EffectKind::CyclicSoftening => {
+            // Softening shows as tests below a load reached before them (softer) against
+            // tests before that load was reached; tests that raise the maximum tell it from
+            // a drift with time (which goes on whatever the load).
+            let peaks: Vec<(f64, f64)> = data
+                .iter()
+                .filter(|d| d.time.schedule.is_some())
+                .map(|d| (d.time.peak_force_n, d.time.max_force_before_n))
+                .collect();
+            let campaign_max = peaks.iter().map(|p| p.0).fold(0.0, f64::max);
+            let below_after = peaks.iter().filter(|(p, m)| *p < 0.8 * m).count();
+            let raising = peaks
+                .iter()
+                .filter(|(p, m)| *m > 0.0 && *p > 1.05 * m)
+                .count();
+            let below_before = peaks
+                .iter()
+                .filter(|(p, m)| *p < 0.8 * campaign_max && *m < 0.9 * campaign_max)
+                .count();
+            if below_after < 3 || raising < 2 || below_before < 3 {
+                return Err(format!(
+                    "the load history does not show it: {below_after} tests below a load reached before them, {raising} raising the largest load, {below_before} at low load before the largest (3, 2 and 3 needed)"
+                ));
+            }
+        }
         EffectKind::SelfHeating => {
             // Power must vary at one chamber temperature (else temperature-shift), and not
             // with test order (else specimen-drift).

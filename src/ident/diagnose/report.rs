@@ -801,6 +801,15 @@ pub fn specimen_sentence(d: &Diagnosis) -> String {
             parts.join("; ")
         );
     }
+    if d.final_model.find("cyclic-softening").is_some() {
+        parts.push(
+            "named as cyclic-softening: below the largest load it had carried the specimen was softer (the element parameters describe the virgin specimen)".into(),
+        );
+        return format!(
+            "The specimen changed during the campaign: {}.",
+            parts.join("; ")
+        );
+    }
     format!(
         "The specimen changed during the campaign: {}. Effects named from such a campaign may stand in for the change; repeat the first test at the end to check.",
         parts.join("; ")

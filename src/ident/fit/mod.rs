@@ -81,6 +81,11 @@ pub struct TestTime {
     pub schedule_index: usize,
     /// Energy the specimen dissipated over the whole record (measured `sum F dz`), J.
     pub dissipated_j: f64,
+    /// The largest force the specimen carried in the tests before this one (measured
+    /// peaks), N: where `cyclic-softening`'s memory stands when the test starts.
+    pub max_force_before_n: f64,
+    /// This test's own peak force (measured), N.
+    pub peak_force_n: f64,
 }
 
 impl TestTime {
@@ -222,7 +227,15 @@ pub fn assign_campaign_time(data: &mut [CycleData], campaign: &Campaign) {
     let schedule: Vec<ThermalInterval> = order.iter().map(|&i| intervals[i]).collect();
     let reference_s = schedule[0].start_s;
     let shared = std::sync::Arc::new(schedule);
+    let peaks: Vec<f64> = data
+        .iter()
+        .map(|d| match &d.history {
+            Some(h) => h.force_max_n,
+            None => d.force_mean_n + d.force_harmonics_n.iter().map(|f| cabs(*f)).sum::<f64>(),
+        })
+        .collect();
     let mut energy_before_j = 0.0;
+    let mut max_before_n = 0.0f64;
     for (rank, &i) in order.iter().enumerate() {
         let t = intervals[i];
         let fraction = t.probe_s / t.duration_s.max(1e-300);
@@ -240,8 +253,11 @@ pub fn assign_campaign_time(data: &mut [CycleData], campaign: &Campaign) {
             schedule: Some(shared.clone()),
             schedule_index: rank,
             dissipated_j: energies[i],
+            max_force_before_n: max_before_n,
+            peak_force_n: peaks[i],
         };
         energy_before_j += energies[i];
+        max_before_n = max_before_n.max(peaks[i]);
     }
 }
 
@@ -269,6 +285,13 @@ pub fn model_for_test(model: &AugmentedModel, data: &CycleData) -> AugmentedMode
                         *heat_capacity_j_per_k,
                         *heat_transfer_w_per_k,
                     );
+                }
+            }
+            // The specimen's memory of its largest load when the test starts (the test's
+            // own first cycles raise it in the simulation).
+            Effect::CyclicSoftening { max_force_n, .. } => {
+                if data.time.schedule.is_some() {
+                    *max_force_n = data.time.max_force_before_n;
                 }
             }
             _ => {}
@@ -526,10 +549,11 @@ pub enum EffectKind {
     LoadTrainResonance,
     SpecimenDrift,
     SelfHeating,
+    CyclicSoftening,
 }
 
 impl EffectKind {
-    pub const ALL: [EffectKind; 9] = [
+    pub const ALL: [EffectKind; 10] = [
         EffectKind::PreloadStiffening,
         EffectKind::AmplitudeFriction,
         EffectKind::FractionalDamping,
@@ -539,6 +563,7 @@ impl EffectKind {
         EffectKind::LoadTrainResonance,
         EffectKind::SpecimenDrift,
         EffectKind::SelfHeating,
+        EffectKind::CyclicSoftening,
     ];
 
     /// Rig artefacts: how the rig measures, not the elastomer (never emulated).
@@ -610,6 +635,12 @@ impl EffectKind {
                 "Hz",
             )
             .or_else(|| check("damping_ratio", damping_ratio, LOAD_TRAIN_DAMPING_RANGE, "")),
+            Effect::CyclicSoftening { force_scale_n, .. } => check(
+                "force_scale_n",
+                force_scale_n,
+                SOFTENING_FORCE_SCALE_RANGE_N,
+                "N",
+            ),
             Effect::SelfHeating {
                 heat_capacity_j_per_k,
                 heat_transfer_w_per_k,
@@ -640,6 +671,12 @@ pub const LOAD_TRAIN_FREQUENCY_RANGE_HZ: (f64, f64) = (10.0, 5000.0);
 /// Admissible damping ratio of that mode: bolted steel (a few 0.1 %) to rubber-mounted
 /// fixtures (30 %). Above, the "mode" is a low-pass filter of another kind.
 pub const LOAD_TRAIN_DAMPING_RANGE: (f64, f64) = (0.001, 0.3);
+/// Force scale of the Mullins softening below the largest load (a sample's forces: tens
+/// of newtons to a meganewton).
+pub const SOFTENING_FORCE_SCALE_RANGE_N: (f64, f64) = (10.0, 1e6);
+/// Largest relative softening of a filled elastomer far below its largest load (the
+/// Mullins effect reaches tens of per cent in carbon-black-filled rubber).
+pub const SOFTENING_LIMIT_MAX: f64 = 0.6;
 /// Largest relative change of the moduli over a campaign a `specimen-drift` may have.
 pub const DRIFT_CHANGE_LIMIT: f64 = 0.5;
 
@@ -947,6 +984,9 @@ impl Template {
                     "ln_heat_transfer_w_per_k".into(),
                     "ln_thermal_time_constant_s".into(),
                 ]),
+                EffectKind::CyclicSoftening => {
+                    names.extend(["logit_softening_limit".into(), "ln_force_scale_n".into()])
+                }
             }
         }
         names
@@ -990,6 +1030,11 @@ impl Template {
         freqs.sort_by(f64::total_cmp);
         let omega_mid = 2.0 * PI * freqs.get(freqs.len() / 2).copied().unwrap_or(5.0);
         let f_max = freqs.last().copied().unwrap_or(20.0);
+        let force_max_n = data
+            .iter()
+            .map(|d| d.time.peak_force_n)
+            .fold(0.0, f64::max)
+            .max(1e3);
         let power_max_w = data
             .iter()
             .map(|d| d.time.power_w())
@@ -1058,6 +1103,16 @@ impl Template {
                 EffectKind::SelfHeating => [60.0, 1000.0]
                     .iter()
                     .map(|&tau: &f64| vec![power_max_w.ln(), tau.ln()])
+                    .collect(),
+                // A few per cent, setting in over a fifth and over half the largest load.
+                EffectKind::CyclicSoftening => [0.2, 0.5]
+                    .iter()
+                    .map(|&x: &f64| {
+                        vec![
+                            logit(0.05 / SOFTENING_LIMIT_MAX),
+                            (x * force_max_n).max(100.0).ln(),
+                        ]
+                    })
                     .collect(),
             }
         };
@@ -1161,6 +1216,11 @@ impl Template {
                     rate_per_unit: theta[i] / self.drift_span(),
                     rate_standard_error: 0.0,
                     clock_position: 0.0,
+                },
+                EffectKind::CyclicSoftening => Effect::CyclicSoftening {
+                    softening_limit: SOFTENING_LIMIT_MAX * logistic(theta[i]),
+                    force_scale_n: theta[i + 1].clamp(-50.0, 50.0).exp(),
+                    max_force_n: 0.0,
                 },
                 EffectKind::SelfHeating => {
                     let h = theta[i].clamp(-50.0, 50.0).exp();
