@@ -39,6 +39,7 @@
 //!
 //! Must not: do I/O (`report` writes files; progress goes through a callback).
 
+pub mod effect_plots;
 pub mod report;
 pub mod run;
 pub mod verdict;

@@ -180,6 +180,7 @@ struct Plots {
     loops: PathBuf,
     equivalents: PathBuf,
     histories: Option<PathBuf>,
+    effects: Option<PathBuf>,
 }
 
 fn write_plots(
@@ -306,6 +307,14 @@ fn write_plots(
             ],
         )?;
     }
+    let effect_panels = super::effect_plots::effect_panels(d, data);
+    let effects = (!effect_panels.is_empty())
+        .then(|| args.out.join("effects.png"))
+        .map(|path| {
+            let rows = effect_panels.len().div_ceil(2) as u32;
+            draw_png(&path, 1400, 500 * rows, 2, &effect_panels).map(|()| path)
+        })
+        .transpose()?;
     let loops = args.out.join("loops.png");
     // The four harmonic tests where the calibrated baseline misses most (held-out).
     let mut worst: Vec<usize> = (0..data.len()).filter(|&i| !data[i].is_history()).collect();
@@ -339,6 +348,7 @@ fn write_plots(
         loops,
         equivalents,
         histories: has_history.then_some(histories),
+        effects,
     })
 }
 
@@ -634,6 +644,9 @@ fn render_report(
     ];
     if let Some(h) = &plots.histories {
         listed.push(("History tests: measured, baseline and augmented force", h));
+    }
+    if let Some(e) = &plots.effects {
+        listed.push(("The named effects of the campaign's time and the rig", e));
     }
     for (title, path) in listed {
         let name = path
