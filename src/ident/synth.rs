@@ -104,9 +104,26 @@ fn design(one_amplitude: bool) -> Vec<Point> {
     out
 }
 
-/// The truth's model: the paper's element plus the hidden library effect, if any.
+/// Whether `hidden` (one choice, or several joined by `+`) names a valid truth.
+pub fn valid_hidden(hidden: &str) -> bool {
+    let choices = hidden_choices();
+    hidden.split('+').all(|part| choices.contains(&part))
+}
+
+fn hides(hidden: &str, name: &str) -> bool {
+    hidden.split('+').any(|part| part == name)
+}
+
+/// The truth's model: the paper's element plus the hidden library effects, if any.
 fn truth_model(hidden: &str) -> AugmentedModel {
-    let chi = if hidden == "preload-stiffening" {
+    AugmentedModel {
+        effects: hidden.split('+').filter_map(effect_of).collect(),
+        ..truth_element(hidden)
+    }
+}
+
+fn truth_element(hidden: &str) -> AugmentedModel {
+    let chi = if hides(hidden, "preload-stiffening") {
         0.3
     } else {
         0.2
@@ -118,7 +135,16 @@ fn truth_model(hidden: &str) -> AugmentedModel {
         chi,
         p0_n: 64e3,
     });
-    let effect = match hidden {
+    AugmentedModel {
+        element,
+        length_m: LENGTH_M,
+        effects: Vec::new(),
+    }
+}
+
+/// The library effect a hidden truth adds (`None`: none, or a truth applied otherwise).
+fn effect_of(hidden: &str) -> Option<Effect> {
+    match hidden {
         "load-train-resonance" => Some(Effect::LoadTrainResonance {
             natural_frequency_hz: 80.0,
             damping_ratio: 0.04,
@@ -154,18 +180,13 @@ fn truth_model(hidden: &str) -> AugmentedModel {
         "channel-delay" => Some(Effect::ChannelDelay { force_lag_s: 4e-4 }),
         "moving-mass" => Some(Effect::MovingMass { mass_kg: 40.0 }),
         _ => None,
-    };
-    AugmentedModel {
-        element,
-        length_m: LENGTH_M,
-        effects: effect.into_iter().collect(),
     }
 }
 
 /// The baseline a user would start from: no effects, parameters 10-30 % off, chi 0 when
 /// preload stiffening is what is hidden.
 fn baseline_toml(hidden: &str) -> String {
-    let chi = if hidden == "preload-stiffening" {
+    let chi = if hides(hidden, "preload-stiffening") {
         0.0
     } else {
         0.3
@@ -263,21 +284,21 @@ fn carried(truth: &AugmentedModel, state: (f64, f64), rest_s: f64) -> AugmentedM
 
 /// Writes the campaign; returns the number of tests.
 pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io::Result<usize> {
-    assert!(hidden_choices().contains(&hidden), "unknown hidden effect");
+    assert!(valid_hidden(hidden), "unknown hidden effect");
     std::fs::create_dir_all(dir)?;
     let truth = truth_model(hidden);
-    let resonance = hidden == "load-path-resonance";
-    let heating = hidden == "self-heating";
+    let resonance = hides(hidden, "load-path-resonance");
+    let heating = hides(hidden, "self-heating");
     let spacing_s = 360.0;
     // The specimen's state carried between tests: self-heating rise, largest load.
     let mut carry = (0.0, 0.0);
     let mut last_end_s = 0.0;
-    let softening_total = if hidden == "softening-specimen" || hidden == "specimen-drift" {
+    let softening_total = if hides(hidden, "softening-specimen") || hides(hidden, "specimen-drift") {
         0.06
     } else {
         0.0
     };
-    let points = design(hidden == "friction-passages-only");
+    let points = design(hides(hidden, "friction-passages-only"));
     let n_passages = 3;
     let n_tests = points.len() + n_passages;
     let mut rng = Rng(seed);
@@ -400,11 +421,11 @@ pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io:
     std::fs::write(dir.join("baseline.toml"), baseline_toml(hidden))?;
     let truth_text = format!(
         "# The truth behind this synthetic campaign (diagnose never reads this file).\n# hidden = \"{hidden}\", seed = {seed}\n# {}\n{}",
-        match hidden {
+        hidden.split('+').map(|part| match part {
             "load-path-resonance" =>
-                "Outside the library: the force reaches the load cell through an 80 Hz, 4 % damped resonance of the load path.",
+                "load-train-resonance's cause by another law: the force reaches the load cell through an 80 Hz, 4 % damped resonance of the load path, filtered after the model.",
             "softening-specimen" =>
-                "Outside the library: the specimen's moduli fall linearly by 6 % from the first test to the last.",
+                "specimen-drift's cause by another law: the specimen's moduli fall linearly by 6 % from the first test to the last.",
             "specimen-drift" =>
                 "specimen-drift: the specimen's moduli fall linearly by 6 % from the first test to the last (test order; started_at every 6 min, so time too). The parameters below are the first test's.",
             "cyclic-softening" =>
@@ -415,7 +436,7 @@ pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io:
                 "Amplitude friction with one harmonic force amplitude: only the passages span amplitudes.",
             "none" => "Nothing hidden: the baseline's structure is the truth (only its parameters are off).",
             _ => "A library effect, with the parameters below.",
-        },
+        }).collect::<Vec<_>>().join("\n# "),
         truth.render_toml("")
     );
     std::fs::write(dir.join("truth.toml"), truth_text)?;

@@ -897,7 +897,7 @@ pub fn diagnose(
         // (a delay and a springpot imitating a load-path resonance), so none is named.
         let best_would = results
             .iter()
-            .filter(|r| r.would_qualify)
+            .filter(|r| r.would_qualify && !r.out_of_range.is_some_and(|o| o.degenerates()))
             .min_by(|a, b| a.score.total_cmp(&b.score));
         if let Some(best) = best_would.filter(|b| b.out_of_range.is_some()) {
             progress(&format!(

@@ -716,11 +716,29 @@ impl OutOfRange {
             (EffectKind::ChannelDelay, _) => {
                 "a phase error beyond any acquisition skew: a phase that grows with frequency, e.g. dynamics of the load path or the actuator"
             }
+            (EffectKind::SelfHeating, true) => {
+                "heat that is never carried away accumulates over the whole campaign: the specimen changed with the energy it dissipated or with time, which specimen-drift describes"
+            }
+            (EffectKind::LoadTrainResonance, false) => {
+                "a mode far above every test frequency: no load-train resonance shows in these tests"
+            }
             (EffectKind::TemperatureShift, _) => {
                 "no thermorheological law explains the tests at other temperatures: they differ for another reason (were they run late in the campaign? see test order)"
             }
             _ => "the effect's physics does not explain this discrepancy",
         }
+    }
+}
+
+impl OutOfRange {
+    /// Whether the fit left its range towards another effect of the library (a
+    /// self-heating that never cools is a drift; a load-train mode beyond every test
+    /// frequency is no mode): such a fit is not a sign of a cause outside the library.
+    pub fn degenerates(&self) -> bool {
+        matches!(
+            (self.kind, self.value < self.range.0),
+            (EffectKind::SelfHeating, true) | (EffectKind::LoadTrainResonance, false)
+        )
     }
 }
 
