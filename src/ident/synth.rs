@@ -293,7 +293,8 @@ pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io:
     // The specimen's state carried between tests: self-heating rise, largest load.
     let mut carry = (0.0, 0.0);
     let mut last_end_s = 0.0;
-    let softening_total = if hides(hidden, "softening-specimen") || hides(hidden, "specimen-drift") {
+    let softening_total = if hides(hidden, "softening-specimen") || hides(hidden, "specimen-drift")
+    {
         0.06
     } else {
         0.0

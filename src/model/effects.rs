@@ -874,29 +874,55 @@ pub struct DahlElement {
     pub slip_force_n: f64,
     pub exponent: f64,
     pub force_n: f64,
+    /// `u^(1-n)` after the last step, the direction it was taken in and the force it
+    /// gave: while the direction holds, the next step needs no power to recover it.
+    carried: (f64, f64, f64),
 }
 
 impl DahlElement {
+    pub fn new(stiffness_n_per_m: f64, slip_force_n: f64, exponent: f64) -> DahlElement {
+        DahlElement {
+            stiffness_n_per_m,
+            slip_force_n,
+            exponent,
+            force_n: 0.0,
+            carried: (0.0, 0.0, f64::NAN),
+        }
+    }
+
     #[inline]
     pub fn step(&mut self, dz_m: f64) -> f64 {
         if dz_m == 0.0 || self.slip_force_n <= 0.0 {
             return self.force_n;
         }
         let sign = dz_m.signum();
-        let u0 = (1.0 - sign * self.force_n / self.slip_force_n).max(0.0);
         let x = self.stiffness_n_per_m * dz_m.abs() / self.slip_force_n;
         let n = self.exponent;
         let u = if n == 1.0 {
+            let u0 = (1.0 - sign * self.force_n / self.slip_force_n).max(0.0);
             u0 * (-x).exp()
-        } else if n > 1.0 {
-            // u0 = 0 stays 0: 0^(1-n) = inf, inf^(1/(1-n)) = 0.
-            (u0.powf(1.0 - n) + (n - 1.0) * x).powf(1.0 / (1.0 - n))
         } else {
-            (u0.powf(1.0 - n) - (1.0 - n) * x)
-                .max(0.0)
-                .powf(1.0 / (1.0 - n))
+            let (v_last, sign_last, force_last) = self.carried;
+            let v0 = if sign == sign_last && self.force_n == force_last {
+                v_last
+            } else {
+                // u0 = 0 with n > 1: 0^(1-n) = inf, and inf^(1/(1-n)) = 0 stays 0.
+                (1.0 - sign * self.force_n / self.slip_force_n)
+                    .max(0.0)
+                    .powf(1.0 - n)
+            };
+            let v = if n > 1.0 {
+                v0 + (n - 1.0) * x
+            } else {
+                (v0 - (1.0 - n) * x).max(0.0)
+            };
+            self.carried = (v, sign, f64::NAN);
+            v.powf(1.0 / (1.0 - n))
         };
         self.force_n = sign * self.slip_force_n * (1.0 - u);
+        if n != 1.0 {
+            self.carried.2 = self.force_n;
+        }
         self.force_n
     }
 }
@@ -916,12 +942,9 @@ impl FrictionElement {
                 slip_force_n,
                 slip_spread,
             )),
-            FrictionLaw::Dahl { exponent } => FrictionElement::Dahl(DahlElement {
-                stiffness_n_per_m,
-                slip_force_n,
-                exponent,
-                force_n: 0.0,
-            }),
+            FrictionLaw::Dahl { exponent } => {
+                FrictionElement::Dahl(DahlElement::new(stiffness_n_per_m, slip_force_n, exponent))
+            }
         }
     }
 

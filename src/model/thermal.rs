@@ -3,11 +3,12 @@
 //! constant `C / h`), over a campaign's schedule of tests and rests or step by step.
 //! Must not: allocate, do I/O or read a clock in `ThermalState::step`.
 
-/// Temperature law used by `self-heating` when the model has no `temperature-shift`: a
-/// typical filled rubber near room temperature (dynamic modulus -0.8 %/degC, relaxation a
-/// decade faster per 25 degC). Stated in the report when used.
+/// Temperature law used by `self-heating` when the model has no `temperature-shift`: the
+/// dynamic modulus of a typical filled rubber near room temperature, -0.8 %/degC, and no
+/// shift of relaxation times (that needs tests at several chamber temperatures to be
+/// calibrated: `temperature-shift`). Stated in the report when used.
 pub const DEFAULT_LN_MODULUS_SHIFT_PER_C: f64 = 0.008;
-pub const DEFAULT_LOG10_TIME_SHIFT_PER_C: f64 = 0.04;
+pub const DEFAULT_LOG10_TIME_SHIFT_PER_C: f64 = 0.0;
 
 /// Physical range of the heat capacity of a specimen (a few grams of rubber to a 100 kg
 /// block with its steel plates), J/K.

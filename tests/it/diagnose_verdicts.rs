@@ -225,7 +225,7 @@ fn a_specimen_that_softens_during_the_campaign_is_named_as_a_drift_with_its_rate
 fn a_self_heating_specimen_is_named_with_a_physical_thermal_circuit() {
     // 6 J/K on 0.05 W/K: a two-minute time constant; 60-cycle records with 10 s rests, so
     // heat carries from test to test; moduli -1 %/K (the library's default law: -0.8 %/K,
-    // exponential, with a relaxation-time shift).
+    // exponential; the generator has no relaxation-time shift either).
     let truth = Truth {
         self_heating: Some((6.0, 0.05, 0.01)),
         rest_s: Some(10.0),

@@ -439,12 +439,7 @@ fn the_dahl_element_follows_its_closed_form_for_any_step() {
             );
         }
     }
-    let mut e = DahlElement {
-        stiffness_n_per_m: k,
-        slip_force_n: fs,
-        exponent: 1.0,
-        force_n: 0.0,
-    };
+    let mut e = DahlElement::new(k, fs, 1.0);
     e.step(2e-4);
     let f0 = e.force_n;
     for _ in 0..50 {
@@ -529,8 +524,8 @@ fn the_load_train_resonance_scales_the_measured_force_by_its_transfer_function()
 
 /// `self-heating` in the stepper: a long harmonic test warms the element to `P / h`, with
 /// `P = c_eq W^2 Z^2 / 2` from paper Eq. 2 (an independent calculation) for the element at
-/// that temperature (the default law softens it and speeds its relaxation up, which here
-/// raises its loss at 20 Hz): the stepper's steady rise is the fixed point.
+/// that temperature (the default law softens it, which changes its loss a little): the
+/// stepper's steady rise is the fixed point.
 #[test]
 fn a_self_heating_element_warms_to_its_power_over_its_heat_transfer() {
     use fastemu::model::equiv::equivalent;

@@ -751,9 +751,9 @@ pub fn model_notes(d: &Diagnosis, data: &[CycleData]) -> Vec<String> {
                     "the temperature law of temperature-shift".to_string()
                 } else {
                     format!(
-                        "the default temperature law ({:.1} %/degC modulus, a decade of relaxation time per {:.0} degC; no temperature-shift was named)",
+                        "the default temperature law ({:.1} %/degC modulus, relaxation times {:.3} decades/degC; no temperature-shift was named)",
                         -100.0 * crate::model::thermal::DEFAULT_LN_MODULUS_SHIFT_PER_C,
-                        1.0 / crate::model::thermal::DEFAULT_LOG10_TIME_SHIFT_PER_C
+                        -crate::model::thermal::DEFAULT_LOG10_TIME_SHIFT_PER_C
                     )
                 };
                 notes.push(format!(
