@@ -289,10 +289,8 @@ pub fn model_for_test(model: &AugmentedModel, data: &CycleData) -> AugmentedMode
             }
             // The specimen's memory of its largest load when the test starts (the test's
             // own first cycles raise it in the simulation).
-            Effect::CyclicSoftening { max_force_n, .. } => {
-                if data.time.schedule.is_some() {
-                    *max_force_n = data.time.max_force_before_n;
-                }
+            Effect::CyclicSoftening { max_force_n, .. } if data.time.schedule.is_some() => {
+                *max_force_n = data.time.max_force_before_n;
             }
             _ => {}
         }
