@@ -301,6 +301,58 @@ fn cyclic_softening_is_named_from_the_load_history_with_passages() {
     assert_eq!(max_force_n, 0.0, "the model describes the virgin specimen");
 }
 
+/// Two at once, new effects beside older ones: self-heating beside amplitude friction (both
+/// grow with amplitude; heat also with frequency and with the tests before) and a
+/// load-train resonance beside a temperature shift. (Beside a channel delay or a moving
+/// mass a resonance well above the test band is not separable: its phase is a delay's and
+/// its frequency-squared term a mass's to first order; see docs/diagnose.md.)
+#[test]
+fn self_heating_beside_friction_and_a_resonance_beside_a_temperature_shift_are_both_named() {
+    let acquisition = Acquisition {
+        cycles_below_2_hz: 20,
+        cycles_above_2_hz: 60,
+        ..Acquisition::typical()
+    };
+    let heating = Truth {
+        self_heating: Some((6.0, 0.05, 0.01)),
+        rest_s: Some(10.0),
+        friction: Some((20e6, 1.0e3)),
+        ..Truth::paper_like()
+    };
+    let d = diagnose_case_with(
+        "heating-friction",
+        &heating,
+        &standard_design(),
+        &[],
+        &Noise::typical(),
+        28,
+        &acquisition,
+    );
+    let mut named = names(&d);
+    named.sort();
+    assert_eq!(named, ["amplitude-friction", "self-heating"]);
+    assert_physical(&d);
+    assert!(d.gap_before / d.gap_after >= 3.0);
+    let resonance = Truth {
+        load_path_resonance: Some((90.0, 0.04)),
+        wlf: Some((2.0, 80.0, 23.0, 0.005)),
+        ..Truth::paper_like()
+    };
+    let d = diagnose_case(
+        "resonance-temperature",
+        &resonance,
+        &standard_design(),
+        &[],
+        &Noise::typical(),
+        29,
+    );
+    let mut named = names(&d);
+    named.sort();
+    assert_eq!(named, ["load-train-resonance", "temperature-shift"]);
+    assert_physical(&d);
+    assert!(d.gap_before / d.gap_after >= 3.0);
+}
+
 #[test]
 fn a_repeated_first_test_checks_drift_directly() {
     let truth = Truth {
