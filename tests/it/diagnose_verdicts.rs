@@ -232,11 +232,7 @@ fn a_self_heating_specimen_is_named_with_a_physical_thermal_circuit() {
         ..Truth::paper_like()
     };
     let dir_name = "self-heating";
-    let acquisition = Acquisition {
-        cycles_below_2_hz: 20,
-        cycles_above_2_hz: 60,
-        ..Acquisition::typical()
-    };
+    let acquisition = long_records();
     let d = diagnose_case_with(
         dir_name,
         &truth,
@@ -308,11 +304,7 @@ fn cyclic_softening_is_named_from_the_load_history_with_passages() {
 /// its frequency-squared term a mass's to first order; see docs/diagnose.md.)
 #[test]
 fn self_heating_beside_friction_and_a_resonance_beside_a_temperature_shift_are_both_named() {
-    let acquisition = Acquisition {
-        cycles_below_2_hz: 20,
-        cycles_above_2_hz: 60,
-        ..Acquisition::typical()
-    };
+    let acquisition = long_records();
     let heating = Truth {
         self_heating: Some((6.0, 0.05, 0.01)),
         rest_s: Some(10.0),
@@ -328,11 +320,7 @@ fn self_heating_beside_friction_and_a_resonance_beside_a_temperature_shift_are_b
         28,
         &acquisition,
     );
-    let mut named = names(&d);
-    named.sort();
-    assert_eq!(named, ["amplitude-friction", "self-heating"]);
-    assert_physical(&d);
-    assert!(d.gap_before / d.gap_after >= 3.0);
+    assert_named_set(&d, &["amplitude-friction", "self-heating"]);
     let resonance = Truth {
         load_path_resonance: Some((90.0, 0.04)),
         wlf: Some((2.0, 80.0, 23.0, 0.005)),
@@ -346,11 +334,7 @@ fn self_heating_beside_friction_and_a_resonance_beside_a_temperature_shift_are_b
         &Noise::typical(),
         29,
     );
-    let mut named = names(&d);
-    named.sort();
-    assert_eq!(named, ["load-train-resonance", "temperature-shift"]);
-    assert_physical(&d);
-    assert!(d.gap_before / d.gap_after >= 3.0);
+    assert_named_set(&d, &["load-train-resonance", "temperature-shift"]);
 }
 
 #[test]
@@ -394,7 +378,16 @@ fn a_load_cell_nonlinearity_is_not_passed_off_as_explained() {
 /// `name` is the one effect named, with physical parameters, the gap at least 3x smaller
 /// and nothing left unexplained.
 fn assert_named_alone(d: &Diagnosis, name: &str) {
-    assert_eq!(names(d), [name]);
+    assert_named_set(d, &[name]);
+    assert!(d.verdict.unexplained.is_none());
+}
+
+/// Exactly the effects `expected` (sorted) are named, with physical parameters, and the gap
+/// is at least 3x smaller.
+fn assert_named_set(d: &Diagnosis, expected: &[&str]) {
+    let mut named = names(d);
+    named.sort();
+    assert_eq!(named, expected);
     assert_physical(d);
     assert!(
         d.gap_before / d.gap_after >= 3.0,
@@ -402,7 +395,15 @@ fn assert_named_alone(d: &Diagnosis, name: &str) {
         d.gap_before,
         d.gap_after
     );
-    assert!(d.verdict.unexplained.is_none());
+}
+
+/// Records long enough for a specimen to warm within them: 20 cycles below 2 Hz, 60 above.
+fn long_records() -> Acquisition {
+    Acquisition {
+        cycles_below_2_hz: 20,
+        cycles_above_2_hz: 60,
+        ..Acquisition::typical()
+    }
 }
 
 fn assert_physical(d: &Diagnosis) {
