@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use anyhow::{bail, Context};
 use clap::Args;
 
-use crate::ident::synth::{hidden_choices, write_synthetic_campaign};
+use crate::ident::synth::{hidden_choices, valid_hidden, write_synthetic_campaign};
 
 #[derive(Args)]
 pub struct SynthArgs {
@@ -15,8 +15,10 @@ pub struct SynthArgs {
     pub out: PathBuf,
     /// What the campaign hides: none, a library effect (preload-stiffening,
     /// amplitude-friction, fractional-damping, temperature-shift, channel-delay,
-    /// moving-mass), friction-passages-only (one harmonic amplitude), or a truth outside
-    /// the library (load-path-resonance, softening-specimen).
+    /// moving-mass, load-train-resonance, specimen-drift, self-heating, cyclic-softening),
+    /// friction-passages-only (one harmonic amplitude), or the older truths
+    /// load-path-resonance and softening-specimen (other laws of the same causes); several
+    /// joined by `+` (e.g. amplitude-friction+self-heating) hide them together.
     #[arg(long, default_value = "amplitude-friction")]
     pub hidden: String,
     /// Seed of the noise.
@@ -26,9 +28,9 @@ pub struct SynthArgs {
 
 pub fn run(args: SynthArgs) -> anyhow::Result<ExitCode> {
     let choices = hidden_choices();
-    if !choices.contains(&args.hidden.as_str()) {
+    if !valid_hidden(&args.hidden) {
         bail!(
-            "--hidden {}: expected one of {}",
+            "--hidden {}: expected one of {} (or several joined by +)",
             args.hidden,
             choices.join(", ")
         );

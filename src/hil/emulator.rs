@@ -70,6 +70,8 @@ record_type! {
             generated_energy_j: f64,
             /// stability monitor: the displacement's oscillation above its band, m
             oscillation_m: f64,
+            /// the element's self-heating rise above its ambient after the step, K (0 without self-heating)
+            element_temperature_rise_k: f64,
         }
     }
 }
@@ -282,6 +284,7 @@ impl EmulatorCore {
             rig_fault_code: rig.fault_code,
             generated_energy_j: energy.generated_high_j,
             oscillation_m: energy.oscillation_m,
+            element_temperature_rise_k: self.stepper.temperature_rise_k(),
         });
         self.step_idx += 1;
     }

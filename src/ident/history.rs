@@ -31,7 +31,7 @@ use std::sync::Arc;
 use realfft::num_complex::Complex64;
 use realfft::RealFftPlanner;
 
-use crate::model::effects::{AugmentedModel, Effect, ModelStepper, StepperMode};
+use crate::model::effects::{AugmentedModel, ModelStepper, RigArtefacts, StepperMode};
 
 /// The band keeps the frequencies where the measured force's smoothed spectrum exceeds
 /// this multiple of the noise level at the top of the spectrum.
@@ -341,10 +341,14 @@ pub fn prepare_history(
 
 /// The model's force for a history test (band-limited like the measured force), rig
 /// artefacts included, started in static equilibrium at the first measured force.
+/// With `frozen_temperature` the self-heating rise stays the model's (a campaign's
+/// schedule set it per test); without, the element warms step by step as in the emulator
+/// (a HIL run's record).
 pub fn predict_history(
     model: &AugmentedModel,
     history: &HistoryData,
     temperature_c: f64,
+    frozen_temperature: bool,
 ) -> Vec<f64> {
     let model_t = model.at_temperature(temperature_c);
     let element = model_t.effective_element();
@@ -356,50 +360,49 @@ pub fn predict_history(
         history.dt_s,
         z[0] + offset,
     );
+    if frozen_temperature {
+        stepper = stepper.with_frozen_temperature();
+    }
     let mut force = Vec::with_capacity(z.len());
     force.push(stepper.force_n());
     for &zi in &z[1..] {
         force.push(stepper.step(zi + offset).0);
     }
-    let (mut mass_kg, mut lag_s) = (0.0, 0.0);
-    for effect in &model_t.effects {
-        match *effect {
-            Effect::MovingMass { mass_kg: m } => mass_kg = m,
-            Effect::ChannelDelay { force_lag_s } => lag_s = force_lag_s,
-            _ => {}
-        }
-    }
-    band_limit_with_artefacts(&force, z, history.dt_s, history.band_hz, mass_kg, lag_s)
+    band_limit_with_artefacts(
+        &force,
+        z,
+        history.dt_s,
+        history.band_hz,
+        &model_t.rig_artefacts(),
+    )
 }
 
-/// `F_meas(w) = e^{-i w tau} (F(w) - m w^2 Z(w))` inside the band, zero above.
+/// `F_meas(w) = e^{-i w tau} H(i w) (F(w) - m w^2 Z(w))` inside the band, zero above.
 pub fn band_limit_with_artefacts(
     force_n: &[f64],
     displacement_m: &[f64],
     dt_s: f64,
     band_hz: f64,
-    mass_kg: f64,
-    lag_s: f64,
+    artefacts: &RigArtefacts,
 ) -> Vec<f64> {
     let n = force_n.len();
     let (f_detrended, f_line) = detrend(force_n);
     let mut spectrum = forward(&f_detrended);
     let df = 1.0 / (n as f64 * dt_s);
     let k_band = ((band_hz / df).floor() as usize).min(spectrum.len() - 1);
-    let z_spectrum = (mass_kg != 0.0).then(|| forward(&detrend(displacement_m).0));
+    let z_spectrum = (artefacts.mass_kg != 0.0).then(|| forward(&detrend(displacement_m).0));
+    let zero = Complex64::new(0.0, 0.0);
     for (k, c) in spectrum.iter_mut().enumerate() {
         if k > k_band {
-            *c = Complex64::new(0.0, 0.0);
+            *c = zero;
             continue;
         }
         let w = 2.0 * PI * k as f64 * df;
-        if let Some(zs) = &z_spectrum {
-            *c -= mass_kg * w * w * zs[k];
-        }
-        if lag_s != 0.0 {
-            *c *= Complex64::from_polar(1.0, -w * lag_s);
-        }
+        let zs = z_spectrum.as_ref().map_or(zero, |s| s[k]);
+        let (re, im) = artefacts.measured(w, (c.re, c.im), (zs.re, zs.im));
+        *c = Complex64::new(re, im);
     }
+    let lag_s = artefacts.lag_s;
     let mut out = inverse(spectrum, n);
     for (i, v) in out.iter_mut().enumerate() {
         *v += f_line.0 + f_line.1 * (i as f64 - lag_s / dt_s);
@@ -458,8 +461,13 @@ mod tests {
         let h = prepare_history(dt, &z, &force).unwrap();
         // The exact model's prediction, band-limited as compared.
         let predicted: Vec<f64> = h.displacement_m.iter().map(|zi| k * zi).collect();
-        let predicted =
-            band_limit_with_artefacts(&predicted, &h.displacement_m, h.dt_s, h.band_hz, 0.0, 0.0);
+        let predicted = band_limit_with_artefacts(
+            &predicted,
+            &h.displacement_m,
+            h.dt_s,
+            h.band_hz,
+            &RigArtefacts::default(),
+        );
         let e: f64 = history_residuals(&predicted, &h)
             .iter()
             .map(|r| r * r)

@@ -145,6 +145,7 @@ pub fn plot_equivalents(
                         weight: 1.0,
                         order: 0.0,
                         history: None,
+                        time: Default::default(),
                     };
                     let p = predict_cycle(model, &probe);
                     equivalent_mn(p[0], (z_amp, 0.0), freq, length_m)
@@ -301,7 +302,12 @@ pub fn plot_histories(
             0,
         ));
         for (model_idx, (label, model)) in models.iter().enumerate() {
-            let predicted = predict_history(model, history, d.temperature_c);
+            let predicted = predict_history(
+                &crate::ident::fit::model_for_test(model, d),
+                history,
+                d.temperature_c,
+                d.time.schedule.is_some(),
+            );
             // The comparison removes the mean difference; so does the plot.
             let shift = (history.force_n.iter().sum::<f64>() - predicted.iter().sum::<f64>())
                 / predicted.len().max(1) as f64;

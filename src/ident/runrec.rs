@@ -42,6 +42,9 @@ pub struct RunHistory {
     /// The run's rig was external: its samples stand in for the rig's records, and the
     /// law lead is the rig's own.
     pub external_rig: bool,
+    /// The element's self-heating rise over the run as the emulator recorded it (largest,
+    /// last), K; `None` when it stayed 0 (no self-heating in the model) or was not recorded.
+    pub element_temperature_rise_k: Option<(f64, f64)>,
 }
 
 impl RunHistory {
@@ -141,6 +144,7 @@ pub fn load_run_history(run_dir: &Path) -> Result<RunHistory, RunRecordError> {
         config_base_dir: raw.config_base_dir,
         used,
         external_rig: raw.external_rig,
+        element_temperature_rise_k: raw.element_temperature_rise_k,
     })
 }
 
@@ -150,6 +154,8 @@ struct RawRun {
     /// What a row is, in words ("rig periods", "samples of the external rig").
     rows: &'static str,
     external_rig: bool,
+    /// Largest and last self-heating rise the emulator recorded, K (None: none recorded).
+    element_temperature_rise_k: Option<(f64, f64)>,
     time_s: Vec<f64>,
     z_m: Vec<f64>,
     force_n: Vec<f64>,
@@ -202,6 +208,14 @@ fn read_records(set: &RecordSet) -> Result<RawRun, RunRecordError> {
     // samples said (measured displacement and force, state, fault). Interpolated steps
     // stand for a missing sample and are not data.
     let external_rig = time_s.is_empty();
+    let (mut rise_max_k, mut rise_last_k) = (0.0f64, 0.0f64);
+    set.for_each::<EmulatorRecord>(|_, r| {
+        if r.element_temperature_rise_k.is_finite() {
+            rise_max_k = rise_max_k.max(r.element_temperature_rise_k);
+            rise_last_k = r.element_temperature_rise_k;
+        }
+    })
+    .map_err(rec_err)?;
     let mut measured_force = false;
     if external_rig {
         stats = set
@@ -254,6 +268,7 @@ fn read_records(set: &RecordSet) -> Result<RawRun, RunRecordError> {
             "rig periods"
         },
         external_rig,
+        element_temperature_rise_k: (rise_max_k > 0.0).then_some((rise_max_k, rise_last_k)),
         time_s,
         z_m,
         force_n,
@@ -327,6 +342,7 @@ fn read_exported(dir: &Path, rig_csv: &Path) -> Result<RawRun, RunRecordError> {
         origin: rig_csv.display().to_string(),
         rows: "rig periods",
         external_rig: false,
+        element_temperature_rise_k: None,
         time_s,
         z_m,
         force_n,

@@ -5,9 +5,12 @@
 //! baseline with its parameters off to `baseline.toml`.
 //!
 //! The force comes from the crate's own model (`ModelStepper`, measurement mode, on a
-//! grid eight times finer than the record) with the hidden effect added, or from one of
-//! two truths outside the library: a resonance of the load path and a specimen that
-//! softens during the campaign. Both channels get white noise, the force also AR(1) noise.
+//! grid eight times finer than the record) with the hidden effect added (a self-heating
+//! specimen is stepped with its thermal state carried from test to test and cooled in the
+//! rests, with 20 s records so that it warms within a test), or from the older truths
+//! `load-path-resonance` (an 80 Hz load path, applied after the model) and
+//! `softening-specimen` (the moduli falling linearly by 6 %), kept for comparison with
+//! `load-train-resonance` and `specimen-drift`. Both channels get white noise, the force also AR(1) noise.
 //! This is a demonstration, not a test oracle: the project's tests use their own,
 //! independent generator.
 //!
@@ -101,9 +104,26 @@ fn design(one_amplitude: bool) -> Vec<Point> {
     out
 }
 
-/// The truth's model: the paper's element plus the hidden library effect, if any.
+/// Whether `hidden` (one choice, or several joined by `+`) names a valid truth.
+pub fn valid_hidden(hidden: &str) -> bool {
+    let choices = hidden_choices();
+    hidden.split('+').all(|part| choices.contains(&part))
+}
+
+fn hides(hidden: &str, name: &str) -> bool {
+    hidden.split('+').any(|part| part == name)
+}
+
+/// The truth's model: the paper's element plus the hidden library effects, if any.
 fn truth_model(hidden: &str) -> AugmentedModel {
-    let chi = if hidden == "preload-stiffening" {
+    AugmentedModel {
+        effects: hidden.split('+').filter_map(effect_of).collect(),
+        ..truth_element(hidden)
+    }
+}
+
+fn truth_element(hidden: &str) -> AugmentedModel {
+    let chi = if hides(hidden, "preload-stiffening") {
         0.3
     } else {
         0.2
@@ -115,7 +135,33 @@ fn truth_model(hidden: &str) -> AugmentedModel {
         chi,
         p0_n: 64e3,
     });
-    let effect = match hidden {
+    AugmentedModel {
+        element,
+        length_m: LENGTH_M,
+        effects: Vec::new(),
+    }
+}
+
+/// The library effect a hidden truth adds (`None`: none, or a truth applied otherwise).
+fn effect_of(hidden: &str) -> Option<Effect> {
+    match hidden {
+        "load-train-resonance" => Some(Effect::LoadTrainResonance {
+            natural_frequency_hz: 80.0,
+            damping_ratio: 0.04,
+        }),
+        // Poorly cooled (0.05 W/K), a minute's time constant: a 5 kN, 20 Hz test warms it
+        // by about 2 K within its 20 s record.
+        // Filled-rubber Mullins softening: up to 5 % below the largest load, over 30 kN.
+        "cyclic-softening" => Some(Effect::CyclicSoftening {
+            softening_limit: 0.05,
+            force_scale_n: 30e3,
+            max_force_n: 0.0,
+        }),
+        "self-heating" => Some(Effect::SelfHeating {
+            heat_capacity_j_per_k: 3.0,
+            heat_transfer_w_per_k: 0.05,
+            temperature_rise_k: 0.0,
+        }),
         "amplitude-friction" | "friction-passages-only" => Some(Effect::AmplitudeFriction {
             stiffness_n_per_m: 20e6 * LENGTH_M,
             slip_force_n: 1.0e3 * LENGTH_M,
@@ -134,18 +180,13 @@ fn truth_model(hidden: &str) -> AugmentedModel {
         "channel-delay" => Some(Effect::ChannelDelay { force_lag_s: 4e-4 }),
         "moving-mass" => Some(Effect::MovingMass { mass_kg: 40.0 }),
         _ => None,
-    };
-    AugmentedModel {
-        element,
-        length_m: LENGTH_M,
-        effects: effect.into_iter().collect(),
     }
 }
 
 /// The baseline a user would start from: no effects, parameters 10-30 % off, chi 0 when
 /// preload stiffening is what is hidden.
 fn baseline_toml(hidden: &str) -> String {
-    let chi = if hidden == "preload-stiffening" {
+    let chi = if hides(hidden, "preload-stiffening") {
         0.0
     } else {
         0.3
@@ -190,7 +231,8 @@ fn load_path(force_n: &[f64], dt_s: f64) -> Vec<f64> {
 }
 
 /// Runs the model over `z(t)` on the fine grid from `t_start_s` (at rest there) and
-/// returns the record's samples from t = 0 at step `dt_s`.
+/// returns the record's samples from t = 0 at step `dt_s`, and the self-heating rise at
+/// the end.
 fn record(
     model: &AugmentedModel,
     resonance: bool,
@@ -198,7 +240,7 @@ fn record(
     t_start_s: f64,
     dt_s: f64,
     n: usize,
-) -> (Vec<f64>, Vec<f64>) {
+) -> (Vec<f64>, Vec<f64>, (f64, f64)) {
     let h = dt_s / SUBSTEPS as f64;
     let n_settle = (-t_start_s / dt_s).round() as usize * SUBSTEPS;
     let t_start_s = -(n_settle as f64) * h;
@@ -215,21 +257,49 @@ fn record(
     let f = (0..n)
         .map(|i| fine[(n_settle + i * SUBSTEPS).saturating_sub(1)])
         .collect();
-    (z, f)
+    (z, f, (stepper.temperature_rise_k(), stepper.max_force_n()))
+}
+
+/// The truth at the start of a test: the self-heating rise carried from the last test's
+/// end, cooled over the rest between them, and the largest load carried so far.
+fn carried(truth: &AugmentedModel, state: (f64, f64), rest_s: f64) -> AugmentedModel {
+    let (rise_k, max_n) = state;
+    let mut out = truth.clone();
+    for effect in &mut out.effects {
+        match effect {
+            Effect::SelfHeating {
+                heat_capacity_j_per_k,
+                heat_transfer_w_per_k,
+                temperature_rise_k,
+            } => {
+                let tau_s = *heat_capacity_j_per_k / *heat_transfer_w_per_k;
+                *temperature_rise_k = rise_k * (-rest_s.max(0.0) / tau_s).exp();
+            }
+            Effect::CyclicSoftening { max_force_n, .. } => *max_force_n = max_n,
+            _ => {}
+        }
+    }
+    out
 }
 
 /// Writes the campaign; returns the number of tests.
 pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io::Result<usize> {
-    assert!(hidden_choices().contains(&hidden), "unknown hidden effect");
+    assert!(valid_hidden(hidden), "unknown hidden effect");
     std::fs::create_dir_all(dir)?;
     let truth = truth_model(hidden);
-    let resonance = hidden == "load-path-resonance";
-    let softening_total = if hidden == "softening-specimen" {
+    let resonance = hides(hidden, "load-path-resonance");
+    let heating = hides(hidden, "self-heating");
+    let spacing_s = 360.0;
+    // The specimen's state carried between tests: self-heating rise, largest load.
+    let mut carry = (0.0, 0.0);
+    let mut last_end_s = 0.0;
+    let softening_total = if hides(hidden, "softening-specimen") || hides(hidden, "specimen-drift")
+    {
         0.06
     } else {
         0.0
     };
-    let points = design(hidden == "friction-passages-only");
+    let points = design(hides(hidden, "friction-passages-only"));
     let n_passages = 3;
     let n_tests = points.len() + n_passages;
     let mut rng = Rng(seed);
@@ -260,7 +330,7 @@ pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io:
             let _ = writeln!(csv, "{:?},{zi:?},{fi:?}", i as f64 * dt_s);
         }
         std::fs::write(dir.join(format!("{id}.csv")), csv)?;
-        let started = start_s + 360.0 * idx as f64;
+        let started = start_s + spacing_s * idx as f64;
         let _ = write!(
             toml,
             "\n[[test]]\nid = \"{id}\"\nfile = \"{id}.csv\"\n{keys}started_at = \"{}\"\n",
@@ -270,7 +340,12 @@ pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io:
     };
     for (idx, p) in points.iter().enumerate() {
         let softening = softening_total * idx as f64 / (n_tests - 1) as f64;
-        let model = model_at(&truth, softening, p.temperature_c);
+        let started_s = spacing_s * idx as f64;
+        let model = model_at(
+            &carried(&truth, carry, started_s - last_end_s),
+            softening,
+            p.temperature_c,
+        );
         let el = element(&model);
         let z_static = el.static_displacement_m(p.preload_n);
         let w = 2.0 * PI * p.frequency_hz;
@@ -278,11 +353,20 @@ pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io:
         let a1 = p.amplitude_n / stiffness;
         let z_of =
             move |t: f64| z_static + a1 * (w * t).cos() + 0.02 * a1 * (2.0 * w * t + 0.7).cos();
-        let n_cycles = if p.frequency_hz < 2.0 { 4.0 } else { 8.0 };
+        let n_cycles = if heating {
+            (20.0 * p.frequency_hz).round()
+        } else if p.frequency_hz < 2.0 {
+            4.0
+        } else {
+            8.0
+        };
         let dt_s = 1.0 / (64.0 * p.frequency_hz).max(500.0);
         let n = (n_cycles / p.frequency_hz / dt_s).round() as usize;
-        // Start at rest 1.5 s early, so the record holds the steady state.
-        let (mut z, mut f) = record(&model, resonance, &z_of, -1.5, dt_s, n);
+        // Start at rest 1.5 s early, so the record holds the steady state (the specimen
+        // warms over the lead-in too: it is part of the test).
+        let (mut z, mut f, end_state) = record(&model, resonance, &z_of, -1.5, dt_s, n);
+        carry = end_state;
+        last_end_s = started_s + n as f64 * dt_s;
         let id = format!(
             "T{idx:02}-P{:02.0}-F{}-A{}-T{}",
             p.preload_n / 1e3,
@@ -299,7 +383,12 @@ pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io:
     for k in 0..n_passages {
         let idx = points.len() + k;
         let softening = softening_total * idx as f64 / (n_tests - 1) as f64;
-        let model = model_at(&truth, softening, 23.0);
+        let started_s = spacing_s * idx as f64;
+        let model = model_at(
+            &carried(&truth, carry, started_s - last_end_s),
+            softening,
+            23.0,
+        );
         let el = element(&model);
         let preload_n = 20e3;
         let peak_n = 8e3 + 8e3 * k as f64;
@@ -315,7 +404,9 @@ pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io:
                     .sum::<f64>()
         };
         let dt_s = 1e-3;
-        let (mut z, mut f) = record(&model, resonance, &z_of, -0.5, dt_s, 4000);
+        let (mut z, mut f, end_state) = record(&model, resonance, &z_of, -0.5, dt_s, 4000);
+        carry = end_state;
+        last_end_s = started_s + 4.0;
         let id = format!("H{k}-passage-{:.0}kN", peak_n / 1e3);
         write_test(
             idx,
@@ -331,16 +422,22 @@ pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io:
     std::fs::write(dir.join("baseline.toml"), baseline_toml(hidden))?;
     let truth_text = format!(
         "# The truth behind this synthetic campaign (diagnose never reads this file).\n# hidden = \"{hidden}\", seed = {seed}\n# {}\n{}",
-        match hidden {
+        hidden.split('+').map(|part| match part {
             "load-path-resonance" =>
-                "Outside the library: the force reaches the load cell through an 80 Hz, 4 % damped resonance of the load path.",
+                "load-train-resonance's cause by another law: the force reaches the load cell through an 80 Hz, 4 % damped resonance of the load path, filtered after the model.",
             "softening-specimen" =>
-                "Outside the library: the specimen's moduli fall linearly by 6 % from the first test to the last.",
+                "specimen-drift's cause by another law: the specimen's moduli fall linearly by 6 % from the first test to the last.",
+            "specimen-drift" =>
+                "specimen-drift: the specimen's moduli fall linearly by 6 % from the first test to the last (test order; started_at every 6 min, so time too). The parameters below are the first test's.",
+            "cyclic-softening" =>
+                "cyclic-softening (Mullins): the largest load carried so far carried from test to test; the element parameters are the virgin specimen's.",
+            "self-heating" =>
+                "self-heating with the default temperature law (no temperature-shift): each test's thermal state carried from the last and cooled in the 6 min between starts; 20 s records.",
             "friction-passages-only" =>
                 "Amplitude friction with one harmonic force amplitude: only the passages span amplitudes.",
             "none" => "Nothing hidden: the baseline's structure is the truth (only its parameters are off).",
             _ => "A library effect, with the parameters below.",
-        },
+        }).collect::<Vec<_>>().join("\n# "),
         truth.render_toml("")
     );
     std::fs::write(dir.join("truth.toml"), truth_text)?;

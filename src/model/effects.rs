@@ -25,8 +25,24 @@
 //!   (a local Arrhenius/WLF slope); applied to the Zener element and the springpot.
 //! - `channel-delay`: the force channel lags the displacement channel by `tau`.
 //! - `moving-mass`: `m z''` added to the force (mass between load cell and sample).
+//! - `load-train-resonance`: the load cell reads the element force through the load
+//!   train's own mode (fixture, load cell, frame): `F_meas = H F`,
+//!   `H = w_n^2 / (s^2 + 2 zeta w_n s + w_n^2)` (a bilinear-transform filter in time).
+//! - `specimen-drift`: the specimen's moduli change with a clock (test order, time or the
+//!   energy it has dissipated): factor `1 + rate x (clock - clock at the reference
+//!   instant)` on `k1`, `k2`, `c2`; the element parameters describe the reference instant.
+//! - `self-heating`: the power the element dissipates heats it (`model::thermal`), and
+//!   its temperature rise drives the temperature law (`temperature-shift`'s, else a stated
+//!   default); offline the rise of each test comes from the campaign's schedule, in the
+//!   stepper it is integrated step by step (Maxwell dashpots' power) and the element
+//!   retuned whenever it has moved by `RETUNE_STEP_K`.
+//! - `cyclic-softening` (the Mullins effect): the element's force is `eta F_v`, `F_v` the
+//!   virgin element's, `eta = 1 - d tanh((M - F_v) / F_s)` with `M` the largest virgin
+//!   force reached so far (an Ogden-Roxburgh-like damage of stress, in force): on the
+//!   primary curve (`F_v = M`) nothing changes; below the largest load reached the element
+//!   is softer, more so the further below; a new maximum moves `M` up for good.
 //!
-//! Channel delay and moving mass are artefacts of how a rig *measures* the element, not
+//! Channel delay, moving mass and the load-train resonance are artefacts of how a rig *measures* the element, not
 //! properties of the elastomer. `StepperMode::Emulation` (what the HIL emulator runs)
 //! leaves them out, so the emulated element force is the elastomer's own;
 //! `StepperMode::Measurement` includes them, to simulate what a lab rig would record.
@@ -40,14 +56,65 @@ use super::file::{render_model_toml, ModelFileError, ModelSpec};
 use super::params::ElementModel;
 
 /// The effect vocabulary of SPEC 5, in the order the library tries them.
-pub const EFFECT_NAMES: [&str; 6] = [
+pub const EFFECT_NAMES: [&str; 10] = [
     "preload-stiffening",
     "amplitude-friction",
     "fractional-damping",
     "temperature-shift",
     "channel-delay",
     "moving-mass",
+    "load-train-resonance",
+    "specimen-drift",
+    "self-heating",
+    "cyclic-softening",
 ];
+
+/// What a `specimen-drift` runs on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum DriftClock {
+    /// Tests run so far (campaign order), per test.
+    TestOrder,
+    /// Clock time since the reference instant (`started_at`), per hour.
+    Time,
+    /// Energy the specimen dissipated since the reference instant, per kJ.
+    DissipatedEnergy,
+}
+
+impl DriftClock {
+    pub const ALL: [DriftClock; 3] = [
+        DriftClock::TestOrder,
+        DriftClock::Time,
+        DriftClock::DissipatedEnergy,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            DriftClock::TestOrder => "test-order",
+            DriftClock::Time => "time",
+            DriftClock::DissipatedEnergy => "dissipated-energy",
+        }
+    }
+
+    /// Unit of the clock (the rate is per this unit).
+    pub fn unit(self) -> &'static str {
+        match self {
+            DriftClock::TestOrder => "test",
+            DriftClock::Time => "h",
+            DriftClock::DissipatedEnergy => "kJ",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<DriftClock> {
+        DriftClock::ALL.into_iter().find(|c| c.name() == name)
+    }
+}
+
+/// Largest relative change of the moduli a `specimen-drift` may describe over a campaign
+/// (conditioning and ageing of an elastomer pad change it by a few per cent to tens).
+pub const DRIFT_FACTOR_FLOOR: f64 = 0.05;
+
+/// Temperature change after which a self-heating stepper retunes its element, K.
+pub const RETUNE_STEP_K: f64 = 0.01;
 
 /// The friction element's law and its shape parameter.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -103,6 +170,35 @@ pub enum Effect {
     MovingMass {
         mass_kg: f64,
     },
+    LoadTrainResonance {
+        natural_frequency_hz: f64,
+        damping_ratio: f64,
+    },
+    SpecimenDrift {
+        clock: DriftClock,
+        /// Relative change of the moduli per unit of the clock.
+        rate_per_unit: f64,
+        /// Its standard error (from the fit; 0 when stated by hand).
+        rate_standard_error: f64,
+        /// Clock value of the state modelled, relative to the reference instant (0: the
+        /// element as it was at the reference instant).
+        clock_position: f64,
+    },
+    SelfHeating {
+        heat_capacity_j_per_k: f64,
+        heat_transfer_w_per_k: f64,
+        /// Rise above the ambient (the operating temperature) of the state modelled, K.
+        temperature_rise_k: f64,
+    },
+    CyclicSoftening {
+        /// `d`: the largest relative softening, far below the largest load, 0..1.
+        softening_limit: f64,
+        /// `F_s`: the force scale over which the softening sets in below it, N.
+        force_scale_n: f64,
+        /// `M`: the largest virgin force the specimen has carried in the state modelled,
+        /// N (0: a virgin specimen).
+        max_force_n: f64,
+    },
 }
 
 impl Effect {
@@ -114,6 +210,10 @@ impl Effect {
             Effect::TemperatureShift { .. } => EFFECT_NAMES[3],
             Effect::ChannelDelay { .. } => EFFECT_NAMES[4],
             Effect::MovingMass { .. } => EFFECT_NAMES[5],
+            Effect::LoadTrainResonance { .. } => EFFECT_NAMES[6],
+            Effect::SpecimenDrift { .. } => EFFECT_NAMES[7],
+            Effect::SelfHeating { .. } => EFFECT_NAMES[8],
+            Effect::CyclicSoftening { .. } => EFFECT_NAMES[9],
         }
     }
 
@@ -156,6 +256,49 @@ impl Effect {
             ],
             Effect::ChannelDelay { force_lag_s } => vec![("force_lag_s", force_lag_s)],
             Effect::MovingMass { mass_kg } => vec![("mass_kg", mass_kg)],
+            Effect::LoadTrainResonance {
+                natural_frequency_hz,
+                damping_ratio,
+            } => vec![
+                ("natural_frequency_hz", natural_frequency_hz),
+                ("damping_ratio", damping_ratio),
+            ],
+            Effect::SpecimenDrift {
+                rate_per_unit,
+                rate_standard_error,
+                clock_position,
+                ..
+            } => vec![
+                ("rate_per_unit", rate_per_unit),
+                ("rate_standard_error", rate_standard_error),
+                ("clock_position", clock_position),
+            ],
+            Effect::SelfHeating {
+                heat_capacity_j_per_k,
+                heat_transfer_w_per_k,
+                temperature_rise_k,
+            } => vec![
+                ("heat_capacity_j_per_k", heat_capacity_j_per_k),
+                ("heat_transfer_w_per_k", heat_transfer_w_per_k),
+                ("temperature_rise_k", temperature_rise_k),
+            ],
+            Effect::CyclicSoftening {
+                softening_limit,
+                force_scale_n,
+                max_force_n,
+            } => vec![
+                ("softening_limit", softening_limit),
+                ("force_scale_n", force_scale_n),
+                ("max_force_n", max_force_n),
+            ],
+        }
+    }
+
+    /// The effect's text-valued keys in a model file.
+    pub fn file_strings(&self) -> Vec<(&'static str, &'static str)> {
+        match *self {
+            Effect::SpecimenDrift { clock, .. } => vec![("clock", clock.name())],
+            _ => Vec::new(),
         }
     }
 }
@@ -220,6 +363,19 @@ fn parse_effect(
         ],
         "channel-delay" => &["force_lag_s"],
         "moving-mass" => &["mass_kg"],
+        "load-train-resonance" => &["natural_frequency_hz", "damping_ratio"],
+        "specimen-drift" => &[
+            "clock",
+            "rate_per_unit",
+            "rate_standard_error",
+            "clock_position",
+        ],
+        "self-heating" => &[
+            "heat_capacity_j_per_k",
+            "heat_transfer_w_per_k",
+            "temperature_rise_k",
+        ],
+        "cyclic-softening" => &["softening_limit", "force_scale_n", "max_force_n"],
         other => {
             return Err(err(format!(
                 "key `name` = \"{other}\": expected one of {}",
@@ -318,6 +474,76 @@ fn parse_effect(
         "channel-delay" => Effect::ChannelDelay {
             force_lag_s: number("force_lag_s")?,
         },
+        "load-train-resonance" => {
+            let damping_ratio = positive("damping_ratio")?;
+            Effect::LoadTrainResonance {
+                natural_frequency_hz: positive("natural_frequency_hz")?,
+                damping_ratio,
+            }
+        }
+        "specimen-drift" => {
+            let clock = match table.get("clock") {
+                Some(toml::Value::String(c)) => DriftClock::from_name(c).ok_or_else(|| {
+                    err(format!(
+                        "key `clock` = \"{c}\": expected one of test-order, time, dissipated-energy"
+                    ))
+                })?,
+                Some(other) => {
+                    return Err(err(format!("key `clock` = {other}: expected a string")))
+                }
+                None => {
+                    return Err(err(
+                        "missing key `clock` (required for effect \"specimen-drift\"): one of test-order, time, dissipated-energy".into(),
+                    ))
+                }
+            };
+            let effect = Effect::SpecimenDrift {
+                clock,
+                rate_per_unit: number("rate_per_unit")?,
+                rate_standard_error: if table.contains_key("rate_standard_error") {
+                    number("rate_standard_error")?
+                } else {
+                    0.0
+                },
+                clock_position: if table.contains_key("clock_position") {
+                    number("clock_position")?
+                } else {
+                    0.0
+                },
+            };
+            if drift_factor(&effect) <= DRIFT_FACTOR_FLOOR {
+                return Err(err(format!(
+                    "rate_per_unit x clock_position leaves a modulus factor below {DRIFT_FACTOR_FLOOR}"
+                )));
+            }
+            effect
+        }
+        "self-heating" => Effect::SelfHeating {
+            heat_capacity_j_per_k: positive("heat_capacity_j_per_k")?,
+            heat_transfer_w_per_k: positive("heat_transfer_w_per_k")?,
+            temperature_rise_k: if table.contains_key("temperature_rise_k") {
+                number("temperature_rise_k")?
+            } else {
+                0.0
+            },
+        },
+        "cyclic-softening" => {
+            let softening_limit = number("softening_limit")?;
+            if !(0.0..1.0).contains(&softening_limit) {
+                return Err(err(format!(
+                    "key `softening_limit` = {softening_limit}: must be in [0, 1)"
+                )));
+            }
+            Effect::CyclicSoftening {
+                softening_limit,
+                force_scale_n: positive("force_scale_n")?,
+                max_force_n: if table.contains_key("max_force_n") {
+                    number("max_force_n")?
+                } else {
+                    0.0
+                },
+            }
+        }
         _ => Effect::MovingMass {
             mass_kg: number("mass_kg")?,
         },
@@ -369,23 +595,50 @@ impl AugmentedModel {
         out
     }
 
-    /// Modulus factor `b_T` and time factor `a_T` at the operating temperature.
+    /// Modulus factor `b_T` and time factor `a_T` at the operating temperature plus the
+    /// self-heating rise.
     pub fn temperature_factors(&self) -> (f64, f64) {
+        let rise_k = self.temperature_rise_k();
+        let (dt_c, m, s) = self.temperature_law(rise_k);
+        ((-m * dt_c).exp(), 10f64.powf(-s * dt_c))
+    }
+
+    /// Self-heating rise of the state modelled, K (0 without `self-heating`).
+    pub fn temperature_rise_k(&self) -> f64 {
+        match self.find("self-heating") {
+            Some(&Effect::SelfHeating {
+                temperature_rise_k, ..
+            }) => temperature_rise_k,
+            _ => 0.0,
+        }
+    }
+
+    /// Temperature difference from the law's reference, and the law's modulus and time
+    /// slopes: `temperature-shift`'s, else (self-heating alone) the stated default law.
+    pub fn temperature_law(&self, rise_k: f64) -> (f64, f64, f64) {
         match self.find("temperature-shift") {
             Some(&Effect::TemperatureShift {
                 reference_temperature_c,
                 operating_temperature_c,
                 log10_time_shift_per_c,
                 ln_modulus_shift_per_c,
-            }) => {
-                let dt_c = operating_temperature_c - reference_temperature_c;
-                (
-                    (-ln_modulus_shift_per_c * dt_c).exp(),
-                    10f64.powf(-log10_time_shift_per_c * dt_c),
-                )
-            }
-            _ => (1.0, 1.0),
+            }) => (
+                operating_temperature_c - reference_temperature_c + rise_k,
+                ln_modulus_shift_per_c,
+                log10_time_shift_per_c,
+            ),
+            _ if self.find("self-heating").is_some() => (
+                rise_k,
+                super::thermal::DEFAULT_LN_MODULUS_SHIFT_PER_C,
+                super::thermal::DEFAULT_LOG10_TIME_SHIFT_PER_C,
+            ),
+            _ => (0.0, 0.0, 0.0),
         }
+    }
+
+    /// The modulus factor of `specimen-drift` at its clock position (1 without it).
+    pub fn drift_factor(&self) -> f64 {
+        self.find("specimen-drift").map_or(1.0, drift_factor)
     }
 
     /// The element with preload-stiffening and temperature-shift folded into its parameters.
@@ -400,15 +653,17 @@ impl AugmentedModel {
                     p.chi = chi;
                     p.p0_n = p0_n;
                 }
-                p.k1_0_n_per_m *= modulus_factor;
-                p.k2_0_n_per_m *= modulus_factor;
-                p.c2_0_ns_per_m *= modulus_factor * time_factor;
+                let drift = self.drift_factor();
+                p.k1_0_n_per_m *= modulus_factor * drift;
+                p.k2_0_n_per_m *= modulus_factor * drift;
+                p.c2_0_ns_per_m *= modulus_factor * time_factor * drift;
                 // P0 is a force scale: with softer moduli the same preload strains more,
                 // but the paper's Eq. 1 is in force, so it stays.
             }
             ElementModel::KelvinVoigt(p) => {
-                p.k_n_per_m *= modulus_factor;
-                p.c_ns_per_m *= modulus_factor * time_factor;
+                let drift = self.drift_factor();
+                p.k_n_per_m *= modulus_factor * drift;
+                p.c_ns_per_m *= modulus_factor * time_factor * drift;
             }
         }
         element
@@ -419,8 +674,64 @@ impl AugmentedModel {
         let mut out = render_model_toml(&self.element, self.length_m, header);
         for effect in &self.effects {
             out.push_str(&format!("\n[[effect]]\nname = \"{}\"\n", effect.name()));
+            for (key, value) in effect.file_strings() {
+                out.push_str(&format!("{key} = \"{value}\"\n"));
+            }
             for (key, value) in effect.file_params(self.length_m) {
                 out.push_str(&format!("{key} = {value:?}\n"));
+            }
+        }
+        out
+    }
+}
+
+/// The rig artefacts of a model, applied to force spectra: `F_meas(w) = e^{-i w tau}
+/// H(i w) (F(w) - m w^2 Z(w))` (channel delay, load-train resonance, moving mass).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct RigArtefacts {
+    pub mass_kg: f64,
+    pub lag_s: f64,
+    /// Natural frequency (Hz) and damping ratio of the load train.
+    pub resonance: Option<(f64, f64)>,
+}
+
+impl RigArtefacts {
+    pub fn is_none(&self) -> bool {
+        self.mass_kg == 0.0 && self.lag_s == 0.0 && self.resonance.is_none()
+    }
+
+    /// The measured force component at `w` rad/s for the element's `force` and the
+    /// displacement `z` there (complex amplitudes as (re, im)).
+    pub fn measured(&self, w: f64, force: (f64, f64), z: (f64, f64)) -> (f64, f64) {
+        let mut f = (
+            force.0 - self.mass_kg * w * w * z.0,
+            force.1 - self.mass_kg * w * w * z.1,
+        );
+        if let Some((fn_hz, zeta)) = self.resonance {
+            let h = load_train_transfer(fn_hz, zeta, w);
+            f = (f.0 * h.0 - f.1 * h.1, f.0 * h.1 + f.1 * h.0);
+        }
+        if self.lag_s != 0.0 {
+            let (s, c) = (-w * self.lag_s).sin_cos();
+            f = (f.0 * c - f.1 * s, f.0 * s + f.1 * c);
+        }
+        f
+    }
+}
+
+impl AugmentedModel {
+    /// The model's rig artefacts.
+    pub fn rig_artefacts(&self) -> RigArtefacts {
+        let mut out = RigArtefacts::default();
+        for effect in &self.effects {
+            match *effect {
+                Effect::MovingMass { mass_kg } => out.mass_kg = mass_kg,
+                Effect::ChannelDelay { force_lag_s } => out.lag_s = force_lag_s,
+                Effect::LoadTrainResonance {
+                    natural_frequency_hz,
+                    damping_ratio,
+                } => out.resonance = Some((natural_frequency_hz, damping_ratio)),
+                _ => {}
             }
         }
         out
@@ -496,6 +807,8 @@ struct BankState {
     /// `k_j phi1(r_j dt)`: branch force per unit displacement increment over a step.
     gain: [f64; SPRINGPOT_BRANCHES],
     force_n: [f64; SPRINGPOT_BRANCHES],
+    /// `1 / c_j = r_j / k_j`: a branch dissipates `F_j^2 / c_j`.
+    inverse_damping: [f64; SPRINGPOT_BRANCHES],
     low_tail_stiffness_n_per_m: f64,
     high_tail_damping_ns_per_m: f64,
 }
@@ -561,29 +874,55 @@ pub struct DahlElement {
     pub slip_force_n: f64,
     pub exponent: f64,
     pub force_n: f64,
+    /// `u^(1-n)` after the last step, the direction it was taken in and the force it
+    /// gave: while the direction holds, the next step needs no power to recover it.
+    carried: (f64, f64, f64),
 }
 
 impl DahlElement {
+    pub fn new(stiffness_n_per_m: f64, slip_force_n: f64, exponent: f64) -> DahlElement {
+        DahlElement {
+            stiffness_n_per_m,
+            slip_force_n,
+            exponent,
+            force_n: 0.0,
+            carried: (0.0, 0.0, f64::NAN),
+        }
+    }
+
     #[inline]
     pub fn step(&mut self, dz_m: f64) -> f64 {
         if dz_m == 0.0 || self.slip_force_n <= 0.0 {
             return self.force_n;
         }
         let sign = dz_m.signum();
-        let u0 = (1.0 - sign * self.force_n / self.slip_force_n).max(0.0);
         let x = self.stiffness_n_per_m * dz_m.abs() / self.slip_force_n;
         let n = self.exponent;
         let u = if n == 1.0 {
+            let u0 = (1.0 - sign * self.force_n / self.slip_force_n).max(0.0);
             u0 * (-x).exp()
-        } else if n > 1.0 {
-            // u0 = 0 stays 0: 0^(1-n) = inf, inf^(1/(1-n)) = 0.
-            (u0.powf(1.0 - n) + (n - 1.0) * x).powf(1.0 / (1.0 - n))
         } else {
-            (u0.powf(1.0 - n) - (1.0 - n) * x)
-                .max(0.0)
-                .powf(1.0 / (1.0 - n))
+            let (v_last, sign_last, force_last) = self.carried;
+            let v0 = if sign == sign_last && self.force_n == force_last {
+                v_last
+            } else {
+                // u0 = 0 with n > 1: 0^(1-n) = inf, and inf^(1/(1-n)) = 0 stays 0.
+                (1.0 - sign * self.force_n / self.slip_force_n)
+                    .max(0.0)
+                    .powf(1.0 - n)
+            };
+            let v = if n > 1.0 {
+                v0 + (n - 1.0) * x
+            } else {
+                (v0 - (1.0 - n) * x).max(0.0)
+            };
+            self.carried = (v, sign, f64::NAN);
+            v.powf(1.0 / (1.0 - n))
         };
         self.force_n = sign * self.slip_force_n * (1.0 - u);
+        if n != 1.0 {
+            self.carried.2 = self.force_n;
+        }
         self.force_n
     }
 }
@@ -603,12 +942,9 @@ impl FrictionElement {
                 slip_force_n,
                 slip_spread,
             )),
-            FrictionLaw::Dahl { exponent } => FrictionElement::Dahl(DahlElement {
-                stiffness_n_per_m,
-                slip_force_n,
-                exponent,
-                force_n: 0.0,
-            }),
+            FrictionLaw::Dahl { exponent } => {
+                FrictionElement::Dahl(DahlElement::new(stiffness_n_per_m, slip_force_n, exponent))
+            }
         }
     }
 
@@ -633,6 +969,138 @@ impl FrictionElement {
             FrictionElement::Iwan(e) => e.forces_n = [0.0; IWAN_ELEMENTS],
             FrictionElement::Dahl(e) => e.force_n = 0.0,
         }
+    }
+}
+
+/// The modulus factor a `specimen-drift` gives at its clock position (floored).
+pub fn drift_factor(effect: &Effect) -> f64 {
+    match *effect {
+        Effect::SpecimenDrift {
+            rate_per_unit,
+            clock_position,
+            ..
+        } => (1.0 + rate_per_unit * clock_position).max(DRIFT_FACTOR_FLOOR),
+        _ => 1.0,
+    }
+}
+
+/// Load-train transfer `H(i w) = 1 / (1 - r^2 + 2 i zeta r)`, `r = w / w_n`.
+pub fn load_train_transfer(natural_frequency_hz: f64, damping_ratio: f64, w: f64) -> (f64, f64) {
+    let r = w / (2.0 * std::f64::consts::PI * natural_frequency_hz);
+    let (re, im) = (1.0 - r * r, 2.0 * damping_ratio * r);
+    let den = re * re + im * im;
+    (re / den.max(1e-300), -im / den.max(1e-300))
+}
+
+/// Second-order section (bilinear transform, prewarped at the natural frequency) of the
+/// load-train resonance, in measurement mode.
+#[derive(Debug, Clone, Copy)]
+struct ResonanceFilter {
+    b: [f64; 3],
+    a: [f64; 2],
+    x: [f64; 2],
+    y: [f64; 2],
+}
+
+impl ResonanceFilter {
+    /// `None` when the resonance is too close to or above the step's Nyquist frequency to
+    /// be represented (it then plays no part in what the step can resolve).
+    fn new(natural_frequency_hz: f64, damping_ratio: f64, dt_s: f64) -> Option<ResonanceFilter> {
+        let w = 2.0 * std::f64::consts::PI * natural_frequency_hz;
+        if w * dt_s >= 2.5 {
+            return None;
+        }
+        let k = w / (0.5 * w * dt_s).tan();
+        let a0 = k * k + 2.0 * damping_ratio * w * k + w * w;
+        Some(ResonanceFilter {
+            b: [w * w / a0, 2.0 * w * w / a0, w * w / a0],
+            a: [
+                2.0 * (w * w - k * k) / a0,
+                (k * k - 2.0 * damping_ratio * w * k + w * w) / a0,
+            ],
+            x: [0.0; 2],
+            y: [0.0; 2],
+        })
+    }
+
+    fn fill(&mut self, force_n: f64) {
+        self.x = [force_n; 2];
+        self.y = [force_n; 2];
+    }
+
+    #[inline]
+    fn step(&mut self, x: f64) -> f64 {
+        let y = self.b[0] * x + self.b[1] * self.x[0] + self.b[2] * self.x[1]
+            - self.a[0] * self.y[0]
+            - self.a[1] * self.y[1];
+        self.x = [x, self.x[0]];
+        self.y = [y, self.y[0]];
+        y
+    }
+}
+
+/// Mullins state of a stepper: the law's constants and the largest virgin force so far.
+#[derive(Debug, Clone, Copy)]
+struct SofteningState {
+    limit: f64,
+    scale_n: f64,
+    max_force_n: f64,
+}
+
+impl SofteningState {
+    /// `eta` and `d eta / d F_v` at virgin force `f`, after raising the maximum to it.
+    #[inline]
+    fn factor(&mut self, f: f64) -> (f64, f64) {
+        if f > self.max_force_n {
+            self.max_force_n = f;
+        }
+        self.eval(f)
+    }
+
+    /// `eta` and `d eta / d F_v` at virgin force `f` (at most the maximum).
+    #[inline]
+    fn eval(&self, f: f64) -> (f64, f64) {
+        let t = ((self.max_force_n - f).max(0.0) / self.scale_n).tanh();
+        (
+            1.0 - self.limit * t,
+            self.limit * (1.0 - t * t) / self.scale_n,
+        )
+    }
+}
+
+/// Self-heating state of a stepper: the thermal state, the element at the rise it was
+/// built for, the temperature law's slopes and the rise the element is tuned to.
+#[derive(Debug, Clone, Copy)]
+struct SelfHeatingRuntime {
+    state: super::thermal::ThermalState,
+    base_element: ElementModel,
+    base_rise_k: f64,
+    tuned_rise_k: f64,
+    ln_modulus_shift_per_c: f64,
+    log10_time_shift_per_c: f64,
+    /// False offline (a campaign's schedule sets the rise per test).
+    dynamic: bool,
+}
+
+impl SelfHeatingRuntime {
+    /// The element at `rise_k` (relative factors from the base element's rise).
+    fn element_at(&self, rise_k: f64) -> ElementModel {
+        let d = rise_k - self.base_rise_k;
+        let modulus = (-self.ln_modulus_shift_per_c * d).exp();
+        let time = 10f64.powf(-self.log10_time_shift_per_c * d);
+        let mut element = self.base_element;
+        match &mut element {
+            ElementModel::Consistent(p) | ElementModel::Paper(p) => {
+                p.k1_0_n_per_m *= modulus;
+                p.k2_0_n_per_m *= modulus;
+                p.c2_0_ns_per_m *= modulus * time;
+            }
+            ElementModel::KelvinVoigt(p) => {
+                p.k_n_per_m *= modulus;
+                p.c_ns_per_m *= modulus * time;
+            }
+        }
+        element
     }
 }
 
@@ -725,6 +1193,10 @@ pub struct ModelStepper {
     /// bank) add to the local law at that frequency.
     law_effects_n_per_m: f64,
     law_effects_ns_per_m: f64,
+    /// Load-train resonance (measurement mode only).
+    resonance: Option<ResonanceFilter>,
+    self_heating: Option<SelfHeatingRuntime>,
+    softening: Option<SofteningState>,
 }
 
 impl ModelStepper {
@@ -736,6 +1208,9 @@ impl ModelStepper {
         let mut bank = None;
         let mut mass_kg = 0.0;
         let mut lag_s = 0.0;
+        let mut resonance = None;
+        let mut self_heating = None;
+        let mut softening = None;
         for effect in &model.effects {
             match *effect {
                 Effect::AmplitudeFriction {
@@ -758,6 +1233,7 @@ impl ModelStepper {
                         decay: [0.0; SPRINGPOT_BRANCHES],
                         gain: [0.0; SPRINGPOT_BRANCHES],
                         force_n: [0.0; SPRINGPOT_BRANCHES],
+                        inverse_damping: [0.0; SPRINGPOT_BRANCHES],
                         low_tail_stiffness_n_per_m: springpot.low_tail_stiffness_n_per_m,
                         high_tail_damping_ns_per_m: springpot.high_tail_damping_ns_per_m,
                     };
@@ -765,6 +1241,8 @@ impl ModelStepper {
                         let x = springpot.rates_per_s[j] * dt_s;
                         state.decay[j] = (-x).exp();
                         state.gain[j] = springpot.stiffnesses_n_per_m[j] * phi_functions(x).0;
+                        state.inverse_damping[j] =
+                            springpot.rates_per_s[j] / springpot.stiffnesses_n_per_m[j].max(1e-300);
                     }
                     bank = Some(state);
                 }
@@ -773,6 +1251,44 @@ impl ModelStepper {
                 }
                 Effect::ChannelDelay { force_lag_s } if mode == StepperMode::Measurement => {
                     lag_s = force_lag_s
+                }
+                Effect::LoadTrainResonance {
+                    natural_frequency_hz,
+                    damping_ratio,
+                } if mode == StepperMode::Measurement => {
+                    resonance = ResonanceFilter::new(natural_frequency_hz, damping_ratio, dt_s)
+                }
+                Effect::SelfHeating {
+                    heat_capacity_j_per_k,
+                    heat_transfer_w_per_k,
+                    temperature_rise_k,
+                } => {
+                    let (_, m, s) = model.temperature_law(temperature_rise_k);
+                    self_heating = Some(SelfHeatingRuntime {
+                        state: super::thermal::ThermalState::new(
+                            heat_capacity_j_per_k,
+                            heat_transfer_w_per_k,
+                            dt_s,
+                            temperature_rise_k,
+                        ),
+                        base_element: model.effective_element(),
+                        base_rise_k: temperature_rise_k,
+                        tuned_rise_k: temperature_rise_k,
+                        ln_modulus_shift_per_c: m,
+                        log10_time_shift_per_c: s,
+                        dynamic: true,
+                    })
+                }
+                Effect::CyclicSoftening {
+                    softening_limit,
+                    force_scale_n,
+                    max_force_n,
+                } => {
+                    softening = Some(SofteningState {
+                        limit: softening_limit,
+                        scale_n: force_scale_n.max(1e-9),
+                        max_force_n,
+                    })
                 }
                 _ => {}
             }
@@ -798,11 +1314,50 @@ impl ModelStepper {
             law_omega_rad_per_s: 0.0,
             law_effects_n_per_m: 0.0,
             law_effects_ns_per_m: 0.0,
+            resonance,
+            self_heating,
+            softening,
         };
         let f0 = stepper.undelayed_force_n(z0_m);
         stepper.delay_line.fill(f0);
+        if let Some(filter) = &mut stepper.resonance {
+            filter.fill(f0);
+        }
         stepper.force_n = f0;
         stepper
+    }
+
+    /// Holds the self-heating rise at the model's `temperature_rise_k` (offline, where a
+    /// campaign's schedule gives each test its rise).
+    pub fn with_frozen_temperature(mut self) -> ModelStepper {
+        if let Some(heating) = &mut self.self_heating {
+            heating.dynamic = false;
+        }
+        self
+    }
+
+    /// The largest virgin force the element has carried (`cyclic-softening`), N (0
+    /// without it).
+    pub fn max_force_n(&self) -> f64 {
+        self.softening.map_or(0.0, |s| s.max_force_n)
+    }
+
+    /// Self-heating rise of the element above its ambient now, K (0 without it).
+    pub fn temperature_rise_k(&self) -> f64 {
+        self.self_heating.map_or(0.0, |h| h.state.rise_k)
+    }
+
+    /// Power dissipated in the element's dashpots now (the Maxwell branch and the
+    /// springpot bank; friction's is not counted), W.
+    pub fn dissipated_power_w(&self, velocity_m_per_s: f64) -> f64 {
+        let mut power = self.base.dashpot_power_w(velocity_m_per_s);
+        if let Some(bank) = &self.bank {
+            for j in 0..SPRINGPOT_BRANCHES {
+                power += bank.force_n[j] * bank.force_n[j] * bank.inverse_damping[j];
+            }
+            power += bank.high_tail_damping_ns_per_m * velocity_m_per_s * velocity_m_per_s;
+        }
+        power
     }
 
     pub fn dt_s(&self) -> f64 {
@@ -866,11 +1421,21 @@ impl ModelStepper {
                 rate -= bank.rates_per_s[j] * bank.force_n[j];
             }
         }
-        let c = if eq.c_eq_ns_per_m.is_finite() {
+        let mut c = if eq.c_eq_ns_per_m.is_finite() {
             eq.c_eq_ns_per_m
         } else {
             0.0
         };
+        // Cyclic softening scales the element's force by eta(F_v): its stiffness by
+        // `eta + F_v d eta / d F_v`, its damping and relaxation by eta.
+        let mut k_eq = eq.k_eq_n_per_m;
+        if let Some(softening) = &self.softening {
+            let f = self.base.force_n();
+            let (eta, slope) = softening.eval(f);
+            k_eq *= eta + f * slope;
+            c *= eta;
+            rate *= eta;
+        }
         // d k_eq / dz = k_eq chi dFs/dz / (P0 + Fs) in the consistent form (g(Fs) scales
         // every coefficient and dFs/dz = k1 g); other forms: left at 0 (linear law).
         let slope = match self.base.model() {
@@ -886,7 +1451,7 @@ impl ModelStepper {
             force_n: self.force_n,
             displacement_m: z0,
             velocity_m_per_s: (z0 - z1) / self.dt_s,
-            stiffness_n_per_m: eq.k_eq_n_per_m + self.law_effects_n_per_m,
+            stiffness_n_per_m: k_eq + self.law_effects_n_per_m,
             damping_ns_per_m: c + self.law_effects_ns_per_m,
             force_rate_n_per_s: rate,
         }
@@ -908,6 +1473,9 @@ impl ModelStepper {
         let f0 = self.undelayed_force_n(z_m);
         self.delay_line.fill(f0);
         self.delay_head = 0;
+        if let Some(filter) = &mut self.resonance {
+            filter.fill(f0);
+        }
         self.force_n = f0;
     }
 
@@ -916,8 +1484,11 @@ impl ModelStepper {
         self.force_n
     }
 
-    fn undelayed_force_n(&self, z_m: f64) -> f64 {
+    fn undelayed_force_n(&mut self, z_m: f64) -> f64 {
         let mut force = self.base.force_n();
+        if let Some(softening) = &mut self.softening {
+            force *= softening.factor(force).0;
+        }
         if let Some(friction) = &self.friction {
             force += friction.force_n();
         }
@@ -931,10 +1502,24 @@ impl ModelStepper {
     /// Advances one step to displacement `z_m`; returns the force at the step's end.
     #[inline]
     pub fn step(&mut self, z_m: f64) -> (f64, StepFlags) {
+        self.step_with_static_force(z_m, None)
+    }
+
+    /// `step` with the element's static force given (see
+    /// `ForceStepper::step_with_static_force`): offline, for a periodic input.
+    #[inline]
+    pub fn step_with_static_force(
+        &mut self,
+        z_m: f64,
+        static_force: Option<(f64, bool)>,
+    ) -> (f64, StepFlags) {
         if !z_m.is_finite() {
             return (self.force_n, StepFlags::NONFINITE_INPUT);
         }
-        let (mut force, flags) = self.base.step(z_m);
+        let (mut force, flags) = self.base.step_with_static_force(z_m, static_force);
+        if let Some(softening) = &mut self.softening {
+            force *= softening.factor(force).0;
+        }
         let z_prev = self.z_history_m[0];
         let dz = z_m - z_prev;
         if let Some(friction) = &mut self.friction {
@@ -961,10 +1546,23 @@ impl ModelStepper {
         if self.mass_kg != 0.0 {
             force += self.mass_kg * self.acceleration_m_per_s2();
         }
+        if let Some(filter) = &mut self.resonance {
+            force = filter.step(force);
+        }
         if self.lag_steps != 0.0 {
             force = self.delay(force);
         }
         self.force_n = force;
+        if self.self_heating.is_some_and(|h| h.dynamic) {
+            let power = self.dissipated_power_w(dz / self.dt_s);
+            if let Some(heating) = &mut self.self_heating {
+                let rise = heating.state.step(power);
+                if (rise - heating.tuned_rise_k).abs() >= RETUNE_STEP_K {
+                    heating.tuned_rise_k = rise;
+                    self.base.retune(heating.element_at(rise));
+                }
+            }
+        }
         (force, flags)
     }
 

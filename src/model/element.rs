@@ -127,6 +127,48 @@ impl ForceStepper {
         };
     }
 
+    /// Replaces the element's parameters mid-run (self-heating: the same element at another
+    /// temperature) without a force jump from re-parameterisation: the elastic force is
+    /// re-evaluated at the current displacement and the Maxwell branch's force scaled with
+    /// its spring. No allocation; the form must stay the same.
+    pub fn retune(&mut self, model: ElementModel) {
+        let old_k2 = self.model.zener().map_or(1.0, |p| p.k2_0_n_per_m);
+        let rate = model.zener().map_or(0.0, |p| p.relaxation_rate_per_s());
+        let x = rate * self.dt_s;
+        let (phi1, phi2) = phi_functions(x);
+        self.decay = (-x).exp();
+        self.phi1 = phi1;
+        self.weight_0 = self.dt_s * phi1;
+        self.weight_1 = self.dt_s * phi2;
+        let z = self.z_prev_m;
+        match (&model, &mut self.state) {
+            (ElementModel::Consistent(p), State::Consistent { fs_n, fm_n }) => {
+                *fs_n = consistent_static_force(p, z).0;
+                *fm_n *= p.k2_0_n_per_m / old_k2.max(1e-300);
+            }
+            (ElementModel::Paper(p), State::Paper { force_n }) => {
+                *force_n *= p.k1_0_n_per_m / self.model.zener().map_or(1.0, |q| q.k1_0_n_per_m);
+            }
+            _ => {}
+        }
+        self.model = model;
+    }
+
+    /// Power dissipated in the element's dashpot now, W: `Fm^2 / c2` (consistent form,
+    /// `c2 = c2_0 g(Fs)`), `c v^2` (Kelvin-Voigt), 0 for the paper form (its Maxwell
+    /// branch is not a state of its own).
+    #[inline]
+    pub fn dashpot_power_w(&self, velocity_m_per_s: f64) -> f64 {
+        match (&self.model, self.state) {
+            (ElementModel::Consistent(p), State::Consistent { fs_n, fm_n }) => {
+                let c2 = p.c2_0_ns_per_m * p.preload_factor(fs_n);
+                fm_n * fm_n / c2.max(1e-300)
+            }
+            (ElementModel::KelvinVoigt(p), _) => p.c_ns_per_m * velocity_m_per_s * velocity_m_per_s,
+            _ => 0.0,
+        }
+    }
+
     /// Current element force, N.
     #[inline]
     pub fn force_n(&self) -> f64 {
@@ -171,6 +213,18 @@ impl ForceStepper {
     /// Advances one step to displacement `z_m`; returns the force at the step's end.
     #[inline]
     pub fn step(&mut self, z_m: f64) -> (f64, StepFlags) {
+        self.step_with_static_force(z_m, None)
+    }
+
+    /// `step`, with the consistent form's static force `Fs(z_m)` (and whether it was
+    /// clamped) given by the caller when it has it already (a periodic input evaluated
+    /// once per period); it must be `consistent_static_force(model, z_m)`.
+    #[inline]
+    pub fn step_with_static_force(
+        &mut self,
+        z_m: f64,
+        static_force: Option<(f64, bool)>,
+    ) -> (f64, StepFlags) {
         if !z_m.is_finite() {
             return (self.force_n(), StepFlags::NONFINITE_INPUT);
         }
@@ -179,7 +233,8 @@ impl ForceStepper {
         let mut flags = StepFlags::NONE;
         match (&self.model, &mut self.state) {
             (ElementModel::Consistent(p), State::Consistent { fs_n, fm_n }) => {
-                let (fs1, clamped) = consistent_static_force(p, z_m);
+                let (fs1, clamped) =
+                    static_force.unwrap_or_else(|| consistent_static_force(p, z_m));
                 if clamped {
                     flags |= StepFlags::TENSION_CLAMPED;
                 }

@@ -16,6 +16,7 @@ pub mod equiv;
 pub mod file;
 pub mod oscillator;
 pub mod params;
+pub mod thermal;
 
 pub use effects::{AugmentedModel, Effect, ModelStepper, StepperMode};
 pub use element::{ForceStepper, StepFlags};

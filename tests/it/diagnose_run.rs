@@ -267,3 +267,43 @@ fn a_directory_without_run_records_is_refused_with_its_name() {
     // The --out directory it made for the analysis is gone again.
     assert!(!dir.path.join("out").exists());
 }
+
+/// A run whose model heats itself (`self-heating`, a small, poorly cooled pad): the
+/// element's temperature rise is in the emulator's records, rises while the passage
+/// dissipates, and `diagnose --run` replays it and names no loop artefact.
+#[test]
+fn a_self_heating_element_warms_in_the_records_and_no_loop_artefact_is_named() {
+    let dir = TempDir::new("diagnose-run-heating");
+    let run_dir = dir.path.join("run");
+    let heating = "chi = 0.21\np0_n = 64e3\n\n[[model.effect]]\nname = \"self-heating\"\nheat_capacity_j_per_k = 1.0\nheat_transfer_w_per_k = 0.01\ntemperature_rise_k = 0.0\n";
+    let recorded = recorded_run_with(
+        &run_dir,
+        &[
+            ("chi = 0.21\np0_n = 64e3\n", heating),
+            ("adapt = true", "adapt = false"),
+        ],
+    );
+    let rises: Vec<f64> = recorded
+        .run
+        .emulator
+        .iter()
+        .map(|r| r.element_temperature_rise_k)
+        .collect();
+    let last = *rises.last().unwrap();
+    assert!(rises.iter().all(|r| r.is_finite() && *r >= 0.0));
+    // It warms: by the end of the run, and monotonically at the scale of a second (the
+    // time constant is 100 s: it barely cools).
+    assert!(last > 0.05, "rise at the end {last} K");
+    let per_second = (recorded.cfg.loop_.rate_hz) as usize;
+    for pair in rises.chunks(per_second).collect::<Vec<_>>().windows(2) {
+        assert!(pair[1][0] >= pair[0][0] - 1e-9, "cooled within a second");
+    }
+    let json = diagnose(&run_dir, &dir.path.join("diagnosis"));
+    assert!(effects(&json).is_empty(), "{json}");
+    let max = json["element_temperature_rise_k"]["max"]
+        .as_f64()
+        .expect("recorded rise");
+    assert!((max - rises.iter().copied().fold(0.0, f64::max)).abs() < 1e-9);
+    let report = std::fs::read_to_string(dir.path.join("diagnosis/report.md")).unwrap();
+    assert!(report.contains("Element temperature"), "{report}");
+}

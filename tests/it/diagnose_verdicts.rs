@@ -1,13 +1,14 @@
 //! Diagnose's honest verdicts (SPEC 5.1) on the project's generator: effects only passages
-//! reveal, truths outside the library (load-path resonance, a specimen that changed during
-//! the campaign, a load-cell nonlinearity), and null campaigns.
+//! reveal, what labs meet (a load-train resonance, a specimen that changed during the
+//! campaign, self-heating), a truth outside the library (a load-cell nonlinearity), and
+//! null campaigns.
 
 use std::path::PathBuf;
 
 use fastemu::ident::campaign::load_campaign;
 use fastemu::ident::diagnose::{diagnose, DiagnoseOptions, Diagnosis};
 use fastemu::ident::fit::{test_data, EffectKind};
-use fastemu::model::effects::AugmentedModel;
+use fastemu::model::effects::{AugmentedModel, DriftClock, Effect};
 use fastemu::model::file::parse_model_toml;
 
 use crate::gen::{
@@ -35,16 +36,29 @@ pub fn diagnose_case(
     noise: &Noise,
     seed: u64,
 ) -> Diagnosis {
-    let dir = scratch_dir(name);
-    write_campaign_full(
-        &dir,
+    diagnose_case_with(
+        name,
         truth,
         design,
         passages,
         noise,
         seed,
         &Acquisition::typical(),
-    );
+    )
+}
+
+/// `diagnose_case` with records of another length.
+pub fn diagnose_case_with(
+    name: &str,
+    truth: &Truth,
+    design: &[TestPoint],
+    passages: &[Passage],
+    noise: &Noise,
+    seed: u64,
+    acquisition: &Acquisition,
+) -> Diagnosis {
+    let dir = scratch_dir(name);
+    write_campaign_full(&dir, truth, design, passages, noise, seed, acquisition);
     let campaign = load_campaign(&dir).expect("campaign loads");
     let data = test_data(&campaign).expect("tests reduce");
     let spec = parse_model_toml(&off_baseline_toml(0.3), "baseline.toml").unwrap();
@@ -145,7 +159,8 @@ fn without_passages_the_same_friction_is_not_identifiable() {
 }
 
 #[test]
-fn load_path_resonance_is_unexplained_and_no_negative_mass_is_named() {
+fn a_load_train_resonance_is_named_with_its_mode_and_no_negative_mass() {
+    // The generator's resonance: Tustin filter of the force at its fine step, 70 Hz, 5 %.
     let truth = Truth {
         load_path_resonance: Some((70.0, 0.05)),
         ..Truth::paper_like()
@@ -158,18 +173,14 @@ fn load_path_resonance_is_unexplained_and_no_negative_mass_is_named() {
         &Noise::typical(),
         22,
     );
-    assert!(
-        !d.named.contains(&EffectKind::MovingMass),
-        "named {:?}",
-        names(&d)
-    );
-    for effect in &d.final_model.effects {
-        let kind = EffectKind::ALL
-            .into_iter()
-            .find(|k| k.name() == effect.name())
-            .unwrap();
-        assert!(kind.out_of_range(effect).is_none(), "{effect:?}");
-    }
+    assert_named_alone(&d, "load-train-resonance");
+    let params =
+        fastemu::ident::diagnose::effect_params(&d.final_model, EffectKind::LoadTrainResonance);
+    let value = |key: &str| params.iter().find(|(k, _)| *k == key).unwrap().1;
+    let (fn_hz, zeta) = (value("natural_frequency_hz"), value("damping_ratio"));
+    assert!((fn_hz - 70.0).abs() < 3.5, "natural frequency {fn_hz}");
+    assert!((0.025..0.1).contains(&zeta), "damping ratio {zeta}");
+    // What a moving mass would need is still reported: a negative mass.
     let mass = d
         .rounds
         .iter()
@@ -177,42 +188,153 @@ fn load_path_resonance_is_unexplained_and_no_negative_mass_is_named() {
         .find(|c| c.kind == EffectKind::MovingMass)
         .expect("moving-mass was tried");
     let o = mass.out_of_range.expect("the mass fits only negative");
-    assert!(
-        o.value < 0.0 && o.to_string().contains("outside its range"),
-        "{o}"
-    );
-    assert!(
-        d.verdict.unexplained.is_some(),
-        "the resonance is not in the library"
-    );
+    assert!(o.value < 0.0, "{o}");
 }
 
 #[test]
-fn a_specimen_that_softens_during_the_campaign_is_reported() {
+fn a_specimen_that_softens_during_the_campaign_is_named_as_a_drift_with_its_rate() {
     let truth = Truth {
         softening_over_campaign: 0.06,
         ..Truth::paper_like()
     };
-    let d = diagnose_case(
-        "softening",
+    let design = standard_design();
+    let d = diagnose_case("softening", &truth, &design, &[], &Noise::typical(), 23);
+    assert_named_alone(&d, "specimen-drift");
+    let Some(&Effect::SpecimenDrift {
+        clock,
+        rate_per_unit,
+        rate_standard_error,
+        clock_position,
+    }) = d.final_model.find("specimen-drift")
+    else {
+        panic!("no drift in {:?}", d.final_model.effects)
+    };
+    // No started_at: test order or dissipated energy; the generator's law is linear in
+    // the test index, 6 % from the first test to the last.
+    let change = rate_per_unit * (design.len() - 1) as f64;
+    assert_eq!(clock, DriftClock::TestOrder, "{clock:?}");
+    assert!(
+        (change + 0.06).abs() < 0.01,
+        "change over the campaign {change}"
+    );
+    assert!(rate_standard_error > 0.0 && rate_standard_error < 0.2 * rate_per_unit.abs());
+    assert_eq!(clock_position, 0.0, "the model describes the first test");
+}
+
+#[test]
+fn a_self_heating_specimen_is_named_with_a_physical_thermal_circuit() {
+    // 6 J/K on 0.05 W/K: a two-minute time constant; 60-cycle records with 10 s rests, so
+    // heat carries from test to test; moduli -1 %/K (the library's default law: -0.8 %/K,
+    // exponential; the generator has no relaxation-time shift either).
+    let truth = Truth {
+        self_heating: Some((6.0, 0.05, 0.01)),
+        rest_s: Some(10.0),
+        ..Truth::paper_like()
+    };
+    let dir_name = "self-heating";
+    let acquisition = long_records();
+    let d = diagnose_case_with(
+        dir_name,
         &truth,
         &standard_design(),
         &[],
         &Noise::typical(),
-        23,
+        24,
+        &acquisition,
     );
-    let u = d
-        .verdict
-        .unexplained
-        .as_ref()
-        .expect("unexplained residual");
-    assert!(d.verdict.specimen_changed(), "{:?}", d.verdict.trend);
-    assert!(u.where_[0].starts_with("test order"), "{:?}", u.where_);
-    let trend = d.verdict.trend.as_ref().unwrap();
+    assert_named_alone(&d, "self-heating");
+    let Some(&Effect::SelfHeating {
+        heat_capacity_j_per_k,
+        heat_transfer_w_per_k,
+        ..
+    }) = d.final_model.find("self-heating")
+    else {
+        panic!()
+    };
+    // The laws differ (linear vs exponential, no time shift in the truth): within 2x.
     assert!(
-        trend.change > 0.0,
-        "the model overestimates the late, softer tests"
+        (0.025..0.1).contains(&heat_transfer_w_per_k),
+        "h = {heat_transfer_w_per_k}"
     );
+    let tau = heat_capacity_j_per_k / heat_transfer_w_per_k;
+    assert!((40.0..400.0).contains(&tau), "tau = {tau}");
+}
+
+#[test]
+fn cyclic_softening_is_named_from_the_load_history_with_passages() {
+    // Mullins: up to 8 % softer well below the largest load, over 25 kN (the generator's
+    // law is exponential, the library's a tanh). The design raises the load preload by
+    // preload, then runs lower loads; the rising passages at the end raise it again.
+    let truth = Truth {
+        mullins: Some((0.08, 25e3)),
+        ..Truth::paper_like()
+    };
+    let d = diagnose_case(
+        "mullins",
+        &truth,
+        &standard_design(),
+        &Passage::rising(3),
+        &Noise::typical(),
+        27,
+    );
+    assert_named_alone(&d, "cyclic-softening");
+    let Some(&Effect::CyclicSoftening {
+        softening_limit,
+        force_scale_n,
+        max_force_n,
+    }) = d.final_model.find("cyclic-softening")
+    else {
+        panic!()
+    };
+    assert!(
+        (0.04..0.16).contains(&softening_limit),
+        "d = {softening_limit}"
+    );
+    assert!(
+        (10e3..60e3).contains(&force_scale_n),
+        "F_s = {force_scale_n}"
+    );
+    assert_eq!(max_force_n, 0.0, "the model describes the virgin specimen");
+}
+
+/// Two at once, new effects beside older ones: self-heating beside amplitude friction (both
+/// grow with amplitude; heat also with frequency and with the tests before) and a
+/// load-train resonance beside a temperature shift. (Beside a channel delay or a moving
+/// mass a resonance well above the test band is not separable: its phase is a delay's and
+/// its frequency-squared term a mass's to first order; see docs/diagnose.md.)
+#[test]
+fn self_heating_beside_friction_and_a_resonance_beside_a_temperature_shift_are_both_named() {
+    let acquisition = long_records();
+    let heating = Truth {
+        self_heating: Some((6.0, 0.05, 0.01)),
+        rest_s: Some(10.0),
+        friction: Some((20e6, 1.0e3)),
+        ..Truth::paper_like()
+    };
+    let d = diagnose_case_with(
+        "heating-friction",
+        &heating,
+        &standard_design(),
+        &[],
+        &Noise::typical(),
+        28,
+        &acquisition,
+    );
+    assert_named_set(&d, &["amplitude-friction", "self-heating"]);
+    let resonance = Truth {
+        load_path_resonance: Some((90.0, 0.04)),
+        wlf: Some((2.0, 80.0, 23.0, 0.005)),
+        ..Truth::paper_like()
+    };
+    let d = diagnose_case(
+        "resonance-temperature",
+        &resonance,
+        &standard_design(),
+        &[],
+        &Noise::typical(),
+        29,
+    );
+    assert_named_set(&d, &["load-train-resonance", "temperature-shift"]);
 }
 
 #[test]
@@ -253,8 +375,38 @@ fn a_load_cell_nonlinearity_is_not_passed_off_as_explained() {
 /// physics, not with the library's own ranges): no negative mass, stiffness, slip force
 /// or damping; exponents in (0, 1]; a delay of at most a few ms; relaxation that speeds
 /// up as the elastomer warms.
+/// `name` is the one effect named, with physical parameters, the gap at least 3x smaller
+/// and nothing left unexplained.
+fn assert_named_alone(d: &Diagnosis, name: &str) {
+    assert_named_set(d, &[name]);
+    assert!(d.verdict.unexplained.is_none());
+}
+
+/// Exactly the effects `expected` (sorted) are named, with physical parameters, and the gap
+/// is at least 3x smaller.
+fn assert_named_set(d: &Diagnosis, expected: &[&str]) {
+    let mut named = names(d);
+    named.sort();
+    assert_eq!(named, expected);
+    assert_physical(d);
+    assert!(
+        d.gap_before / d.gap_after >= 3.0,
+        "{} -> {}",
+        d.gap_before,
+        d.gap_after
+    );
+}
+
+/// Records long enough for a specimen to warm within them: 20 cycles below 2 Hz, 60 above.
+fn long_records() -> Acquisition {
+    Acquisition {
+        cycles_below_2_hz: 20,
+        cycles_above_2_hz: 60,
+        ..Acquisition::typical()
+    }
+}
+
 fn assert_physical(d: &Diagnosis) {
-    use fastemu::model::effects::Effect;
     for e in &d.final_model.effects {
         let ok = match *e {
             Effect::MovingMass { mass_kg } => mass_kg >= 0.0,
@@ -274,6 +426,34 @@ fn assert_physical(d: &Diagnosis) {
                 ..
             } => log10_time_shift_per_c >= 0.0,
             Effect::PreloadStiffening { chi, p0_n } => chi >= 0.0 && p0_n.is_finite(),
+            // Independent of the library's ranges: a load train's first mode above the test
+            // band's slowest tests and below 5 kHz, damped like a structure (< 30 %).
+            Effect::LoadTrainResonance {
+                natural_frequency_hz,
+                damping_ratio,
+            } => {
+                (10.0..=5000.0).contains(&natural_frequency_hz)
+                    && damping_ratio > 0.0
+                    && damping_ratio <= 0.3
+            }
+            Effect::SpecimenDrift { rate_per_unit, .. } => rate_per_unit.is_finite(),
+            // A pad's heat capacity (grams to a 100 kg block) and heat transfer (still air to
+            // water-cooled steel).
+            Effect::SelfHeating {
+                heat_capacity_j_per_k,
+                heat_transfer_w_per_k,
+                ..
+            } => {
+                (1.0..=1e6).contains(&heat_capacity_j_per_k)
+                    && (1e-3..=1e3).contains(&heat_transfer_w_per_k)
+            }
+            // Mullins softening of a filled elastomer: below 60 % far under its largest
+            // load, setting in over tens of newtons to a meganewton.
+            Effect::CyclicSoftening {
+                softening_limit,
+                force_scale_n,
+                ..
+            } => (0.0..=0.6).contains(&softening_limit) && (10.0..=1e6).contains(&force_scale_n),
         };
         assert!(ok, "unphysical {e:?}");
     }
@@ -295,13 +475,13 @@ fn null_campaigns_with_passages_name_nothing_and_leave_nothing_unexplained() {
 }
 
 /// The false-alarm rate of the verdicts on null campaigns (the library explains the truth:
-/// only the baseline's parameters are off): 24 campaigns, white noise alone, the typical
+/// only the baseline's parameters are off): 60 campaigns, white noise alone, the typical
 /// white + coloured + drifting noise, and loud coloured noise, half of them with passages.
 /// A false alarm is any named effect, an unexplained residual, or a changed specimen.
-/// Opt-in (`--ignored`): about four minutes on two cores.
+/// No alarm in 59 or more campaigns bounds the rate below 5 % at 95 % confidence
+/// (0.95^59 < 0.05). About 100 s on two cores (measured 98 s with another build running).
 #[test]
-#[ignore = "soak (minutes): cargo test --release --test it soak_ -- --ignored"]
-fn soak_false_alarm_rate_on_null_campaigns() {
+fn null_campaigns_false_alarm_rate_below_5_percent_at_95_percent_confidence() {
     let white = Noise {
         coloured_force: 0.0,
         drift_force: 0.0,
@@ -315,7 +495,7 @@ fn soak_false_alarm_rate_on_null_campaigns() {
         drift_force: 0.02,
     };
     let mut alarms = Vec::new();
-    let n = 24;
+    let n = 60;
     for k in 0..n {
         let (label, noise) = match k % 3 {
             0 => ("white", white),
@@ -342,8 +522,8 @@ fn soak_false_alarm_rate_on_null_campaigns() {
     }
     eprintln!("FALSE ALARMS {}/{n}: {alarms:?}", alarms.len());
     assert!(
-        alarms.len() as f64 <= 0.05 * n as f64,
-        "false alarms {}/{n}: {alarms:?}",
+        alarms.is_empty(),
+        "false alarms {}/{n}: {alarms:?} (none allowed for the 5 % bound at 95 %)",
         alarms.len()
     );
 }

@@ -41,6 +41,21 @@ fn every_effect() -> Vec<Effect> {
             force_lag_s: 3.3e-4,
         },
         Effect::MovingMass { mass_kg: 40.0 },
+        Effect::LoadTrainResonance {
+            natural_frequency_hz: 300.0,
+            damping_ratio: 0.05,
+        },
+        Effect::SpecimenDrift {
+            clock: fastemu::model::effects::DriftClock::TestOrder,
+            rate_per_unit: -1e-3,
+            rate_standard_error: 2e-4,
+            clock_position: 5.0,
+        },
+        Effect::SelfHeating {
+            heat_capacity_j_per_k: 50.0,
+            heat_transfer_w_per_k: 0.5,
+            temperature_rise_k: 1.5,
+        },
     ]
 }
 
@@ -424,12 +439,7 @@ fn the_dahl_element_follows_its_closed_form_for_any_step() {
             );
         }
     }
-    let mut e = DahlElement {
-        stiffness_n_per_m: k,
-        slip_force_n: fs,
-        exponent: 1.0,
-        force_n: 0.0,
-    };
+    let mut e = DahlElement::new(k, fs, 1.0);
     e.step(2e-4);
     let f0 = e.force_n;
     for _ in 0..50 {
@@ -472,5 +482,119 @@ fn the_dahl_element_follows_its_closed_form_for_any_step() {
     assert!(
         both.contains("m.toml") && both.contains("exactly one of"),
         "{both}"
+    );
+}
+
+/// `load-train-resonance` in measurement mode: the steady force through the load train at
+/// 60 Hz is the element's times `H = 1 / (1 - r^2 + 2 i zeta r)` (computed here, not by
+/// the library), in amplitude and phase, against emulation mode (which leaves it out).
+#[test]
+fn the_load_train_resonance_scales_the_measured_force_by_its_transfer_function() {
+    let mut model = model_with(Vec::new());
+    model.effects = vec![Effect::LoadTrainResonance {
+        natural_frequency_hz: 90.0,
+        damping_ratio: 0.05,
+    }];
+    let (f_hz, dt) = (60.0, 1e-5);
+    let n = (2.0 / dt) as usize;
+    let z = |i: usize| 8e-4 + 5e-5 * (2.0 * PI * f_hz * i as f64 * dt).sin();
+    let mut measured = ModelStepper::new(&model, StepperMode::Measurement, dt, z(0));
+    let mut element = ModelStepper::new(&model, StepperMode::Emulation, dt, z(0));
+    // Fundamental of the last whole second of each force (single-bin DFT).
+    let (mut m, mut e) = ((0.0, 0.0), (0.0, 0.0));
+    for i in 1..n {
+        let (fm, fe) = (measured.step(z(i)).0, element.step(z(i)).0);
+        if i >= n / 2 {
+            let phase = 2.0 * PI * f_hz * i as f64 * dt;
+            m = (m.0 + fm * phase.cos(), m.1 + fm * phase.sin());
+            e = (e.0 + fe * phase.cos(), e.1 + fe * phase.sin());
+        }
+    }
+    let ratio = m.0.hypot(m.1) / e.0.hypot(e.1);
+    let lag = (m.1.atan2(m.0) - e.1.atan2(e.0)).rem_euclid(2.0 * PI);
+    let r: f64 = f_hz / 90.0;
+    let expected_ratio = 1.0 / ((1.0 - r * r).powi(2) + (2.0 * 0.05 * r).powi(2)).sqrt();
+    let expected_lag = (2.0 * 0.05 * r).atan2(1.0 - r * r);
+    assert!(
+        (ratio / expected_ratio - 1.0).abs() < 2e-3,
+        "{ratio} vs {expected_ratio}"
+    );
+    assert!((lag - expected_lag).abs() < 2e-3, "{lag} vs {expected_lag}");
+}
+
+/// `self-heating` in the stepper: a long harmonic test warms the element to `P / h`, with
+/// `P = c_eq W^2 Z^2 / 2` from paper Eq. 2 (an independent calculation) for the element at
+/// that temperature (the default law softens it, which changes its loss a little): the
+/// stepper's steady rise is the fixed point.
+#[test]
+fn a_self_heating_element_warms_to_its_power_over_its_heat_transfer() {
+    use fastemu::model::equiv::equivalent;
+    use fastemu::model::params::consistent_static_force;
+    use fastemu::model::thermal::{DEFAULT_LN_MODULUS_SHIFT_PER_C, DEFAULT_LOG10_TIME_SHIFT_PER_C};
+    let mut model = model_with(Vec::new());
+    let (h, c) = (0.2, 2.0); // tau = 10 s, a few kelvin
+    model.effects = vec![Effect::SelfHeating {
+        heat_capacity_j_per_k: c,
+        heat_transfer_w_per_k: h,
+        temperature_rise_k: 0.0,
+    }];
+    let (f_hz, dt, amplitude_m) = (20.0, 1.0 / 4096.0, 1e-4);
+    let z_static = model.element.static_displacement_m(20e3);
+    let w = 2.0 * PI * f_hz;
+    let mut stepper = ModelStepper::new(&model, StepperMode::Emulation, dt, z_static);
+    let n = (100.0 / dt) as usize; // ten time constants
+    for i in 1..=n {
+        stepper.step(z_static + amplitude_m * (w * i as f64 * dt).sin());
+    }
+    let rise = stepper.temperature_rise_k();
+    let ElementModel::Consistent(mut p) = model.element else {
+        unreachable!()
+    };
+    let modulus = (-DEFAULT_LN_MODULUS_SHIFT_PER_C * rise).exp();
+    let time = 10f64.powf(-DEFAULT_LOG10_TIME_SHIFT_PER_C * rise);
+    p.k1_0_n_per_m *= modulus;
+    p.k2_0_n_per_m *= modulus;
+    p.c2_0_ns_per_m *= modulus * time;
+    let preload_n = consistent_static_force(&p, z_static).0;
+    let eq = equivalent(&ElementModel::Consistent(p), preload_n, w);
+    let power = 0.5 * eq.c_eq_ns_per_m * w * w * amplitude_m * amplitude_m;
+    assert!(rise > 1.0, "rise {rise} K");
+    assert!(
+        (rise / (power / h) - 1.0).abs() < 0.03,
+        "rise {rise} K vs P/h {} K",
+        power / h
+    );
+}
+
+/// A `specimen-drift` table round-trips through a model file, and its modulus factor at a
+/// clock position is `1 + rate x position`.
+#[test]
+fn a_specimen_drift_round_trips_and_scales_the_moduli() {
+    use fastemu::model::effects::DriftClock;
+    let mut model = model_with(Vec::new());
+    model.effects = vec![Effect::SpecimenDrift {
+        clock: DriftClock::DissipatedEnergy,
+        rate_per_unit: -2e-3,
+        rate_standard_error: 1e-4,
+        clock_position: 0.0,
+    }];
+    let text = model.render_toml("drift");
+    assert!(text.contains("clock = \"dissipated-energy\""), "{text}");
+    let spec = parse_model_toml(&text, "d.toml").unwrap();
+    let back = AugmentedModel::from_spec(&spec, "d.toml").unwrap();
+    assert_eq!(back.effects, model.effects);
+    let mut later = back.clone();
+    if let Effect::SpecimenDrift { clock_position, .. } = &mut later.effects[0] {
+        *clock_position = 10.0; // 10 kJ later: 2 % softer
+    }
+    let k = |m: &AugmentedModel| m.effective_element().zener().unwrap().k1_0_n_per_m;
+    assert!((k(&later) / k(&back) - 0.98).abs() < 1e-12);
+    let bad = text.replace("dissipated-energy", "sunspots");
+    let spec = parse_model_toml(&bad, "d.toml").unwrap();
+    let e = AugmentedModel::from_spec(&spec, "d.toml").unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("test-order, time, dissipated-energy"),
+        "{e}"
     );
 }

@@ -9,7 +9,12 @@
 //! - temperature follows WLF with a linear modulus factor (the library's law is
 //!   exponential-linear);
 //! - the channel delay is an exact time shift (interpolated on the fine grid) and the
-//!   moving mass uses the analytic `z''`.
+//!   moving mass uses the analytic `z''`;
+//! - self-heating: the power of each test is its noise-free record's `sum F dz` over its
+//!   duration, the specimen's temperature is integrated by explicit Euler (0.05 s) through
+//!   tests and rests, and the moduli fall linearly with it (the library's default law is
+//!   exponential and also shifts relaxation times); each test runs at its mid-record
+//!   temperature.
 //!
 //! Tests are "force-controlled style": the displacement is the harmonic that gives the
 //! nominal force amplitude on the truth's linearised modulus, with a small 2nd harmonic
@@ -75,6 +80,16 @@ pub struct Truth {
     pub softening_over_campaign: f64,
     /// Out of the library: a cubic load-cell nonlinearity, `F_meas = F - c F^3 / (100 kN)^2`.
     pub force_sensor_cubic: f64,
+    /// Self-heating: heat capacity (J/K), heat-transfer coefficient (W/K), linear modulus
+    /// slope (1/K, moduli times `1 - slope dT`).
+    pub self_heating: Option<(f64, f64, f64)>,
+    /// Rest between the end of a test and the start of the next, s: when given, every test
+    /// states `started_at`.
+    pub rest_s: Option<f64>,
+    /// Mullins softening (largest softening, force scale N): the recorded force times
+    /// `1 - d (1 - exp(-(M - F) / F_s))`, `M` the largest force so far in the campaign
+    /// (the library's law is a tanh and acts on the element's force alone).
+    pub mullins: Option<(f64, f64)>,
 }
 
 impl Truth {
@@ -96,6 +111,9 @@ impl Truth {
             load_path_resonance: None,
             softening_over_campaign: 0.0,
             force_sensor_cubic: 0.0,
+            self_heating: None,
+            rest_s: None,
+            mullins: None,
         }
     }
 
@@ -106,6 +124,14 @@ impl Truth {
             k2_0_n_per_m2: self.k2_0_n_per_m2 * factor,
             c2_0_ns_per_m2: self.c2_0_ns_per_m2 * factor,
             ..*self
+        }
+    }
+
+    /// The truth warmed by `rise_k` above its chamber (self-heating's linear law).
+    fn heated(&self, rise_k: f64) -> Truth {
+        match self.self_heating {
+            Some((_, _, slope)) if rise_k != 0.0 => self.scaled(1.0 - slope * rise_k),
+            _ => *self,
         }
     }
 
@@ -589,6 +615,33 @@ pub fn write_campaign_full(
     };
     let mut rng = Rng::new(seed);
     let mut toml = format!("sample_length_m = {:?}\n", truth.length_m);
+    // Campaign clock (s from the first start) and the specimen's temperature rise.
+    let mut clock_s = 0.0;
+    let mut rise_k = 0.0;
+    let mut largest_n = 0.0f64;
+    let mut soften = |f: &mut [f64]| {
+        if let Some((d, scale)) = truth.mullins {
+            for fi in f.iter_mut() {
+                largest_n = largest_n.max(*fi);
+                *fi *= 1.0 - d * (1.0 - (-(largest_n - *fi) / scale).exp());
+            }
+        }
+    };
+    let mut started_at = |duration_s: f64| -> String {
+        let Some(rest) = truth.rest_s else {
+            return String::new();
+        };
+        let start = clock_s;
+        clock_s += duration_s + rest;
+        // Whole seconds after 2026-03-14T09:00:00Z (minutes and seconds written out).
+        let s = start.round() as i64;
+        format!(
+            "started_at = \"2026-03-14T{:02}:{:02}:{:02}Z\"\n",
+            9 + s / 3600,
+            (s / 60) % 60,
+            s % 60
+        )
+    };
     for (idx, point) in design.iter().enumerate() {
         let id = format!(
             "T{idx:02}-P{:02}-F{}-A{}-T{}",
@@ -602,13 +655,52 @@ pub fn write_campaign_full(
         } else {
             acquisition.cycles_above_2_hz
         };
-        let (t, mut z, mut f) = simulate_test(
-            &truth_at(idx),
+        let mut specimen = truth_at(idx);
+        let (mut t, mut z, mut f) = simulate_test(
+            &specimen.heated(rise_k),
             point,
             n_cycles,
             acquisition.samples_per_cycle,
             acquisition.min_rate_hz,
         );
+        if let Some((heat_capacity, heat_transfer, _)) = truth.self_heating {
+            // Power of the record, the temperature through the test (Euler), and the test
+            // again at its mid-record temperature.
+            let duration = t.last().copied().unwrap_or(0.0) + t.get(1).copied().unwrap_or(0.0);
+            let energy: f64 = z
+                .windows(2)
+                .zip(f.windows(2))
+                .map(|(zz, ff)| 0.5 * (ff[0] + ff[1]) * (zz[1] - zz[0]))
+                .sum();
+            let power = energy.max(0.0) / duration;
+            let h = 0.05;
+            let mut time = 0.0;
+            let mut mid_rise = rise_k;
+            while time < duration {
+                rise_k += h * (power - heat_transfer * rise_k) / heat_capacity;
+                time += h;
+                if time <= 0.5 * duration {
+                    mid_rise = rise_k;
+                }
+            }
+            specimen = specimen.heated(mid_rise);
+            (t, z, f) = simulate_test(
+                &specimen,
+                point,
+                n_cycles,
+                acquisition.samples_per_cycle,
+                acquisition.min_rate_hz,
+            );
+            // The rest cools it.
+            let mut time = 0.0;
+            while time < truth.rest_s.unwrap_or(0.0) {
+                rise_k -= h * heat_transfer * rise_k / heat_capacity;
+                time += h;
+            }
+        }
+        soften(&mut f);
+        let record_s = t.last().copied().unwrap_or(0.0) + t.get(1).copied().unwrap_or(0.0);
+        let start_line = started_at(record_s);
         let drift_phase = rng.uniform() * 2.0 * PI;
         let drift = |t: f64| noise.drift_force * (2.0 * PI * t / 7.0 + drift_phase).sin();
         add_noise(
@@ -623,13 +715,16 @@ pub fn write_campaign_full(
         write_record(dir, &id, &t, &z, &f);
         let _ = write!(
             toml,
-            "\n[[test]]\nid = \"{id}\"\nfile = \"{id}.csv\"\nkind = \"harmonic\"\npreload_n = {:?}\namplitude_n = {:?}\nfrequency_hz = {:?}\ntemperature_c = {:?}\n",
+            "\n[[test]]\nid = \"{id}\"\nfile = \"{id}.csv\"\nkind = \"harmonic\"\npreload_n = {:?}\namplitude_n = {:?}\nfrequency_hz = {:?}\ntemperature_c = {:?}\n{start_line}",
             point.preload_n, point.amplitude_n, point.frequency_hz, point.temperature_c
         );
     }
     for (k, passage) in passages.iter().enumerate() {
         let id = format!("H{k}-passage-{:.0}kN", passage.peak_n / 1e3);
-        let (t, mut z, mut f) = simulate_passage(&truth_at(design.len() + k), passage);
+        let (t, mut z, mut f) =
+            simulate_passage(&truth_at(design.len() + k).heated(rise_k), passage);
+        soften(&mut f);
+        let start_line = started_at(t.last().copied().unwrap_or(0.0));
         // Passages get no slow drift (their records are short).
         add_noise(
             &t,
@@ -643,7 +738,7 @@ pub fn write_campaign_full(
         write_record(dir, &id, &t, &z, &f);
         let _ = write!(
             toml,
-            "\n[[test]]\nid = \"{id}\"\nfile = \"{id}.csv\"\nkind = \"history\"\ntemperature_c = {:?}\n",
+            "\n[[test]]\nid = \"{id}\"\nfile = \"{id}.csv\"\nkind = \"history\"\ntemperature_c = {:?}\n{start_line}",
             passage.temperature_c
         );
     }

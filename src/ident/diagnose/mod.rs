@@ -39,13 +39,14 @@
 //!
 //! Must not: do I/O (`report` writes files; progress goes through a callback).
 
+pub mod effect_plots;
 pub mod report;
 pub mod run;
 pub mod verdict;
 
 use crate::ident::fit::{
-    assign_folds, cross_validate, run_parallel, CrossValidation, CycleData, EffectKind, OutOfRange,
-    Template,
+    assign_folds, correlation, cross_validate, run_parallel, CrossValidation, CycleData,
+    EffectKind, OutOfRange, Template,
 };
 use crate::model::effects::{AugmentedModel, Effect};
 use crate::model::params::ElementModel;
@@ -111,6 +112,8 @@ pub struct CandidateResult {
     pub model: AugmentedModel,
     /// The template it was fitted with (the friction law chosen, for `amplitude-friction`).
     pub template: Template,
+    /// How the law was chosen among its variants (a drift's clock), when it has several.
+    pub law_note: Option<String>,
 }
 
 /// Why an effect was not tried.
@@ -270,6 +273,102 @@ pub fn identifiability(kind: EffectKind, data: &[CycleData]) -> Result<(), Strin
         EffectKind::MovingMass => {
             if freqs.len() < 3 || f_span < 3.0 {
                 return Err("fewer than three frequencies or less than a 3x frequency span".into());
+            }
+        }
+        EffectKind::LoadTrainResonance => {
+            // Its low-frequency signature is a term in frequency squared proportional to
+            // the force (a moving mass's is proportional to the displacement) plus a phase
+            // lag (a channel delay's): it needs the frequency span of both, and the
+            // force-to-displacement ratio to vary at one frequency (preloads or
+            // temperatures) to be told from a mass.
+            if freqs.len() < 3 || f_span < 4.0 {
+                return Err("fewer than three frequencies or less than a 4x frequency span".into());
+            }
+            let harmonic: Vec<&CycleData> = data.iter().filter(|d| !d.is_history()).collect();
+            let moduli = levels(
+                harmonic
+                    .iter()
+                    .map(|d| d.force_mean_n + 1e5 * d.temperature_c),
+                0.1,
+            );
+            if moduli.len() < 2 {
+                return Err(
+                    "one preload and one temperature: a resonance of the load train cannot be told from a moving mass"
+                        .into(),
+                );
+            }
+        }
+        EffectKind::SpecimenDrift => {
+            let harmonic: Vec<&CycleData> = data.iter().filter(|d| !d.is_history()).collect();
+            if harmonic.len() < 8 {
+                return Err("fewer than eight harmonic tests".into());
+            }
+            let order: Vec<f64> = harmonic.iter().map(|d| d.time.clocks[0]).collect();
+            for (name, _, key) in verdict::DESIGN_KEYS {
+                let values: Vec<f64> = harmonic.iter().map(|d| key(d)).collect();
+                let r = correlation(&order, &values);
+                if r.abs() > 0.9 {
+                    return Err(format!(
+                        "test order follows {name} (r = {r:.2}): a change of the specimen cannot be told from it"
+                    ));
+                }
+            }
+        }
+        EffectKind::CyclicSoftening => {
+            // Softening shows as tests below a load reached before them (softer) against
+            // tests before that load was reached; tests that raise the maximum tell it from
+            // a drift with time (which goes on whatever the load).
+            let peaks: Vec<(f64, f64)> = data
+                .iter()
+                .filter(|d| d.time.schedule.is_some())
+                .map(|d| (d.time.peak_force_n, d.time.max_force_before_n))
+                .collect();
+            let campaign_max = peaks.iter().map(|p| p.0).fold(0.0, f64::max);
+            let below_after = peaks.iter().filter(|(p, m)| *p < 0.8 * m).count();
+            let raising = peaks
+                .iter()
+                .filter(|(p, m)| *m > 0.0 && *p > 1.05 * m)
+                .count();
+            let below_before = peaks
+                .iter()
+                .filter(|(p, m)| *p < 0.8 * campaign_max && *m < 0.9 * campaign_max)
+                .count();
+            if below_after < 3 || raising < 2 || below_before < 3 {
+                return Err(format!(
+                    "the load history does not show it: {below_after} tests below a load reached before them, {raising} raising the largest load, {below_before} at low load before the largest (3, 2 and 3 needed)"
+                ));
+            }
+        }
+        EffectKind::SelfHeating => {
+            // Power must vary at one chamber temperature (else temperature-shift), and not
+            // with test order (else specimen-drift).
+            let harmonic: Vec<&CycleData> = data
+                .iter()
+                .filter(|d| !d.is_history() && d.time.power_w() > 0.0)
+                .collect();
+            if harmonic.len() < 6 {
+                return Err("fewer than six harmonic tests with a measured dissipated power (or no campaign times)".into());
+            }
+            let reference = reference_temperature_c(data);
+            let powers: Vec<f64> = harmonic
+                .iter()
+                .filter(|d| (d.temperature_c - reference).abs() < 1.0)
+                .map(|d| d.time.power_w())
+                .collect();
+            let lo = powers.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = powers.iter().copied().fold(0.0, f64::max);
+            if powers.len() < 6 || hi < 5.0 * lo {
+                return Err(
+                    "dissipated power varies less than 5x at one chamber temperature".into(),
+                );
+            }
+            let order: Vec<f64> = harmonic.iter().map(|d| d.time.clocks[0]).collect();
+            let ln_power: Vec<f64> = harmonic.iter().map(|d| d.time.power_w().ln()).collect();
+            let r = correlation(&order, &ln_power);
+            if r.abs() > 0.9 {
+                return Err(format!(
+                    "dissipated power follows test order (r = {r:.2}): heating cannot be told from a drift"
+                ));
             }
         }
     }
@@ -541,9 +640,10 @@ fn lookahead_pair(
             first.kind.n_params(),
             &other_reference,
         );
-        let model = pair_template.model(&cv.full_fit.params);
+        let model = pair_template.model_with_errors(&cv.full_fit);
         let out_of_range = out_of_range(&model, &[first.kind, other.kind]);
         let result = CandidateResult {
+            law_note: other.law_note.clone(),
             kind: other.kind,
             round,
             raw_gap: raw_gap(&cv.held_out_error, scoring.data),
@@ -642,7 +742,8 @@ pub fn diagnose(
     }
 
     // Calibrate the baseline: from the file's values and from a data-driven start.
-    let mut template = Template::new(baseline.clone(), reference_temperature_c);
+    let mut template =
+        Template::new(baseline.clone(), reference_temperature_c).with_clock_spans(data);
     let all: Vec<&CycleData> = data.iter().collect();
     let mut alternative = template.clone();
     alternative.baseline.element = data_driven_element(&baseline.element, data);
@@ -721,7 +822,15 @@ pub fn diagnose(
             )
         });
         let mut by_kind: Vec<(EffectKind, Template, CrossValidation)> = Vec::new();
+        let mut drift_fits: Vec<(crate::model::effects::DriftClock, f64, usize)> = Vec::new();
         for ((kind, template), cv) in items.into_iter().zip(fitted) {
+            if kind == EffectKind::SpecimenDrift {
+                drift_fits.push((
+                    template.drift_clock,
+                    cv.full_fit.sse,
+                    cv.full_fit.n_residuals.saturating_sub(template.n_params()),
+                ));
+            }
             match by_kind.iter_mut().find(|(k, _, _)| *k == kind) {
                 // The choice between laws with equally many parameters is made on the
                 // in-sample fit, never on held-out errors.
@@ -741,9 +850,12 @@ pub fn diagnose(
                     kind.n_params(),
                     &reference,
                 );
-                let model = candidate.model(&cv.full_fit.params);
+                let model = candidate.model_with_errors(&cv.full_fit);
                 let out_of_range = out_of_range(&model, &[kind]);
+                let law_note = (kind == EffectKind::SpecimenDrift)
+                    .then(|| drift_clock_note(&drift_fits, &candidate.clocks_like_order, data));
                 CandidateResult {
+                    law_note,
                     kind,
                     round,
                     raw_gap: raw_gap(&cv.held_out_error, scoring.data),
@@ -785,7 +897,7 @@ pub fn diagnose(
         // (a delay and a springpot imitating a load-path resonance), so none is named.
         let best_would = results
             .iter()
-            .filter(|r| r.would_qualify)
+            .filter(|r| r.would_qualify && !r.out_of_range.is_some_and(|o| o.degenerates()))
             .min_by(|a, b| a.score.total_cmp(&b.score));
         if let Some(best) = best_would.filter(|b| b.out_of_range.is_some()) {
             progress(&format!(
@@ -798,6 +910,7 @@ pub fn diagnose(
         let winner = results
             .iter()
             .filter(|r| r.qualifies)
+            .filter(|r| !held_back_by_simpler_artefact(r, &results, &scoring))
             .min_by(|a, b| a.score.total_cmp(&b.score))
             .map(|r| (r.kind, r.cv.clone(), r.template.clone()));
         if let Some((kind, cv, template)) = winner {
@@ -841,9 +954,9 @@ pub fn diagnose(
             }
         }
     }
-    let final_model = current_template.model(&current_cv.full_fit.params);
+    let final_model = current_template.model_with_errors(&current_cv.full_fit);
     let gap_after = excess_gap(&current_cv.held_out_error, data);
-    let verdict = verdict(
+    let mut verdict = verdict(
         &final_model,
         data,
         &current_cv.held_out_error,
@@ -851,6 +964,7 @@ pub fn diagnose(
         noise_floor(data),
         options.order_is_clock,
     );
+    verdict.drift_named = named.contains(&EffectKind::SpecimenDrift);
     Diagnosis {
         verdict,
         history_ids: data
@@ -875,6 +989,92 @@ pub fn diagnose(
         rounds,
         not_tried,
     }
+}
+
+/// A load-train resonance can imitate a channel delay (its phase) or a moving mass (its
+/// frequency-squared term): when one of those one-parameter artefacts qualifies too, the
+/// resonance is named only if its held-out errors beat that artefact's by the naming
+/// rule's Wilcoxon threshold (parsimony: the simpler artefact explains as much otherwise).
+fn held_back_by_simpler_artefact(
+    candidate: &CandidateResult,
+    results: &[CandidateResult],
+    scoring: &Scoring<'_>,
+) -> bool {
+    if candidate.kind != EffectKind::LoadTrainResonance {
+        return false;
+    }
+    results
+        .iter()
+        .filter(|r| {
+            r.qualifies && matches!(r.kind, EffectKind::ChannelDelay | EffectKind::MovingMass)
+        })
+        .any(|simpler| {
+            let differences: Vec<f64> = simpler
+                .cv
+                .held_out_error
+                .iter()
+                .zip(&candidate.cv.held_out_error)
+                .zip(scoring.data)
+                .map(|((s, c), d)| (s - c) * d.weight)
+                .collect();
+            wilcoxon_z(&differences) <= scoring.options.min_wilcoxon_z
+        })
+}
+
+/// Which clock a drift runs on, as the data say: the in-sample fits of each clock the
+/// campaign has, told apart when the worse one's sum of squares exceeds the best one's by
+/// more than 4 noise variances (a likelihood-ratio test at about 95 %), else "cannot tell".
+fn drift_clock_note(
+    fits: &[(crate::model::effects::DriftClock, f64, usize)],
+    like_order: &[crate::model::effects::DriftClock],
+    data: &[CycleData],
+) -> String {
+    let Some(&(best, best_sse, dof)) = fits.iter().min_by(|a, b| a.1.total_cmp(&b.1)) else {
+        return String::new();
+    };
+    let sigma2 = best_sse / dof.max(1) as f64;
+    let mut told = Vec::new();
+    let mut untold = Vec::new();
+    for &(clock, sse, _) in fits {
+        if clock == best {
+            continue;
+        }
+        if (sse - best_sse) / sigma2.max(1e-300) > 4.0 {
+            told.push(clock.name());
+        } else {
+            untold.push(clock.name());
+        }
+    }
+    let mut note = format!("clock: {}", best.name());
+    if !told.is_empty() {
+        note.push_str(&format!("; the data prefer it to {}", told.join(" and ")));
+    }
+    if !untold.is_empty() {
+        note.push_str(&format!(
+            "; the data cannot tell it from {} (in-sample fits within noise)",
+            untold.join(" and ")
+        ));
+    }
+    if !like_order.is_empty() {
+        note.push_str(&format!(
+            "; {} proportional to test order in this campaign, so the data cannot tell {} from it",
+            like_order
+                .iter()
+                .map(|c| c.name())
+                .collect::<Vec<_>>()
+                .join(" and "),
+            if like_order.len() == 1 {
+                "that clock"
+            } else {
+                "those clocks"
+            }
+        ));
+    }
+    let has_time = data.iter().any(|d| d.time.clocks[1] > 0.0);
+    if !has_time {
+        note.push_str("; time not tried (no `started_at` on every test)");
+    }
+    note
 }
 
 /// The first of `kinds` whose fitted parameters in `model` leave their physical range.

@@ -65,6 +65,7 @@ pub fn json_summary(d: &Diagnosis, model_path: &std::path::Path) -> serde_json::
                 "named": d.named.contains(&r.kind),
                 "would_qualify_but_for_range": r.would_qualify && r.out_of_range.is_some(),
                 "out_of_range": r.out_of_range.map(|o| out_of_range_json(&o)),
+                "law_note": r.law_note,
             })
         })
         .collect();
@@ -82,6 +83,10 @@ pub fn json_summary(d: &Diagnosis, model_path: &std::path::Path) -> serde_json::
         "not_identifiable": d.not_tried.iter().filter(|n| n.not_identifiable).map(|n| n.kind.name()).collect::<Vec<_>>(),
         "model_out": model_path.display().to_string(),
         "unexplained": unexplained_json(d.verdict.unexplained.as_ref()),
+        "held_back_by_materiality": d.verdict.held_back_by_materiality.map(|ratio| json!({
+            "gap": d.gap_after, "noise_floor": d.noise_floor, "ratio": ratio,
+            "min_gap": super::verdict::MIN_GAP,
+        })),
         "specimen_changed": d.verdict.specimen_changed(),
         "residual_wilcoxon_z": d.verdict.harmonic_z,
         "order_trend": d.verdict.trend.as_ref().map(|t| json!({
@@ -175,6 +180,7 @@ struct Plots {
     loops: PathBuf,
     equivalents: PathBuf,
     histories: Option<PathBuf>,
+    effects: Option<PathBuf>,
 }
 
 fn write_plots(
@@ -301,6 +307,14 @@ fn write_plots(
             ],
         )?;
     }
+    let effect_panels = super::effect_plots::effect_panels(d, data);
+    let effects = (!effect_panels.is_empty())
+        .then(|| args.out.join("effects.png"))
+        .map(|path| {
+            let rows = effect_panels.len().div_ceil(2) as u32;
+            draw_png(&path, 1400, 500 * rows, 2, &effect_panels).map(|()| path)
+        })
+        .transpose()?;
     let loops = args.out.join("loops.png");
     // The four harmonic tests where the calibrated baseline misses most (held-out).
     let mut worst: Vec<usize> = (0..data.len()).filter(|&i| !data[i].is_history()).collect();
@@ -334,6 +348,7 @@ fn write_plots(
         loops,
         equivalents,
         histories: has_history.then_some(histories),
+        effects,
     })
 }
 
@@ -373,7 +388,14 @@ fn render_report(
             "none (nothing beats the calibrated baseline beyond noise, and the residual is at the noise floor)".to_string()
         }
     );
-    if d.verdict.unexplained.is_none() {
+    if let (None, Some(ratio)) = (&d.verdict.unexplained, d.verdict.held_back_by_materiality) {
+        let _ = writeln!(
+            r,
+            "- Unexplained residual: not reported, held back only by the materiality rule: the held-out gap after the named effects, {:.3e}, is {ratio:.1}x the noise floor and beyond noise, but below {:.0e} of the force (0.1 %), the smallest residual this workflow calls a discrepancy",
+            d.gap_after,
+            super::verdict::MIN_GAP
+        );
+    } else if d.verdict.unexplained.is_none() {
         let _ = writeln!(
             r,
             "- Unexplained residual: none (the held-out gap after the named effects is at the noise floor: {:.1}x)",
@@ -415,6 +437,14 @@ fn render_report(
         d.raw_gap_before, d.raw_gap_after, d.noise_floor
     );
     let _ = writeln!(r, "- Gap metric: {}.", metric(n_folds(d)));
+    for note in model_notes(d, data) {
+        let _ = writeln!(r, "- {note}");
+    }
+    for c in d.rounds.iter().flatten() {
+        if let (Some(note), true) = (&c.law_note, d.named.contains(&c.kind)) {
+            let _ = writeln!(r, "- `{}` {note}", c.kind.name());
+        }
+    }
     let _ = writeln!(r, "- Augmented model: `{}`", model_path.display());
     let _ = writeln!(
         r,
@@ -615,6 +645,9 @@ fn render_report(
     if let Some(h) = &plots.histories {
         listed.push(("History tests: measured, baseline and augmented force", h));
     }
+    if let Some(e) = &plots.effects {
+        listed.push(("The named effects of the campaign's time and the rig", e));
+    }
     for (title, path) in listed {
         let name = path
             .file_name()
@@ -646,12 +679,16 @@ pub fn write_outputs(
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let model_path = args.out.join("augmented_model.toml");
     let header = format!(
-        "Augmented by `fastemu diagnose` from baseline {} and campaign {}.\nNamed effects: {}. Held-out gap {:.4e} -> {:.4e}.\nSet operating_temperature_c of temperature-shift to the rig temperature. channel-delay and moving-mass\nare rig artefacts: the emulator (StepperMode::Emulation) leaves them out.",
+        "Augmented by `fastemu diagnose` from baseline {} and campaign {}.\nNamed effects: {}. Held-out gap {:.4e} -> {:.4e}.\nSet operating_temperature_c of temperature-shift to the rig temperature. channel-delay, moving-mass and\nload-train-resonance are rig artefacts: the emulator (StepperMode::Emulation) leaves them out.{}",
         args.model.display(),
         args.campaign.display(),
         if diagnosis.named.is_empty() { "none".to_string() } else { diagnosis.named.iter().map(|k| k.name()).collect::<Vec<_>>().join(", ") },
         diagnosis.gap_before,
-        diagnosis.gap_after
+        diagnosis.gap_after,
+        model_notes(diagnosis, data)
+            .iter()
+            .map(|n| format!("\n{n}"))
+            .collect::<String>()
     );
     std::fs::write(&model_path, diagnosis.final_model.render_toml(&header))
         .with_context(|| format!("cannot write {}", model_path.display()))?;
@@ -677,6 +714,67 @@ pub fn write_outputs(
     Ok(json_summary(diagnosis, &model_path))
 }
 
+/// What the written model describes for effects that depend on the campaign's time: the
+/// instant a drift's element parameters describe, a self-heating's thermal state and law,
+/// what a load train's participating mass would need. One line each.
+pub fn model_notes(d: &Diagnosis, data: &[CycleData]) -> Vec<String> {
+    use crate::model::effects::Effect;
+    let mut notes = Vec::new();
+    for effect in &d.final_model.effects {
+        match *effect {
+            Effect::SpecimenDrift {
+                clock,
+                rate_per_unit,
+                rate_standard_error,
+                clock_position,
+            } => {
+                let reference = data
+                    .iter()
+                    .find(|c| c.time.schedule.is_some() && c.time.schedule_index == 0)
+                    .map_or("the campaign's first test".to_string(), |c| {
+                        format!("the start of the campaign's first test, `{}`", c.id)
+                    });
+                notes.push(format!(
+                    "specimen-drift: the element parameters describe the specimen at the reference instant, {reference} (clock_position = {clock_position} there); its moduli change by {:+.3e} +- {:.1e} per {} of {} (1 sigma).",
+                    rate_per_unit,
+                    rate_standard_error,
+                    clock.unit(),
+                    clock.name()
+                ));
+            }
+            Effect::SelfHeating {
+                heat_capacity_j_per_k,
+                heat_transfer_w_per_k,
+                temperature_rise_k,
+            } => {
+                let law = if d.final_model.find("temperature-shift").is_some() {
+                    "the temperature law of temperature-shift".to_string()
+                } else {
+                    format!(
+                        "the default temperature law ({:.1} %/degC modulus, relaxation times {:.3} decades/degC; no temperature-shift was named)",
+                        -100.0 * crate::model::thermal::DEFAULT_LN_MODULUS_SHIFT_PER_C,
+                        -crate::model::thermal::DEFAULT_LOG10_TIME_SHIFT_PER_C
+                    )
+                };
+                notes.push(format!(
+                    "self-heating: thermal time constant C/h = {:.0} s, {:.3} K per W dissipated at steady state; temperature_rise_k = {temperature_rise_k} (the specimen at its ambient when the model starts); its temperature drives {law}.",
+                    heat_capacity_j_per_k / heat_transfer_w_per_k,
+                    1.0 / heat_transfer_w_per_k
+                ));
+            }
+            Effect::LoadTrainResonance {
+                natural_frequency_hz,
+                ..
+            } => notes.push(format!(
+                "load-train-resonance: a rig artefact (never emulated); its participating mass is the load train's stiffness k over (2 pi {natural_frequency_hz:.1} Hz)^2, which force and displacement records alone do not give: m = k x {:.3e} kg per N/m.",
+                1.0 / (2.0 * std::f64::consts::PI * natural_frequency_hz).powi(2)
+            )),
+            _ => {}
+        }
+    }
+    notes
+}
+
 /// The sentence for a specimen that changed during the campaign.
 pub fn specimen_sentence(d: &Diagnosis) -> String {
     let mut parts = Vec::new();
@@ -696,6 +794,34 @@ pub fn specimen_sentence(d: &Diagnosis) -> String {
             100.0 * c.change,
             c.z
         ));
+    }
+    if let Some(crate::model::effects::Effect::SpecimenDrift {
+        clock,
+        rate_per_unit,
+        rate_standard_error,
+        ..
+    }) = d.final_model.find("specimen-drift")
+    {
+        parts.push(format!(
+            "named as specimen-drift: the moduli change by {:+.3e} +- {:.1e} per {} of {} (the element parameters describe the first test)",
+            rate_per_unit,
+            rate_standard_error,
+            clock.unit(),
+            clock.name()
+        ));
+        return format!(
+            "The specimen changed during the campaign: {}.",
+            parts.join("; ")
+        );
+    }
+    if d.final_model.find("cyclic-softening").is_some() {
+        parts.push(
+            "named as cyclic-softening: below the largest load it had carried the specimen was softer (the element parameters describe the virgin specimen)".into(),
+        );
+        return format!(
+            "The specimen changed during the campaign: {}.",
+            parts.join("; ")
+        );
     }
     format!(
         "The specimen changed during the campaign: {}. Effects named from such a campaign may stand in for the change; repeat the first test at the end to check.",
@@ -721,7 +847,7 @@ pub fn write_run_outputs(
     let named: Vec<&str> = d.named.iter().map(|k| k.name()).collect();
     let model_path = out.join("augmented_model.toml");
     let header = format!(
-        "Rig artefacts of run {} fitted by `fastemu diagnose --run` to the model {model_label} (not recalibrated).\nNamed: {}. The emulator (StepperMode::Emulation) leaves channel-delay and moving-mass out.",
+        "Rig artefacts of run {} fitted by `fastemu diagnose --run` to the model {model_label} (not recalibrated).\nNamed: {}. The emulator (StepperMode::Emulation) leaves channel-delay, moving-mass and load-train-resonance out.",
         run_dir.display(),
         if named.is_empty() { "none".to_string() } else { named.join(", ") }
     );
@@ -751,6 +877,12 @@ pub fn write_run_outputs(
         run_dir.display()
     );
     let _ = writeln!(r, "- Record used: {record_used}");
+    if let Some((max_k, last_k)) = record.element_temperature_rise_k {
+        let _ = writeln!(
+            r,
+            "- Element temperature (self-heating, the emulator's `/emulator` records, `element_temperature_rise_k`): rose up to {max_k:.3} K above its ambient, {last_k:.3} K at the end; the model replays it step by step"
+        );
+    }
     let _ = writeln!(
         r,
         "- **Named rig artefacts: {}**",
@@ -826,6 +958,7 @@ pub fn write_run_outputs(
         "model_out": model_path.display().to_string(),
         "unexplained": unexplained_json(d.unexplained.as_ref()),
         "advice": advice,
+        "element_temperature_rise_k": record.element_temperature_rise_k.map(|(max_k, last_k)| json!({"max": max_k, "last": last_k})),
         "force_lag_s": d.force_lag_s(),
         "record_used": record_used,
     }))

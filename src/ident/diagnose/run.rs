@@ -119,9 +119,14 @@ pub fn diagnose_run(
     progress: &mut dyn FnMut(&str),
 ) -> RunDiagnosis {
     let mut model = model.clone();
-    model
-        .effects
-        .retain(|e| !matches!(e, Effect::ChannelDelay { .. } | Effect::MovingMass { .. }));
+    model.effects.retain(|e| {
+        !matches!(
+            e,
+            Effect::ChannelDelay { .. }
+                | Effect::MovingMass { .. }
+                | Effect::LoadTrainResonance { .. }
+        )
+    });
     let dof = unit.history.as_ref().map_or(1.0, |h| h.dof);
     let noise = unit.noise_relative;
     let error_before = relative_error(&model, &unit);

@@ -95,16 +95,23 @@ impl RepeatCheck {
 #[derive(Debug, Clone)]
 pub struct Verdict {
     pub unexplained: Option<Unexplained>,
+    /// A residual beyond noise (the evidence above, at least `MIN_RATIO` x the noise
+    /// floor) held back only because it is below `MIN_GAP`: its gap over the noise floor.
+    pub held_back_by_materiality: Option<f64>,
     /// Wilcoxon z of the harmonic tests' held-out errors against their noise shares.
     pub harmonic_z: f64,
     pub trend: Option<OrderTrend>,
     pub repeats: Vec<RepeatCheck>,
+    /// `specimen-drift` is among the named effects (set by `diagnose`): the change is
+    /// described, so the final model's residual no longer trends with order.
+    pub drift_named: bool,
 }
 
 impl Verdict {
     /// The specimen changed during the campaign: a repeated test or the order trend says so.
     pub fn specimen_changed(&self) -> bool {
-        self.repeats.iter().any(RepeatCheck::significant)
+        self.drift_named
+            || self.repeats.iter().any(RepeatCheck::significant)
             || self.trend.as_ref().is_some_and(OrderTrend::significant)
     }
 }
@@ -148,6 +155,8 @@ pub fn verdict(
     let changed = repeats.iter().any(RepeatCheck::significant)
         || trend.as_ref().is_some_and(OrderTrend::significant);
     let beyond = harmonic_z > MIN_Z || !history_ids.is_empty() || changed;
+    let held_back_by_materiality = (beyond && gap >= MIN_RATIO * noise_floor && gap < MIN_GAP)
+        .then(|| gap / noise_floor.max(1e-300));
     let unexplained = (material && beyond).then(|| Unexplained {
         gap,
         noise_floor,
@@ -157,9 +166,11 @@ pub fn verdict(
     });
     Verdict {
         unexplained,
+        held_back_by_materiality,
         harmonic_z,
         trend,
         repeats,
+        drift_named: false,
     }
 }
 
@@ -168,7 +179,12 @@ fn signed_residuals(model: &AugmentedModel, data: &[CycleData]) -> Vec<f64> {
     data.iter()
         .map(|d| match &d.history {
             Some(h) => {
-                let predicted = predict_history(model, h, d.temperature_c);
+                let predicted = predict_history(
+                    &crate::ident::fit::model_for_test(model, d),
+                    h,
+                    d.temperature_c,
+                    d.time.schedule.is_some(),
+                );
                 let n = predicted.len().min(h.force_n.len()) as f64;
                 let mean_m = h.force_n.iter().sum::<f64>() / n;
                 let mean_p = predicted.iter().sum::<f64>() / n;
@@ -468,4 +484,75 @@ fn where_it_concentrates(
         );
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ident::campaign::N_HARMONICS;
+    use crate::ident::diagnose::{excess_gap, noise_floor};
+    use crate::ident::fit::predict_cycle;
+    use crate::model::params::{ElementModel, ZenerParams};
+
+    /// Twelve harmonic tests whose measured force is the model's own (no trend, no
+    /// misfit), each with noise share `nu`.
+    fn exact_tests(model: &AugmentedModel, nu: f64) -> Vec<CycleData> {
+        (1..=12)
+            .map(|k| {
+                let mut z = [(0.0, 0.0); N_HARMONICS];
+                z[0] = (1e-4, 0.0);
+                let mut d = CycleData {
+                    id: format!("T{k}"),
+                    frequency_hz: k as f64,
+                    preload_n: 20e3,
+                    amplitude_n: 5e3,
+                    temperature_c: 23.0,
+                    force_mean_n: 20e3,
+                    displacement_harmonics_m: z,
+                    force_harmonics_n: [(0.0, 0.0); N_HARMONICS],
+                    scale_n: 1.0,
+                    noise_relative: nu,
+                    duration_s: 4.0,
+                    weight: 1.0,
+                    order: k as f64,
+                    history: None,
+                    time: Default::default(),
+                };
+                d.force_harmonics_n = predict_cycle(model, &d);
+                d.scale_n = d.force_harmonics_n[0].0.hypot(d.force_harmonics_n[0].1);
+                d
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_residual_beyond_noise_but_below_the_materiality_floor_is_said_to_be_held_back() {
+        let model = AugmentedModel {
+            element: ElementModel::Consistent(ZenerParams::paper_table3(0.75)),
+            length_m: 0.75,
+            effects: Vec::new(),
+        };
+        let nu = 1e-8; // noise floor 1e-4
+        let data = exact_tests(&model, nu);
+        // Every held-out error 6x its noise share: beyond noise (all differences positive),
+        // a gap of sqrt(5e-8) = 2.2e-4 = 2.2x the floor, but below 1e-3.
+        let errors: Vec<f64> = (0..12)
+            .map(|i| 6.0 * nu * (1.0 + 0.01 * i as f64))
+            .collect();
+        let (gap, floor) = (excess_gap(&errors, &data), noise_floor(&data));
+        assert!(gap >= MIN_RATIO * floor && gap < MIN_GAP, "{gap} {floor}");
+        let v = verdict(&model, &data, &errors, gap, floor, false);
+        assert!(v.unexplained.is_none());
+        let ratio = v
+            .held_back_by_materiality
+            .expect("held back by the materiality rule");
+        assert!((ratio - gap / floor).abs() < 1e-12);
+        // At the noise floor nothing is held back.
+        let at_floor: Vec<f64> = (0..12)
+            .map(|i| nu * (1.0 + 0.02 * (i as f64 - 5.5)))
+            .collect();
+        let gap = excess_gap(&at_floor, &data);
+        let v = verdict(&model, &data, &at_floor, gap, floor, false);
+        assert!(v.unexplained.is_none() && v.held_back_by_materiality.is_none());
+    }
 }

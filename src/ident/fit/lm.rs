@@ -37,6 +37,9 @@ impl LmFit {
     }
 }
 
+/// Relative decrease of the sum of squares below which an accepted step ends the fit.
+pub const GAIN_CONVERGED: f64 = 1e-7;
+
 /// Minimises `sum r(theta)^2` from `start`.
 pub fn levenberg_marquardt<F>(residuals: F, start: &[f64], max_iterations: usize) -> LmFit
 where
@@ -86,7 +89,9 @@ where
         let jtj = jacobian.transpose() * &jacobian;
         let jtr = jacobian.transpose() * DVector::from_column_slice(&r);
         let mut improved = false;
-        for _ in 0..12 {
+        // Up to 8 damping increases (x 4^8 = 6.6e4) before the fit is taken as converged:
+        // each try costs a full evaluation of the residuals.
+        for _ in 0..8 {
             let mut a = jtj.clone();
             for i in 0..p {
                 a[(i, i)] += lambda * jtj[(i, i)].max(1e-12);
@@ -111,7 +116,10 @@ where
                 sse = sse_trial;
                 lambda = (lambda / 3.0).max(1e-9);
                 improved = true;
-                if gain < 1e-10 || step_size < 1e-9 {
+                // A step that lowers the sum of squares by less than 1e-7 of it has
+                // converged for every use here (held-out errors differ by far less than
+                // their noise); tighter, fits crept on for dozens of full evaluations.
+                if gain < GAIN_CONVERGED || step_size < 1e-9 {
                     iterations = max_iterations;
                 }
                 break;
