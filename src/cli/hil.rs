@@ -759,6 +759,7 @@ fn summarise(
         "latency_ns": value(analysis.map(|a| serde_json::to_value(&a.latency_ns).unwrap_or_default())),
         "events": value(analysis.map(|a| json!(a.events))),
         "actuator_truth": value(analysis.and_then(|a| a.actuator_truth.as_ref()).map(|t| serde_json::to_value(t).unwrap_or_default())),
+        "element_thermal": value(analysis.and_then(|a| a.element_thermal.as_ref()).map(|t| serde_json::to_value(t).unwrap_or_default())),
         "model": {
             "form": cfg.model.element.form().name(),
             "length_m": cfg.model.length_m,
@@ -823,6 +824,9 @@ fn summarise(
         );
         if let Some(t) = &a.actuator_truth {
             eprintln!("hil: {}", t.describe());
+        }
+        if let Some(e) = &a.element_thermal {
+            eprintln!("hil: {}", e.describe());
         }
         print_programme_and_operator(a, summary["operator_stop"] == true);
         for f in &a.safety.faults {

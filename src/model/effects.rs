@@ -217,6 +217,17 @@ impl Effect {
         }
     }
 
+    /// An artefact of the rig's measurement chain (never emulated, left out of the
+    /// elastomer's own force): channel-delay, moving-mass, load-train-resonance.
+    pub fn is_rig_artefact(&self) -> bool {
+        matches!(
+            self,
+            Effect::ChannelDelay { .. }
+                | Effect::MovingMass { .. }
+                | Effect::LoadTrainResonance { .. }
+        )
+    }
+
     /// The parameters as they appear in a model file (per metre where stiffness-like).
     pub fn file_params(&self, length_m: f64) -> Vec<(&'static str, f64)> {
         match *self {

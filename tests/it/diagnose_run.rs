@@ -307,3 +307,44 @@ fn a_self_heating_element_warms_in_the_records_and_no_loop_artefact_is_named() {
     let report = std::fs::read_to_string(dir.path.join("diagnosis/report.md")).unwrap();
     assert!(report.contains("Element temperature"), "{report}");
 }
+
+/// A pad that heats strongly (the passage warms it by kelvins within seconds): the run's
+/// report states the warming as the records hold it, and the offline reference warms the same way, so the
+/// fidelity measures the loop and not the softening (against the plain element the
+/// softening alone would be percent).
+#[test]
+fn a_strongly_self_heating_run_reports_its_warming_and_stays_faithful() {
+    let dir = TempDir::new("hil-report-heating");
+    let run_dir = dir.path.join("run");
+    let heating = "chi = 0.21\np0_n = 64e3\n\n[[model.effect]]\nname = \"self-heating\"\nheat_capacity_j_per_k = 1.5\nheat_transfer_w_per_k = 0.015\ntemperature_rise_k = 0.0\n";
+    let recorded = recorded_run_with(&run_dir, &[("chi = 0.21\np0_n = 64e3\n", heating)]);
+    let rises: Vec<(f64, f64)> = recorded
+        .run
+        .emulator
+        .iter()
+        .map(|r| (r.t_s, r.element_temperature_rise_k))
+        .collect();
+    let analysis = fastemu::hil::report::analyse_run(&recorded.cfg, &run_dir).unwrap();
+    let thermal = analysis
+        .element_thermal
+        .expect("self-heating in the report");
+    let (t_max, max) =
+        rises.iter().copied().fold(
+            (0.0, f64::NEG_INFINITY),
+            |a, b| if b.1 > a.1 { b } else { a },
+        );
+    assert_eq!(thermal.rise_end_k, rises.last().unwrap().1);
+    assert_eq!((thermal.rise_max_at_s, thermal.rise_max_k), (t_max, max));
+    assert!(max > 2.0, "the pad warmed only {max} K");
+    // The thermal balance's power is what heated it: positive, and the steady rise it
+    // implies (P / h) is above the largest rise reached (still warming, tau = 100 s).
+    assert!(thermal.mean_power_w > 0.0);
+    assert!(thermal.mean_power_w / thermal.heat_transfer_w_per_k > max);
+    let expected = (-0.008 * (thermal.rise_end_k - thermal.rise_start_k)).exp();
+    assert!((thermal.modulus_factor_end - expected).abs() < 1e-12);
+    assert!(thermal.modulus_factor_end < 0.985);
+    assert!(run_dir.join("element.png").exists());
+    // The reference heats as the emulated element does: the loop's own error is left.
+    let error = analysis.fidelity.displacement_rel_rms;
+    assert!(error < 1e-3, "displacement error {error}, {thermal:?}");
+}

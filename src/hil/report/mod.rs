@@ -8,6 +8,7 @@
 pub mod actuator;
 pub mod compensation;
 pub mod decimate;
+pub mod element;
 pub mod fidelity;
 pub mod latency;
 pub mod safety;
@@ -92,6 +93,8 @@ pub struct Analysis {
     /// The rig's actuator as it truly was (its `/rig/actuator` records; none for an
     /// external rig).
     pub actuator_truth: Option<actuator::ActuatorTruth>,
+    /// The element's self-heating over the run (only with `self-heating` in the model).
+    pub element_thermal: Option<element::ElementThermal>,
 }
 
 /// `Analysis::rig_view` when the rig's own records exist.
@@ -144,6 +147,7 @@ struct SideStreams {
     compensation: compensation::CompensationAnalyser,
     actuator_truth: Option<ActuatorTruthRecord>,
     actuator_params: Vec<ActuatorParamRecord>,
+    element: Option<element::ElementTracker>,
 }
 
 /// Pass 1: events, the emulator's and the controller's records.
@@ -163,6 +167,7 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
         compensation: compensation::CompensationAnalyser::new(dt, cfg.programme.end_s),
         actuator_truth: None,
         actuator_params: Vec::new(),
+        element: element::ElementTracker::new(&cfg.augmented),
     };
     let mut last_cycle: Option<u64> = None;
     let mut last_command_t: Option<f64> = None;
@@ -194,6 +199,9 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
                         side.sample_rig_fault = Some((r.t_s, r.sample_seq, r.rig_fault_code));
                     }
                     side.emulator_force.push(r.t_s, r.force_n);
+                    if let Some(e) = &mut side.element {
+                        e.push(r.t_s, r.element_temperature_rise_k);
+                    }
                     if last_cycle != Some(r.cycle_idx) {
                         side.wake_jitter.saturating_record(r.wake_late_ns.max(1));
                         if let Some(c) = last_cycle {
@@ -437,6 +445,17 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
     )
     .finish(cfg);
     compensation::draw(dir, &compensation_report)?;
+    let element_thermal = match side
+        .element
+        .take()
+        .and_then(element::ElementTracker::finish)
+    {
+        Some((summary, rise)) => {
+            draw_element_plot(dir, &summary, rise)?;
+            Some(summary)
+        }
+        None => None,
+    };
     let rig = read_rig_stream(&set, cfg, &side)?;
     anyhow::ensure!(
         rig.rig_steps > 16,
@@ -503,7 +522,39 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
             side.actuator_truth.as_ref(),
             &side.actuator_params,
         ),
+        element_thermal,
     })
+}
+
+/// `element.png`: the element's temperature rise and the modulus it leaves.
+fn draw_element_plot(
+    dir: &Path,
+    e: &element::ElementThermal,
+    (t, rise): element::PlotSeries,
+) -> anyhow::Result<()> {
+    let modulus: Vec<f64> = rise
+        .iter()
+        .map(|r| ((-e.ln_modulus_shift_per_c * (r - e.rise_start_k)).exp() - 1.0) * 100.0)
+        .collect();
+    draw_png(
+        &dir.join("element.png"),
+        1400,
+        800,
+        1,
+        &[
+            Panel::new(
+                format!(
+                    "Element self-heating (C {} J/K, h {} W/K, time constant {:.0} s; {:.2} W on average)",
+                    e.heat_capacity_j_per_k, e.heat_transfer_w_per_k, e.time_constant_s, e.mean_power_w
+                ),
+                "t (s)",
+                "rise above ambient (K)",
+            )
+            .with(Series::line("temperature rise", t.clone(), rise, 0)),
+            Panel::new("Modulus from the temperature law", "t (s)", "change since the start (%)")
+                .with(Series::line("modulus", t, modulus, 1)),
+        ],
+    )
 }
 
 fn draw_plots(dir: &Path, side: &SideStreams, rig: &RigPass) -> anyhow::Result<()> {
