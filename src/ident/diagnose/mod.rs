@@ -45,8 +45,8 @@ pub mod run;
 pub mod verdict;
 
 use crate::ident::fit::{
-    assign_folds, correlation, cross_validate, run_parallel, CrossValidation, CycleData,
-    EffectKind, OutOfRange, Template,
+    assign_folds, correlation, cross_validate, cross_validate_screened, in_sample_errors,
+    run_parallel, CrossValidation, CycleData, EffectKind, OutOfRange, Template,
 };
 use crate::model::effects::{AugmentedModel, Effect};
 use crate::model::params::ElementModel;
@@ -66,7 +66,14 @@ pub struct DiagnoseOptions {
     pub min_explained_gap: f64,
     /// Test order is clock time (`started_at` on every test), else campaign order.
     pub order_is_clock: bool,
+    /// Skip the fold refits of a candidate whose in-sample fit shows it cannot qualify.
+    pub screen: bool,
 }
+
+/// How far the in-sample score of a screened-out candidate is above the naming score at
+/// least (`score * SCREEN_MARGIN >= max_score`): held-out errors are larger than in-sample
+/// ones, the candidate's (more parameters) usually more than the current model's.
+pub const SCREEN_MARGIN: f64 = 0.8;
 
 impl Default for DiagnoseOptions {
     fn default() -> DiagnoseOptions {
@@ -80,6 +87,7 @@ impl Default for DiagnoseOptions {
             min_wilcoxon_z: 2.3,
             min_explained_gap: 1e-3,
             order_is_clock: false,
+            screen: true,
         }
     }
 }
@@ -589,7 +597,10 @@ fn lookahead_pair(
         .iter()
         .enumerate()
         .filter(|(_, r)| {
-            r.score < 1.0 && r.wilcoxon_z > options.min_wilcoxon_z && r.out_of_range.is_none()
+            !r.cv.screened
+                && r.score < 1.0
+                && r.wilcoxon_z > options.min_wilcoxon_z
+                && r.out_of_range.is_none()
         })
         .min_by(|a, b| a.1.score.total_cmp(&b.1.score))?;
     let others: Vec<&CandidateResult> = results.iter().filter(|r| r.kind != first.kind).collect();
@@ -629,10 +640,23 @@ fn lookahead_pair(
             other.kind.n_params(),
             &first_reference,
         );
+        // A screened candidate's errors are in sample: its held-out ones are needed here.
+        let other_cv = if other.cv.screened {
+            cross_validate(
+                &other.template,
+                scoring.data,
+                scoring.folds,
+                scoring.n_folds,
+                options.max_iterations,
+                options.n_threads,
+            )
+        } else {
+            other.cv.clone()
+        };
         let other_reference = Reference {
-            errors: &other.cv.held_out_error,
-            gap: excess_gap(&other.cv.held_out_error, scoring.data),
-            raw: raw_gap(&other.cv.held_out_error, scoring.data),
+            errors: &other_cv.held_out_error,
+            gap: excess_gap(&other_cv.held_out_error, scoring.data),
+            raw: raw_gap(&other_cv.held_out_error, scoring.data),
         };
         let given_other = scoring.compare(
             &cv.held_out_error,
@@ -811,16 +835,53 @@ pub fn diagnose(
                     .map(move |t| (kind, t))
             })
             .collect();
-        let fitted = run_parallel(&items, options.n_threads, |(_, t)| {
-            cross_validate(
+        // The screen: a candidate whose full fit, in sample (optimistic for it), neither
+        // comes within `SCREEN_MARGIN` of the naming score nor shows a Wilcoxon or history
+        // signal against the current model in sample cannot qualify held out, nor lead a
+        // pair: its fold refits are skipped.
+        let current_in_sample =
+            in_sample_errors(&current_template.model(&current_cv.full_fit.params), data);
+        let in_sample_reference = Reference {
+            errors: &current_in_sample,
+            gap: excess_gap(&current_in_sample, data),
+            raw: raw_gap(&current_in_sample, data),
+        };
+        let fitted = run_parallel(&items, options.n_threads, |(kind, t)| {
+            let started = std::time::Instant::now();
+            let cv = cross_validate_screened(
                 t,
                 data,
                 &folds,
                 n_folds,
                 options.max_iterations,
                 options.n_threads,
-            )
+                |in_sample| {
+                    let m = scoring.compare(
+                        in_sample,
+                        raw_gap(in_sample, data),
+                        kind.n_params(),
+                        &in_sample_reference,
+                    );
+                    options.screen
+                        && m.score * SCREEN_MARGIN >= options.max_score
+                        && m.z <= options.min_wilcoxon_z
+                        && !m.history_evidence
+                },
+            );
+            (cv, started.elapsed().as_secs_f64())
         });
+        let mut seconds: Vec<(EffectKind, f64)> = Vec::new();
+        let fitted: Vec<CrossValidation> = items
+            .iter()
+            .zip(fitted)
+            .map(|((kind, _), (cv, s))| {
+                match seconds.iter_mut().find(|(k, _)| k == kind) {
+                    Some(entry) => entry.1 += s,
+                    None => seconds.push((*kind, s)),
+                }
+                cv
+            })
+            .collect();
         let mut by_kind: Vec<(EffectKind, Template, CrossValidation)> = Vec::new();
         let mut drift_fits: Vec<(crate::model::effects::DriftClock, f64, usize)> = Vec::new();
         for ((kind, template), cv) in items.into_iter().zip(fitted) {
@@ -848,8 +909,16 @@ pub fn diagnose(
                     &cv.held_out_error,
                     raw_gap(&cv.held_out_error, scoring.data),
                     kind.n_params(),
-                    &reference,
+                    if cv.screened {
+                        &in_sample_reference
+                    } else {
+                        &reference
+                    },
                 );
+                let m = Comparison {
+                    qualifies: m.qualifies && !cv.screened,
+                    ..m
+                };
                 let model = candidate.model_with_errors(&cv.full_fit);
                 let out_of_range = out_of_range(&model, &[kind]);
                 let law_note = (kind == EffectKind::SpecimenDrift)
@@ -876,7 +945,7 @@ pub fn diagnose(
             .collect();
         for r in &results {
             progress(&format!(
-                "round {round}: {:<20} held-out gap {:.4e} (raw {:.4e}) ratio {:.3} raw ratio {:.3} score {:.3} z {:.2} folds {}/{}{}{}{}",
+                "round {round}: {:<20} held-out gap {:.4e} (raw {:.4e}) ratio {:.3} raw ratio {:.3} score {:.3} z {:.2} folds {}/{}{}{}{} [{:.1} s]",
                 r.kind.name(),
                 excess_gap(&r.cv.held_out_error, data),
                 raw_gap(&r.cv.held_out_error, data),
@@ -888,7 +957,11 @@ pub fn diagnose(
                 n_folds,
                 if r.history_evidence { " (history evidence)" } else { "" },
                 r.out_of_range.map_or(String::new(), |o| format!(" {o}")),
-                if r.qualifies { " qualifies" } else { "" }
+                if r.qualifies { " qualifies" } else if r.cv.screened { " (screened out in sample: folds not refitted)" } else { "" },
+                seconds
+                    .iter()
+                    .find(|(k, _)| *k == r.kind)
+                    .map_or(0.0, |(_, s)| *s)
             ));
         }
         // When the candidate that describes the discrepancy best would qualify but fits

@@ -1132,10 +1132,15 @@ impl Template {
                     .collect(),
             }
         };
-        let extend = |starts: Vec<Vec<f64>>, kinds: &[EffectKind]| -> Vec<Vec<f64>> {
+        // `first_only`: the first start option of each kind (an effect started afresh
+        // beside a fit that already holds it needs one start, not its whole grid).
+        let extend_with = |starts: Vec<Vec<f64>>, kinds: &[EffectKind], first_only: bool| {
             let mut starts = starts;
             for kind in kinds {
-                let options = options_of(kind);
+                let mut options = options_of(kind);
+                if first_only {
+                    options.truncate(1);
+                }
                 starts = starts
                     .iter()
                     .flat_map(|s| {
@@ -1149,6 +1154,8 @@ impl Template {
             }
             starts
         };
+        let extend =
+            |starts: Vec<Vec<f64>>, kinds: &[EffectKind]| extend_with(starts, kinds, false);
         match prefix_start {
             None => extend(vec![base], &self.added),
             Some(prefix) => {
@@ -1157,8 +1164,11 @@ impl Template {
                     // The previous fit can sit on a bound of an effect parameter (a
                     // springpot exponent at 1 standing in for a force-channel lead that is
                     // added now) where the transformed gradient vanishes; also start every
-                    // effect afresh so such a fit can be left.
-                    starts.extend(extend(vec![base], &self.added));
+                    // effect afresh so such a fit can be left (the effects already fitted
+                    // from their first start only: their whole grids multiplied out made
+                    // a third round's fit 14 starts long).
+                    let afresh = extend_with(vec![base], &self.added[..n_prefix_effects], true);
+                    starts.extend(extend(afresh, &self.added[n_prefix_effects..]));
                 }
                 starts
             }
@@ -1291,8 +1301,12 @@ pub fn fit_template(
 pub struct CrossValidation {
     /// Fit on all tests (used for the model file and in-sample numbers).
     pub full_fit: LmFit,
-    /// Held-out relative squared residual of each test (fit without its fold).
+    /// Held-out relative squared residual of each test (fit without its fold); for a
+    /// screened candidate, the in-sample residual of the full fit instead.
     pub held_out_error: Vec<f64>,
+    /// The fold refits were skipped: the full fit's in-sample residuals (optimistic)
+    /// already showed it cannot qualify.
+    pub screened: bool,
 }
 
 impl CrossValidation {
@@ -1371,8 +1385,44 @@ pub fn cross_validate(
     max_iterations: usize,
     n_threads: usize,
 ) -> CrossValidation {
+    cross_validate_screened(
+        template,
+        data,
+        folds,
+        n_folds,
+        max_iterations,
+        n_threads,
+        |_| false,
+    )
+}
+
+/// In-sample relative squared residual of each test under `model`.
+pub fn in_sample_errors(model: &AugmentedModel, data: &[CycleData]) -> Vec<f64> {
+    data.iter().map(|d| relative_error(model, d)).collect()
+}
+
+/// `cross_validate`, but after the full fit `cannot_qualify` sees its in-sample errors;
+/// when it says so, the fold refits are skipped and the in-sample errors stand in
+/// (`screened`).
+pub fn cross_validate_screened(
+    template: &Template,
+    data: &[CycleData],
+    folds: &[usize],
+    n_folds: usize,
+    max_iterations: usize,
+    n_threads: usize,
+    cannot_qualify: impl Fn(&[f64]) -> bool,
+) -> CrossValidation {
     let all: Vec<&CycleData> = data.iter().collect();
     let full_fit = fit_template(template, &all, &template.starts(data), max_iterations);
+    let in_sample = in_sample_errors(&template.model(&full_fit.params), data);
+    if cannot_qualify(&in_sample) {
+        return CrossValidation {
+            full_fit,
+            held_out_error: in_sample,
+            screened: true,
+        };
+    }
     let fold_ids: Vec<usize> = (0..n_folds).collect();
     let fold_errors = run_parallel(&fold_ids, n_threads, |&fold| {
         let train: Vec<&CycleData> = data
@@ -1405,5 +1455,6 @@ pub fn cross_validate(
     CrossValidation {
         full_fit,
         held_out_error,
+        screened: false,
     }
 }
