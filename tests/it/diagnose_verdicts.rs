@@ -337,6 +337,41 @@ fn self_heating_beside_friction_and_a_resonance_beside_a_temperature_shift_are_b
     assert_named_set(&d, &["load-train-resonance", "temperature-shift"]);
 }
 
+/// Self-heating beside a chamber-temperature law that moves the modulus only (no
+/// relaxation-time shift: the edge of its range). The free fit of `temperature-shift`
+/// lands just below 0 there; the variant held on the bound is physical and is kept, so
+/// both are named and the model file says the relaxation times do not shift.
+#[test]
+fn self_heating_beside_a_modulus_only_temperature_law_is_named_with_the_shift_on_its_bound() {
+    let truth = Truth {
+        self_heating: Some((5.0, 0.025, 0.015)),
+        rest_s: Some(10.0),
+        wlf: Some((0.0, 80.0, 23.0, 0.015)),
+        ..Truth::paper_like()
+    };
+    let d = diagnose_case_with(
+        "heating-modulus-only-temperature",
+        &truth,
+        &standard_design(),
+        &[],
+        &Noise::typical(),
+        31,
+        &long_records(),
+    );
+    assert_named_set(&d, &["self-heating", "temperature-shift"]);
+    let Some(&Effect::TemperatureShift {
+        log10_time_shift_per_c,
+        ln_modulus_shift_per_c,
+        ..
+    }) = d.final_model.find("temperature-shift")
+    else {
+        panic!("no temperature-shift in {:?}", d.final_model.effects)
+    };
+    let shift = (log10_time_shift_per_c, ln_modulus_shift_per_c);
+    assert_eq!(shift.0, 0.0);
+    assert!((shift.1 - 0.015).abs() < 0.003, "{shift:?}");
+}
+
 #[test]
 fn a_repeated_first_test_checks_drift_directly() {
     let truth = Truth {

@@ -620,6 +620,9 @@ fn lookahead_pair(
         if other.kind == EffectKind::AmplitudeFriction {
             pair_template.friction_dahl = other.template.friction_dahl;
         }
+        if other.kind == EffectKind::TemperatureShift {
+            pair_template.time_shift_on_bound = other.template.time_shift_on_bound;
+        }
         let cv = cross_validate(
             &pair_template,
             scoring.data,
@@ -883,6 +886,9 @@ pub fn diagnose(
             })
             .collect();
         let mut by_kind: Vec<(EffectKind, Template, CrossValidation)> = Vec::new();
+        let outside = |template: &Template, cv: &CrossValidation| {
+            out_of_range(&template.model(&cv.full_fit.params), &template.added).is_some()
+        };
         let mut drift_fits: Vec<(crate::model::effects::DriftClock, f64, usize)> = Vec::new();
         for ((kind, template), cv) in items.into_iter().zip(fitted) {
             if kind == EffectKind::SpecimenDrift {
@@ -894,8 +900,13 @@ pub fn diagnose(
             }
             match by_kind.iter_mut().find(|(k, _, _)| *k == kind) {
                 // The choice between laws with equally many parameters is made on the
-                // in-sample fit, never on held-out errors.
-                Some(entry) if cv.full_fit.sse < entry.2.full_fit.sse => {
+                // in-sample fit, never on held-out errors; a fit inside the effect's
+                // physical range beats one outside it (the relaxation-time shift held on
+                // its bound beside a free fit just below it).
+                Some(entry)
+                    if (outside(&template, &cv), cv.full_fit.sse)
+                        < (outside(&entry.1, &entry.2), entry.2.full_fit.sse) =>
+                {
                     *entry = (kind, template, cv)
                 }
                 Some(_) => {}

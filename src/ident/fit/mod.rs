@@ -770,6 +770,10 @@ pub struct Template {
     pub start_prefix: Option<Vec<f64>>,
     /// Law of an added `amplitude-friction`: generalised Dahl (true) or Iwan (false).
     pub friction_dahl: bool,
+    /// An added `temperature-shift` with its relaxation-time shift held on its range's
+    /// lower bound, 0 (the parameter stays in the vector but does nothing): the variant
+    /// tried beside the free one, for a fit that would leave the range just below it.
+    pub time_shift_on_bound: bool,
     /// Clock of an added `specimen-drift`.
     pub drift_clock: DriftClock,
     /// Each drift clock's span over the campaign (`DriftClock::ALL` order; 0: the campaign
@@ -843,6 +847,7 @@ impl Template {
             reference_temperature_c,
             start_prefix: None,
             friction_dahl: false,
+            time_shift_on_bound: false,
             drift_clock: DriftClock::TestOrder,
             clock_spans: [0.0; 3],
             clocks_like_order: Vec::new(),
@@ -912,6 +917,11 @@ impl Template {
                 let mut dahl = plain.clone();
                 dahl.friction_dahl = true;
                 vec![plain, dahl]
+            }
+            EffectKind::TemperatureShift => {
+                let mut on_bound = plain.clone();
+                on_bound.time_shift_on_bound = true;
+                vec![plain, on_bound]
             }
             // Every clock the campaign has (time only with `started_at`, energy only when
             // dissipated energy was measured); the data pick one.
@@ -1224,7 +1234,11 @@ impl Template {
                 EffectKind::TemperatureShift => Effect::TemperatureShift {
                     reference_temperature_c: self.reference_temperature_c,
                     operating_temperature_c: self.reference_temperature_c,
-                    log10_time_shift_per_c: theta[i] / 100.0,
+                    log10_time_shift_per_c: if self.time_shift_on_bound {
+                        0.0
+                    } else {
+                        theta[i] / 100.0
+                    },
                     ln_modulus_shift_per_c: theta[i + 1] / 100.0,
                 },
                 EffectKind::ChannelDelay => Effect::ChannelDelay {
