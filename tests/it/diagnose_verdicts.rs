@@ -260,6 +260,40 @@ fn a_self_heating_specimen_is_named_with_a_physical_thermal_circuit() {
     assert!((40.0..400.0).contains(&tau), "tau = {tau}");
 }
 
+/// The first test repeated at the end of a heating campaign runs warmer: its stiffness
+/// differs beyond noise, but the named self-heating reproduces both, so the report does
+/// not say the specimen changed (a drift's repeat still does:
+/// `a_repeated_first_test_checks_drift_directly`).
+#[test]
+fn a_warmer_repeat_is_explained_by_self_heating_not_a_changed_specimen() {
+    let truth = Truth {
+        self_heating: Some((6.0, 0.05, 0.01)),
+        rest_s: Some(10.0),
+        ..Truth::paper_like()
+    };
+    let mut design = standard_design();
+    design.push(design[0]);
+    let d = diagnose_case_with(
+        "self-heating-repeat",
+        &truth,
+        &design,
+        &[],
+        &Noise::typical(),
+        26,
+        &long_records(),
+    );
+    assert_named_set(&d, &["self-heating"]);
+    let repeat = d
+        .verdict
+        .repeats
+        .iter()
+        .find(|r| r.significant())
+        .expect("the warmer repeat differs beyond noise");
+    assert!(repeat.change < 0.0, "{repeat:?}");
+    assert_eq!(repeat.explained_by, Some("self-heating"));
+    assert!(!d.verdict.specimen_changed());
+}
+
 #[test]
 fn cyclic_softening_is_named_from_the_load_history_with_passages() {
     // Mullins: up to 8 % softer well below the largest load, over 25 kN (the generator's

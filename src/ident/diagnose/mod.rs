@@ -1049,6 +1049,14 @@ pub fn diagnose(
         options.order_is_clock,
     );
     verdict.drift_named = named.contains(&EffectKind::SpecimenDrift);
+    if named.contains(&EffectKind::SelfHeating) {
+        verdict::mark_explained_repeats(
+            &mut verdict.repeats,
+            data,
+            &current_cv.held_out_error,
+            "self-heating",
+        );
+    }
     Diagnosis {
         verdict,
         history_ids: data

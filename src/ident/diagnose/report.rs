@@ -95,7 +95,7 @@ pub fn json_summary(d: &Diagnosis, model_path: &std::path::Path) -> serde_json::
         })),
         "repeats": d.verdict.repeats.iter().map(|c| json!({
             "first": c.first_id, "last": c.last_id, "change": c.change, "z": c.z,
-            "significant": c.significant(),
+            "significant": c.significant(), "explained_by": c.explained_by,
         })).collect::<Vec<_>>(),
         "history_tests": d.history_ids,
     })
@@ -583,10 +583,12 @@ fn render_report(
             c.last_id,
             100.0 * c.change,
             c.z,
-            if c.significant() {
-                ": the specimen changed between them."
-            } else {
-                ": no change beyond noise."
+            match (c.significant(), c.explained_by) {
+                (true, Some(effect)) => format!(
+                    ": beyond noise, but the named {effect} reproduces both tests (the repeat ran warmer): no change of the specimen"
+                ),
+                (true, None) => ": the specimen changed between them.".to_string(),
+                _ => ": no change beyond noise.".to_string(),
             }
         );
     }
@@ -786,7 +788,7 @@ pub fn specimen_sentence(d: &Diagnosis) -> String {
             if t.by_clock { ", by started_at" } else { ", in campaign order" }
         ));
     }
-    for c in d.verdict.repeats.iter().filter(|c| c.significant()) {
+    for c in d.verdict.repeats.iter().filter(|c| c.shows_a_change()) {
         parts.push(format!(
             "repeated test {} -> {} changed its dynamic stiffness by {:+.2} % (z = {:.1})",
             c.first_id,

@@ -83,11 +83,20 @@ pub struct RepeatCheck {
     /// `|K_last| / |K_first| - 1`.
     pub change: f64,
     pub z: f64,
+    /// A named effect that is no change of the specimen explains the difference (set by
+    /// `diagnose`): `self-heating` (the repeat ran warmer) when the final model reproduces
+    /// both tests to within a third of the change.
+    pub explained_by: Option<&'static str>,
 }
 
 impl RepeatCheck {
     pub fn significant(&self) -> bool {
         self.z.abs() > MIN_REPEAT_Z && self.change.abs() > MIN_GAP
+    }
+
+    /// Significant and not explained by a reversible named effect: the specimen changed.
+    pub fn shows_a_change(&self) -> bool {
+        self.significant() && self.explained_by.is_none()
     }
 }
 
@@ -111,8 +120,31 @@ impl Verdict {
     /// The specimen changed during the campaign: a repeated test or the order trend says so.
     pub fn specimen_changed(&self) -> bool {
         self.drift_named
-            || self.repeats.iter().any(RepeatCheck::significant)
+            || self.repeats.iter().any(RepeatCheck::shows_a_change)
             || self.trend.as_ref().is_some_and(OrderTrend::significant)
+    }
+}
+
+/// Marks the repeats the final model reproduces (held-out excess at both tests below a
+/// third of the change) as explained by `effect` (a reversible one, e.g. self-heating).
+pub fn mark_explained_repeats(
+    repeats: &mut [RepeatCheck],
+    data: &[CycleData],
+    errors: &[f64],
+    effect: &'static str,
+) {
+    for r in repeats.iter_mut().filter(|r| r.significant()) {
+        let excess = |id: &str| {
+            data.iter()
+                .position(|d| d.id == id)
+                .map_or(f64::INFINITY, |i| {
+                    (errors[i] - data[i].noise_relative).max(0.0).sqrt()
+                })
+        };
+        let bound = r.change.abs() / 3.0;
+        if excess(&r.first_id) < bound && excess(&r.last_id) < bound {
+            r.explained_by = Some(effect);
+        }
     }
 }
 
@@ -368,6 +400,7 @@ fn repeat_checks(data: &[CycleData]) -> Vec<RepeatCheck> {
             last_id: l.id.clone(),
             change,
             z: change / sigma.max(1e-300),
+            explained_by: None,
         });
     }
     out
