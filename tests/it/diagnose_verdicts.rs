@@ -258,6 +258,14 @@ fn a_self_heating_specimen_is_named_with_a_physical_thermal_circuit() {
     );
     let tau = heat_capacity_j_per_k / heat_transfer_w_per_k;
     assert!((40.0..400.0).contains(&tau), "tau = {tau}");
+    // Heat carried between tests: the heat capacity is identified, no caveat.
+    let named = d
+        .rounds
+        .iter()
+        .flatten()
+        .find(|c| c.qualifies && c.kind == EffectKind::SelfHeating)
+        .expect("the fit named");
+    assert_eq!(named.law_note, None);
 }
 
 /// The first test repeated at the end of a heating campaign runs warmer: its stiffness

@@ -932,8 +932,15 @@ pub fn diagnose(
                 };
                 let model = candidate.model_with_errors(&cv.full_fit);
                 let out_of_range = out_of_range(&model, &[kind]);
-                let law_note = (kind == EffectKind::SpecimenDrift)
-                    .then(|| drift_clock_note(&drift_fits, &candidate.clocks_like_order, data));
+                let law_note = match kind {
+                    EffectKind::SpecimenDrift => Some(drift_clock_note(
+                        &drift_fits,
+                        &candidate.clocks_like_order,
+                        data,
+                    )),
+                    EffectKind::SelfHeating => heating_note(&model, data),
+                    _ => None,
+                };
                 CandidateResult {
                     law_note,
                     kind,
@@ -1116,6 +1123,34 @@ fn held_back_by_simpler_artefact(
 /// Which clock a drift runs on, as the data say: the in-sample fits of each clock the
 /// campaign has, told apart when the worse one's sum of squares exceeds the best one's by
 /// more than 4 noise variances (a likelihood-ratio test at about 95 %), else "cannot tell".
+/// What a self-heating fit cannot say: with a time constant under a fifth of the median
+/// record every test reaches its steady rise `P / h` within its record and nothing is
+/// carried between tests, so the heat capacity is not identified by the data.
+fn heating_note(model: &AugmentedModel, data: &[CycleData]) -> Option<String> {
+    let Some(&Effect::SelfHeating {
+        heat_capacity_j_per_k,
+        heat_transfer_w_per_k,
+        ..
+    }) = model.find("self-heating")
+    else {
+        return None;
+    };
+    let tau_s = heat_capacity_j_per_k / heat_transfer_w_per_k;
+    let mut durations: Vec<f64> = data
+        .iter()
+        .find_map(|d| d.time.schedule.clone())?
+        .iter()
+        .map(|i| i.duration_s)
+        .collect();
+    durations.sort_by(f64::total_cmp);
+    let median_s = *durations.get(durations.len() / 2)?;
+    (tau_s < median_s / 5.0).then(|| {
+        format!(
+            "time constant {tau_s:.1} s, under a fifth of the median record ({median_s:.0} s): each test reaches its steady rise P / h within its record and no heat is carried to the next, so the data identify h ({heat_transfer_w_per_k:.3} W/K) but not the heat capacity ({heat_capacity_j_per_k:.2} J/K is no measurement of it)"
+        )
+    })
+}
+
 fn drift_clock_note(
     fits: &[(crate::model::effects::DriftClock, f64, usize)],
     like_order: &[crate::model::effects::DriftClock],

@@ -441,7 +441,8 @@ fn render_report(
         let _ = writeln!(r, "- {note}");
     }
     for c in d.rounds.iter().flatten() {
-        if let (Some(note), true) = (&c.law_note, d.named.contains(&c.kind)) {
+        // The note of the fit that was named (earlier rounds' fits of it were not).
+        if let (Some(note), true) = (&c.law_note, c.qualifies && d.named.contains(&c.kind)) {
             let _ = writeln!(r, "- `{}` {note}", c.kind.name());
         }
     }
