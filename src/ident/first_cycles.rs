@@ -247,3 +247,122 @@ pub fn split_first_cycles(campaign: &Campaign) -> (Campaign, Vec<FirstCyclesUse>
         used,
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ident::fit::test_data;
+    use std::path::PathBuf;
+
+    /// A 2 Hz harmonic record of `n_cycles` cycles on a 20 kN preload, 500 samples per
+    /// second, its force `k z` (a stiffness `first_k` over the first cycle), with a small
+    /// deterministic "noise".
+    fn record(id: &str, n_cycles: usize, first_k: f64, started_at_s: f64) -> Test {
+        let (f_hz, dt) = (2.0, 2e-3);
+        let n = (n_cycles as f64 / (f_hz * dt)).round() as usize;
+        let per_cycle = n / n_cycles;
+        let k = 5e7;
+        let mut z = Vec::with_capacity(n);
+        let mut f = Vec::with_capacity(n);
+        for i in 0..n {
+            let t = i as f64 * dt;
+            let zi = 1e-4 * (2.0 * PI * f_hz * t).sin();
+            let wobble = 1.0 + 1e-4 * ((i * 7919 % 101) as f64 / 50.0 - 1.0);
+            let ki = if i < per_cycle { first_k } else { k };
+            z.push(4e-4 + zi);
+            f.push(20e3 + ki * zi * wobble);
+        }
+        Test {
+            id: id.into(),
+            file: PathBuf::from(format!("{id}.csv")),
+            kind: TestKind::Harmonic {
+                preload_n: 20e3,
+                amplitude_n: 5e3,
+                frequency_hz: f_hz,
+            },
+            temperature_c: 23.0,
+            dt_s: dt,
+            time_s: (0..n).map(|i| i as f64 * dt).collect(),
+            cycle: Some(analyse_cycle(dt, f_hz, &z, &f)),
+            displacement_m: z,
+            force_n: f,
+            started_at_s: Some(started_at_s),
+            first_cycles_of: None,
+        }
+    }
+
+    fn campaign(tests: Vec<Test>) -> Campaign {
+        Campaign {
+            dir: PathBuf::from("."),
+            sample_length_m: 1.0,
+            tests,
+        }
+    }
+
+    #[test]
+    fn a_steady_record_is_kept_and_a_changed_first_cycle_is_split_before_its_parent() {
+        let steady = campaign(vec![record("A", 6, 5e7, 0.0), record("B", 6, 5e7, 100.0)]);
+        let (same, used) = split_first_cycles(&steady);
+        assert!(used.is_empty(), "{used:?}");
+        assert_eq!(same.tests.len(), 2);
+
+        // B's first cycle 3 % stiffer: split off, 2 of 6 cycles, before B, at B's start.
+        let changed = campaign(vec![
+            record("A", 6, 5e7, 0.0),
+            record("B", 6, 5.15e7, 100.0),
+        ]);
+        let (split, used) = split_first_cycles(&changed);
+        assert_eq!(used.len(), 1, "{used:?}");
+        assert_eq!(used[0].test_id, "B");
+        assert!((used[0].relative_change - 0.03).abs() < 0.01, "{used:?}");
+        let ids: Vec<&str> = split.tests.iter().map(|t| t.id.as_str()).collect();
+        assert_eq!(ids, ["A", "B#first-cycles", "B"]);
+        let (first, parent) = (&split.tests[1], &split.tests[2]);
+        assert_eq!(first.kind, TestKind::History);
+        assert_eq!(first.first_cycles_of.as_deref(), Some("B"));
+        assert_eq!(first.started_at_s, Some(100.0));
+        assert_eq!(first.force_n.len(), 500);
+        assert_eq!(parent.force_n.len(), 1000);
+        assert!((parent.started_at_s.unwrap() - 101.0).abs() < 1e-9);
+        assert_eq!(parent.cycle.as_ref().unwrap().n_cycles, 4);
+
+        // Units: the first cycles count as their parent's test on the test-order clock and
+        // raise the largest force the steady cycles start from.
+        let data = test_data(&split).unwrap();
+        assert_eq!(data.len(), 3);
+        assert_eq!(data[1].time.clocks[0], 1.0);
+        assert_eq!(data[2].time.clocks[0], 1.0);
+        assert!(data[1].time.first_cycles && !data[2].time.first_cycles);
+        assert!(data[2].time.max_force_before_n >= data[1].time.peak_force_n);
+        assert_eq!(split.test_orders(), vec![0.0, 100.0, 101.0]);
+    }
+
+    #[test]
+    fn a_record_too_short_or_a_slow_change_is_not_split() {
+        // 3 whole cycles: too few to compare.
+        let short = campaign(vec![record("S", 3, 5.15e7, 0.0)]);
+        assert!(split_first_cycles(&short).1.is_empty());
+        // A stiffness rising 6 % over the record (warming, drift): not a start-up.
+        let mut slow = record("W", 8, 5e7, 0.0);
+        let n = slow.force_n.len() as f64;
+        for (i, f) in slow.force_n.iter_mut().enumerate() {
+            *f = 20e3 + (*f - 20e3) * (1.0 + 0.06 * i as f64 / n);
+        }
+        slow.cycle = Some(analyse_cycle(
+            slow.dt_s,
+            2.0,
+            &slow.displacement_m,
+            &slow.force_n,
+        ));
+        assert!(split_first_cycles(&campaign(vec![slow])).1.is_empty());
+        // Without start times the split unit takes its parent's index.
+        let mut a = record("A", 6, 5e7, 0.0);
+        let mut b = record("B", 6, 5.15e7, 0.0);
+        let mut c = record("C", 6, 5e7, 0.0);
+        for t in [&mut a, &mut b, &mut c] {
+            t.started_at_s = None;
+        }
+        let (split, _) = split_first_cycles(&campaign(vec![a, b, c]));
+        assert_eq!(split.test_orders(), vec![0.0, 1.0, 1.0, 2.0]);
+    }
+}
