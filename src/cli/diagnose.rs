@@ -12,6 +12,7 @@ use crate::ident::campaign::load_campaign;
 use crate::ident::diagnose::report::{write_outputs, write_run_outputs, ReportPaths};
 use crate::ident::diagnose::run::{diagnose_run, operating_temperature_c};
 use crate::ident::diagnose::{diagnose, DiagnoseOptions};
+use crate::ident::first_cycles::split_first_cycles;
 use crate::ident::fit::{test_data, CycleData};
 use crate::ident::history::prepare_history;
 use crate::ident::runrec::load_run_history;
@@ -137,6 +138,12 @@ fn campaign_command(
         );
         baseline = rescale(&baseline, scale, campaign.sample_length_m);
     }
+    // The first cycles of harmonic records that carry something (a Mullins effect's
+    // virgin loading) become history tests; records starting in steady state are kept.
+    let (campaign, first_cycles_used) = split_first_cycles(&campaign);
+    for u in &first_cycles_used {
+        eprintln!("diagnose: first cycles used: {}", u.reason());
+    }
     let data = test_data(&campaign)?;
     let n_history = data.iter().filter(|d| d.is_history()).count();
     if data.len() < 6 {
@@ -157,9 +164,10 @@ fn campaign_command(
         order_is_clock: campaign.has_start_times(),
         ..DiagnoseOptions::default()
     };
-    let diagnosis = diagnose(&baseline, &data, &options, &mut |msg| {
+    let mut diagnosis = diagnose(&baseline, &data, &options, &mut |msg| {
         eprintln!("diagnose: {msg}")
     });
+    diagnosis.first_cycles_used = first_cycles_used;
     let paths = ReportPaths {
         campaign: campaign_dir.to_path_buf(),
         model: model_path.clone(),

@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use anyhow::{bail, Context};
 use clap::Args;
 
-use crate::ident::synth::{hidden_choices, valid_hidden, write_synthetic_campaign};
+use crate::ident::synth::{hidden_choices, valid_hidden, write_synthetic_campaign_with};
 
 #[derive(Args)]
 pub struct SynthArgs {
@@ -24,6 +24,11 @@ pub struct SynthArgs {
     /// Seed of the noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Harmonic records start from rest at the preload (start-up included) instead of
+    /// after a lead-in: `diagnose` then uses the first cycles that differ from the steady
+    /// ones.
+    #[arg(long)]
+    pub from_rest: bool,
 }
 
 pub fn run(args: SynthArgs) -> anyhow::Result<ExitCode> {
@@ -35,7 +40,7 @@ pub fn run(args: SynthArgs) -> anyhow::Result<ExitCode> {
             choices.join(", ")
         );
     }
-    let n = write_synthetic_campaign(&args.out, &args.hidden, args.seed)
+    let n = write_synthetic_campaign_with(&args.out, &args.hidden, args.seed, args.from_rest)
         .with_context(|| format!("cannot write the campaign to {}", args.out.display()))?;
     eprintln!(
         "synth-campaign: {n} tests (hidden: {}) in {}; try\n  fastemu diagnose --campaign {} --model {} --out diagnosis\nthe truth is in {} (diagnose does not read it)",

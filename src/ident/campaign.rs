@@ -102,6 +102,9 @@ pub struct Test {
     pub cycle: Option<HarmonicCycle>,
     /// `started_at` (ISO 8601) as seconds since 1970-01-01 UTC, when given.
     pub started_at_s: Option<f64>,
+    /// For a history test split off a harmonic record's start (`first_cycles`): the id
+    /// of the harmonic test it was split from. It shares its parent's place in test order.
+    pub first_cycles_of: Option<String>,
 }
 
 impl Test {
@@ -142,7 +145,9 @@ pub struct Campaign {
 
 impl Campaign {
     /// Each test's place in the campaign's time: `started_at` (s) when every test states
-    /// it, else its index in `campaign.toml` (the order a lab runs its list in).
+    /// it, else its index in `campaign.toml` (the order a lab runs its list in). First
+    /// cycles split off a record (`first_cycles_of`) are part of their parent's test: they
+    /// take the parent's index and do not move the tests after it.
     pub fn test_orders(&self) -> Vec<f64> {
         if self.tests.iter().all(|t| t.started_at_s.is_some()) {
             self.tests
@@ -150,7 +155,15 @@ impl Campaign {
                 .map(|t| t.started_at_s.unwrap_or(0.0))
                 .collect()
         } else {
-            (0..self.tests.len()).map(|i| i as f64).collect()
+            let mut index = 0usize;
+            let mut out = Vec::with_capacity(self.tests.len());
+            for t in &self.tests {
+                out.push(index as f64);
+                if t.first_cycles_of.is_none() {
+                    index += 1;
+                }
+            }
+            out
         }
     }
 
@@ -444,6 +457,7 @@ fn load_test(
         force_n,
         cycle,
         started_at_s,
+        first_cycles_of: None,
     })
 }
 

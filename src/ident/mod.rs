@@ -3,6 +3,8 @@
 //! Map (data flows top to bottom):
 //! - `campaign`: loads `campaign.toml` and its CSVs (SPEC 4), reduces each harmonic test to
 //!   its steady cycle and estimates the noise of its fundamental.
+//! - `first_cycles`: for `diagnose --campaign`, splits a harmonic record's first cycles
+//!   off as a history test before it when they differ from its steady cycles beyond noise.
 //! - `history`: history tests (any displacement programme, and the rig record of a HIL
 //!   run) band-limited, decimated and with their noise estimated; the model's force
 //!   predicted for them.
@@ -26,6 +28,7 @@
 
 pub mod campaign;
 pub mod diagnose;
+pub mod first_cycles;
 pub mod fit;
 pub mod history;
 pub mod identify;

@@ -284,6 +284,19 @@ fn carried(truth: &AugmentedModel, state: (f64, f64), rest_s: f64) -> AugmentedM
 
 /// Writes the campaign; returns the number of tests.
 pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io::Result<usize> {
+    write_synthetic_campaign_with(dir, hidden, seed, false)
+}
+
+/// `write_synthetic_campaign`; with `from_rest` each harmonic record starts where its
+/// loading starts, the specimen at rest at the preload (the drive
+/// `z_static + a1 sin(W t) + 0.02 a1 sin(2 W t)`), so the start-up is in the record,
+/// instead of after a 1.5 s lead-in.
+pub fn write_synthetic_campaign_with(
+    dir: &Path,
+    hidden: &str,
+    seed: u64,
+    from_rest: bool,
+) -> std::io::Result<usize> {
     assert!(valid_hidden(hidden), "unknown hidden effect");
     std::fs::create_dir_all(dir)?;
     let truth = truth_model(hidden);
@@ -351,8 +364,14 @@ pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io:
         let w = 2.0 * PI * p.frequency_hz;
         let stiffness = linear_modulus(&el, p.preload_n, w);
         let a1 = p.amplitude_n / stiffness;
-        let z_of =
-            move |t: f64| z_static + a1 * (w * t).cos() + 0.02 * a1 * (2.0 * w * t + 0.7).cos();
+        let (phi1, phi2) = if from_rest {
+            (-0.5 * PI, -0.5 * PI)
+        } else {
+            (0.0, 0.7)
+        };
+        let z_of = move |t: f64| {
+            z_static + a1 * (w * t + phi1).cos() + 0.02 * a1 * (2.0 * w * t + phi2).cos()
+        };
         let n_cycles = if heating {
             (20.0 * p.frequency_hz).round()
         } else if p.frequency_hz < 2.0 {
@@ -363,8 +382,9 @@ pub fn write_synthetic_campaign(dir: &Path, hidden: &str, seed: u64) -> std::io:
         let dt_s = 1.0 / (64.0 * p.frequency_hz).max(500.0);
         let n = (n_cycles / p.frequency_hz / dt_s).round() as usize;
         // Start at rest 1.5 s early, so the record holds the steady state (the specimen
-        // warms over the lead-in too: it is part of the test).
-        let (mut z, mut f, end_state) = record(&model, resonance, &z_of, -1.5, dt_s, n);
+        // warms over the lead-in too: it is part of the test); from rest, at t = 0.
+        let lead_in_s = if from_rest { 0.0 } else { -1.5 };
+        let (mut z, mut f, end_state) = record(&model, resonance, &z_of, lead_in_s, dt_s, n);
         carry = end_state;
         last_end_s = started_s + n as f64 * dt_s;
         let id = format!(

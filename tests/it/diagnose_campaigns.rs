@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use fastemu::ident::campaign::load_campaign;
 use fastemu::ident::diagnose::{diagnose, DiagnoseOptions};
+use fastemu::ident::first_cycles::split_first_cycles;
 use fastemu::ident::fit::cycle_data;
 use fastemu::model::effects::AugmentedModel;
 use fastemu::model::file::parse_model_toml;
@@ -77,6 +78,11 @@ fn run_case_with_design(
     let dir = scratch_dir(name);
     write_campaign_with(&dir, truth, design, noise, seed, acquisition);
     let campaign = load_campaign(&dir).expect("campaign loads");
+    if !acquisition.from_rest {
+        // Records that start in steady state keep their first cycles (diagnose --campaign).
+        let (_, used) = split_first_cycles(&campaign);
+        assert!(used.is_empty(), "[{name}] first cycles split: {used:?}");
+    }
     let data = cycle_data(&campaign);
     let spec = parse_model_toml(&off_baseline_toml(baseline_chi), "baseline.toml").unwrap();
     let baseline = AugmentedModel::from_spec(&spec, "baseline.toml").unwrap();
@@ -389,6 +395,7 @@ fn soak_sparse_design() {
         min_rate_hz: 0.0,
         cycles_below_2_hz: 3,
         cycles_above_2_hz: 3,
+        from_rest: false,
     };
     let base = Truth::paper_like();
     let cases: Vec<(&str, Truth, f64, Vec<&str>)> = vec![

@@ -7,6 +7,7 @@ use std::path::PathBuf;
 
 use fastemu::ident::campaign::load_campaign;
 use fastemu::ident::diagnose::{diagnose, DiagnoseOptions, Diagnosis};
+use fastemu::ident::first_cycles::{split_first_cycles, FirstCyclesUse};
 use fastemu::ident::fit::{test_data, EffectKind};
 use fastemu::model::effects::{AugmentedModel, DriftClock, Effect};
 use fastemu::model::file::parse_model_toml;
@@ -47,7 +48,9 @@ pub fn diagnose_case(
     )
 }
 
-/// `diagnose_case` with records of another length.
+/// `diagnose_case` with records of another length. Like `diagnose --campaign` it uses
+/// the first cycles of records that carry something; records that start in steady state
+/// must have none split off.
 pub fn diagnose_case_with(
     name: &str,
     truth: &Truth,
@@ -57,9 +60,46 @@ pub fn diagnose_case_with(
     seed: u64,
     acquisition: &Acquisition,
 ) -> Diagnosis {
+    let (diagnosis, used) = diagnose_case_split(
+        name,
+        truth,
+        design,
+        passages,
+        noise,
+        seed,
+        acquisition,
+        true,
+    );
+    if !acquisition.from_rest {
+        assert!(used.is_empty(), "[{name}] first cycles split: {used:?}");
+    }
+    diagnosis
+}
+
+/// `diagnose_case_with`, the first cycles split off (`split_first_cycles`) or not, and
+/// which were.
+#[allow(clippy::too_many_arguments)]
+pub fn diagnose_case_split(
+    name: &str,
+    truth: &Truth,
+    design: &[TestPoint],
+    passages: &[Passage],
+    noise: &Noise,
+    seed: u64,
+    acquisition: &Acquisition,
+    use_first_cycles: bool,
+) -> (Diagnosis, Vec<FirstCyclesUse>) {
     let dir = scratch_dir(name);
     write_campaign_full(&dir, truth, design, passages, noise, seed, acquisition);
     let campaign = load_campaign(&dir).expect("campaign loads");
+    let (campaign, used) = if use_first_cycles {
+        split_first_cycles(&campaign)
+    } else {
+        (campaign, Vec::new())
+    };
+    for u in &used {
+        eprintln!("[{name}] first cycles used: {}", u.reason());
+    }
     let data = test_data(&campaign).expect("tests reduce");
     let spec = parse_model_toml(&off_baseline_toml(0.3), "baseline.toml").unwrap();
     let baseline = AugmentedModel::from_spec(&spec, "baseline.toml").unwrap();
@@ -85,7 +125,7 @@ pub fn diagnose_case_with(
         diagnosis.verdict.trend.as_ref().map(|t| (t.change, t.t, t.beats_design)),
         out_of_range(&diagnosis),
     );
-    diagnosis
+    (diagnosis, used)
 }
 
 pub fn names(d: &Diagnosis) -> Vec<&'static str> {
@@ -337,6 +377,137 @@ fn cyclic_softening_is_named_from_the_load_history_with_passages() {
         "F_s = {force_scale_n}"
     );
     assert_eq!(max_force_n, 0.0, "the model describes the virgin specimen");
+}
+
+/// The standard design in the order of its largest load (preload + amplitude, ascending):
+/// no test runs below a load reached before it, so the load history across tests cannot
+/// show a Mullins effect.
+fn rising_load_design() -> Vec<TestPoint> {
+    let mut design = standard_design();
+    design.sort_by(|a, b| (a.preload_n + a.amplitude_n).total_cmp(&(b.preload_n + b.amplitude_n)));
+    design
+}
+
+/// A fifth of the typical noise: a single cycle's dynamic stiffness to about 0.2 %
+/// (with the typical noise, about 1 %, the first cycle's 1-2 % change under this Mullins
+/// truth is not 5 sigma in any one record).
+fn quiet_noise() -> Noise {
+    let n = Noise::typical();
+    Noise {
+        white_force: 0.2 * n.white_force,
+        white_displacement: 0.2 * n.white_displacement,
+        coloured_force: 0.2 * n.coloured_force,
+        drift_force: 0.2 * n.drift_force,
+        ..n
+    }
+}
+
+/// Records from rest at the preload, start-up included.
+fn from_rest() -> Acquisition {
+    Acquisition {
+        from_rest: true,
+        ..Acquisition::typical()
+    }
+}
+
+#[test]
+fn cyclic_softening_is_named_from_the_first_cycles_of_records_from_rest() {
+    // Every test raises the largest load: only the first cycles of each record, its virgin
+    // loading, against its steady cycles below it show the softening.
+    let truth = Truth {
+        mullins: Some((0.08, 25e3)),
+        ..Truth::paper_like()
+    };
+    let design = rising_load_design();
+    let (without, none) = diagnose_case_split(
+        "mullins-rest-steady-only",
+        &truth,
+        &design,
+        &[],
+        &quiet_noise(),
+        27,
+        &from_rest(),
+        false,
+    );
+    assert!(none.is_empty());
+    // Without the first cycles the load history cannot show it: not identifiable.
+    assert!(
+        !names(&without).contains(&"cyclic-softening"),
+        "without first cycles: {:?}",
+        names(&without)
+    );
+    let reason = without
+        .not_tried
+        .iter()
+        .find(|n| n.kind == EffectKind::CyclicSoftening && n.not_identifiable)
+        .map(|n| n.reason.clone());
+    eprintln!("[mullins-rest-steady-only] cyclic-softening: {reason:?}");
+    assert!(
+        reason.is_some(),
+        "cyclic-softening not listed as not identifiable"
+    );
+    let (d, used) = diagnose_case_split(
+        "mullins-rest",
+        &truth,
+        &design,
+        &[],
+        &quiet_noise(),
+        27,
+        &from_rest(),
+        true,
+    );
+    assert!(names(&d).contains(&"cyclic-softening"), "{:?}", names(&d));
+    assert!(used.len() >= 3, "first cycles used: {used:?}");
+    assert!(
+        used.iter().all(|u| u.relative_change > 5.0 * u.noise_sigma),
+        "{used:?}"
+    );
+    assert!(
+        d.gap_before >= 3.0 * d.gap_after,
+        "gap {:.3e} -> {:.3e}",
+        d.gap_before,
+        d.gap_after
+    );
+    let Some(&Effect::CyclicSoftening {
+        softening_limit,
+        force_scale_n,
+        ..
+    }) = d.final_model.find("cyclic-softening")
+    else {
+        panic!()
+    };
+    eprintln!("[mullins-rest] d = {softening_limit}, F_s = {force_scale_n}");
+    assert!(
+        (0.04..0.16).contains(&softening_limit),
+        "d = {softening_limit}"
+    );
+    assert!(
+        (10e3..60e3).contains(&force_scale_n),
+        "F_s = {force_scale_n}"
+    );
+}
+
+#[test]
+fn records_from_rest_without_a_hidden_effect_name_nothing() {
+    // The start-up transient of the Maxwell branch is the model's own: whether or not the
+    // first cycles are split off, it must not raise an alarm.
+    let (d, used) = diagnose_case_split(
+        "null-rest",
+        &Truth::paper_like(),
+        &rising_load_design(),
+        &[],
+        &quiet_noise(),
+        31,
+        &from_rest(),
+        true,
+    );
+    eprintln!("[null-rest] {} records' first cycles used", used.len());
+    assert!(d.named.is_empty(), "named {:?}", names(&d));
+    assert!(
+        d.verdict.unexplained.is_none(),
+        "unexplained {:?}",
+        d.verdict.unexplained
+    );
 }
 
 /// Two at once, new effects beside older ones: self-heating beside amplitude friction (both

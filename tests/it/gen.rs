@@ -302,12 +302,20 @@ fn static_displacement(k1: f64, chi: f64, p0: f64, p: f64) -> f64 {
 }
 
 /// Simulates one test; returns (t, z, F) without noise.
+///
+/// `from_rest`: the record begins where the loading begins, the specimen in static
+/// equilibrium at the preload (`z = z_static`, Maxwell and friction forces zero), the
+/// displacement `z_static + a1 sin(W t) + a2 sin(2 W t)` (imperfect control as in the
+/// steady case); the start-up transient is in the record. Otherwise the record starts
+/// after a 1.5 s lead-in. The springpot and Cole-Cole branches are steady-state formulas
+/// either way.
 pub fn simulate_test(
     truth: &Truth,
     point: &TestPoint,
     n_cycles: usize,
     samples_per_cycle: f64,
     min_rate_hz: f64,
+    from_rest: bool,
 ) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let l = truth.length_m;
     let (b, a) = truth.temperature_factors(point.temperature_c);
@@ -343,11 +351,17 @@ pub fn simulate_test(
     let z_amp = point.amplitude_n / modulus.0.hypot(modulus.1);
     let z_static = static_displacement(k1, chi, p0, point.preload_n);
     // Imperfect control: 2 % second harmonic.
-    let (a1, a2, phi2) = (z_amp, 0.02 * z_amp, 0.7);
-    let z_of = |t: f64| z_static + a1 * (w * t).cos() + a2 * (2.0 * w * t + phi2).cos();
-    let v_of = |t: f64| -a1 * w * (w * t).sin() - 2.0 * a2 * w * (2.0 * w * t + phi2).sin();
+    // From rest: sines, so the drive starts at the static displacement (phase -pi/2).
+    let (a1, a2) = (z_amp, 0.02 * z_amp);
+    let (phi1, phi2) = if from_rest {
+        (-0.5 * PI, -0.5 * PI)
+    } else {
+        (0.0, 0.7)
+    };
+    let z_of = |t: f64| z_static + a1 * (w * t + phi1).cos() + a2 * (2.0 * w * t + phi2).cos();
+    let v_of = |t: f64| -a1 * w * (w * t + phi1).sin() - 2.0 * a2 * w * (2.0 * w * t + phi2).sin();
     let acc_of =
-        |t: f64| -a1 * w * w * (w * t).cos() - 4.0 * a2 * w * w * (2.0 * w * t + phi2).cos();
+        |t: f64| -a1 * w * w * (w * t + phi1).cos() - 4.0 * a2 * w * w * (2.0 * w * t + phi2).cos();
 
     let fs_hz = (samples_per_cycle * point.frequency_hz).max(min_rate_hz);
     let dt = 1.0 / fs_hz;
@@ -355,7 +369,11 @@ pub fn simulate_test(
     let sub = 16usize;
     let h = dt / sub as f64;
     // Settle: start 1.5 s early from the static state at z_static + a1 + a2 cos(phi2).
-    let settle = (1.5 * fs_hz).round() as usize;
+    let settle = if from_rest {
+        0
+    } else {
+        (1.5 * fs_hz).round() as usize
+    };
     let t0 = -(settle as f64) * dt;
     let z0 = z_of(t0);
     // Elastic force Fs of the consistent form at z0 (closed form), Fm = 0, friction 0.
@@ -414,11 +432,12 @@ pub fn simulate_test(
         let frac = x - i as f64;
         let mut f = fine[i] * (1.0 - frac) + fine[i + 1] * frac;
         if let Some((m1, m2, phase)) = springpot {
-            f += m1 * a1 * (w * t + phase).cos() + m2 * a2 * (2.0 * w * t + phi2 + phase).cos();
+            f += m1 * a1 * (w * t + phi1 + phase).cos()
+                + m2 * a2 * (2.0 * w * t + phi2 + phase).cos();
         }
         if let Some((b1, b2)) = cole {
             // Re(K Z e^{i phase}) for z = a cos(W t + phi): a (K_r cos - K_i sin).
-            let (p1, p2) = (w * t, 2.0 * w * t + phi2);
+            let (p1, p2) = (w * t + phi1, 2.0 * w * t + phi2);
             f +=
                 a1 * (b1.0 * p1.cos() - b1.1 * p1.sin()) + a2 * (b2.0 * p2.cos() - b2.1 * p2.sin());
         }
@@ -568,6 +587,9 @@ pub struct Acquisition {
     pub min_rate_hz: f64,
     pub cycles_below_2_hz: usize,
     pub cycles_above_2_hz: usize,
+    /// Harmonic records start from rest at the preload, start-up included (see
+    /// `simulate_test`), instead of after a lead-in.
+    pub from_rest: bool,
 }
 
 impl Acquisition {
@@ -577,6 +599,7 @@ impl Acquisition {
             min_rate_hz: 500.0,
             cycles_below_2_hz: 4,
             cycles_above_2_hz: 8,
+            from_rest: false,
         }
     }
 }
@@ -662,6 +685,7 @@ pub fn write_campaign_full(
             n_cycles,
             acquisition.samples_per_cycle,
             acquisition.min_rate_hz,
+            acquisition.from_rest,
         );
         if let Some((heat_capacity, heat_transfer, _)) = truth.self_heating {
             // Power of the record, the temperature through the test (Euler), and the test
@@ -690,6 +714,7 @@ pub fn write_campaign_full(
                 n_cycles,
                 acquisition.samples_per_cycle,
                 acquisition.min_rate_hz,
+                acquisition.from_rest,
             );
             // The rest cools it.
             let mut time = 0.0;

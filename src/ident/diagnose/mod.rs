@@ -159,6 +159,9 @@ pub struct Diagnosis {
     pub verdict: Verdict,
     /// Ids of the history tests used.
     pub history_ids: Vec<String>,
+    /// Harmonic tests whose first cycles were split off as history tests, and why (set by
+    /// the caller that split them, `first_cycles::split_first_cycles`; empty otherwise).
+    pub first_cycles_used: Vec<crate::ident::first_cycles::FirstCyclesUse>,
 }
 
 /// Precision-weighted mean `sum w_i x_i / sum w_i` (weights `CycleData::weight`).
@@ -341,9 +344,21 @@ pub fn identifiability(kind: EffectKind, data: &[CycleData]) -> Result<(), Strin
                 .iter()
                 .filter(|(p, m)| *p < 0.8 * campaign_max && *m < 0.9 * campaign_max)
                 .count();
-            if below_after < 3 || raising < 2 || below_before < 3 {
+            // Or the first cycles of harmonic records (split off as history tests because
+            // they differ from the steady cycles beyond noise) that raise the largest
+            // load: the virgin loading against the same record's steady cycles below it,
+            // seconds apart, which a drift with time or tests cannot give.
+            let first_raising = data
+                .iter()
+                .filter(|d| {
+                    d.time.first_cycles
+                        && d.time.schedule.is_some()
+                        && d.time.peak_force_n > 1.05 * d.time.max_force_before_n
+                })
+                .count();
+            if (below_after < 3 || raising < 2 || below_before < 3) && first_raising < 3 {
                 return Err(format!(
-                    "the load history does not show it: {below_after} tests below a load reached before them, {raising} raising the largest load, {below_before} at low load before the largest (3, 2 and 3 needed)"
+                    "the load history does not show it: {below_after} tests below a load reached before them, {raising} raising the largest load, {below_before} at low load before the largest (3, 2 and 3 needed), {first_raising} records whose first cycles raise the largest load and differ from their steady cycles (or 3 needed)"
                 ));
             }
         }
@@ -1066,6 +1081,7 @@ pub fn diagnose(
     }
     Diagnosis {
         verdict,
+        first_cycles_used: Vec::new(),
         history_ids: data
             .iter()
             .filter(|d| d.is_history())

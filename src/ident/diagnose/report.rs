@@ -98,6 +98,11 @@ pub fn json_summary(d: &Diagnosis, model_path: &std::path::Path) -> serde_json::
             "significant": c.significant(), "explained_by": c.explained_by,
         })).collect::<Vec<_>>(),
         "history_tests": d.history_ids,
+        "first_cycles_used": d.first_cycles_used.iter().map(|u| json!({
+            "test": u.test_id, "history_test": u.unit_id, "n_cycles": u.n_cycles,
+            "n_whole_cycles": u.n_whole, "relative_change": u.relative_change,
+            "noise_sigma": u.noise_sigma, "reason": u.reason(),
+        })).collect::<Vec<_>>(),
     })
 }
 
@@ -376,6 +381,18 @@ fn render_report(
         args.campaign.display(),
         data.len() - n_history
     );
+    if !d.first_cycles_used.is_empty() {
+        let _ = writeln!(
+            r,
+            "- First cycles used as history tests ({} harmonic tests whose first cycle differs from their steady cycles beyond noise): {}",
+            d.first_cycles_used.len(),
+            d.first_cycles_used
+                .iter()
+                .map(|u| u.reason())
+                .collect::<Vec<_>>()
+                .join("; ")
+        );
+    }
     let _ = writeln!(r, "- Baseline model: `{}`", args.model.display());
     let _ = writeln!(
         r,

@@ -86,6 +86,9 @@ pub struct TestTime {
     pub max_force_before_n: f64,
     /// This test's own peak force (measured), N.
     pub peak_force_n: f64,
+    /// A history unit holding the first cycles of a harmonic record
+    /// (`first_cycles::split_first_cycles`), sorted just before the rest of it.
+    pub first_cycles: bool,
 }
 
 impl TestTime {
@@ -236,12 +239,20 @@ pub fn assign_campaign_time(data: &mut [CycleData], campaign: &Campaign) {
         .collect();
     let mut energy_before_j = 0.0;
     let mut max_before_n = 0.0f64;
+    // The "tests run before" clock counts tests, not units: first cycles split off a
+    // record (`first_cycles_of`, sorted just before their parent) take their parent's
+    // count and do not advance it, so a drift per test sees the campaign the lab ran.
+    let mut tests_before = 0usize;
     for (rank, &i) in order.iter().enumerate() {
         let t = intervals[i];
+        let test_count = tests_before;
+        if campaign.tests[i].first_cycles_of.is_none() {
+            tests_before += 1;
+        }
         let fraction = t.probe_s / t.duration_s.max(1e-300);
         data[i].time = TestTime {
             clocks: [
-                rank as f64,
+                test_count as f64,
                 // Back-to-back times are not a clock: without `started_at` only order.
                 if clocked {
                     (t.start_s + t.probe_s - reference_s) / 3600.0
@@ -255,6 +266,7 @@ pub fn assign_campaign_time(data: &mut [CycleData], campaign: &Campaign) {
             dissipated_j: energies[i],
             max_force_before_n: max_before_n,
             peak_force_n: peaks[i],
+            first_cycles: campaign.tests[i].first_cycles_of.is_some(),
         };
         energy_before_j += energies[i];
         max_before_n = max_before_n.max(peaks[i]);
