@@ -865,6 +865,17 @@ pub fn diagnose(
             raw: raw_gap(&current_in_sample, data),
         };
         let fitted = run_parallel(&items, options.n_threads, |(kind, t)| {
+            let screen = |in_sample: &[f64]| {
+                let m = scoring.compare(
+                    in_sample,
+                    raw_gap(in_sample, data),
+                    kind.n_params(),
+                    &in_sample_reference,
+                );
+                m.score * SCREEN_MARGIN >= options.max_score
+                    && m.z <= options.min_wilcoxon_z
+                    && !m.history_evidence
+            };
             let started = std::time::Instant::now();
             let cv = cross_validate_screened(
                 t,
@@ -873,18 +884,9 @@ pub fn diagnose(
                 n_folds,
                 options.max_iterations,
                 options.n_threads,
-                |in_sample| {
-                    let m = scoring.compare(
-                        in_sample,
-                        raw_gap(in_sample, data),
-                        kind.n_params(),
-                        &in_sample_reference,
-                    );
-                    options.screen
-                        && m.score * SCREEN_MARGIN >= options.max_score
-                        && m.z <= options.min_wilcoxon_z
-                        && !m.history_evidence
-                },
+                options
+                    .screen
+                    .then_some(&screen as &crate::ident::fit::Screen<'_>),
             );
             (cv, started.elapsed().as_secs_f64())
         });

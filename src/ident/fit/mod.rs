@@ -1418,7 +1418,7 @@ pub fn cross_validate(
         n_folds,
         max_iterations,
         n_threads,
-        |_| false,
+        None,
     )
 }
 
@@ -1427,9 +1427,12 @@ pub fn in_sample_errors(model: &AugmentedModel, data: &[CycleData]) -> Vec<f64> 
     data.iter().map(|d| relative_error(model, d)).collect()
 }
 
-/// `cross_validate`, but after the full fit `cannot_qualify` sees its in-sample errors;
-/// when it says so, the fold refits are skipped and the in-sample errors stand in
-/// (`screened`).
+/// A screen on a candidate's in-sample errors: true when it cannot qualify held out.
+pub type Screen<'a> = dyn Fn(&[f64]) -> bool + 'a;
+
+/// `cross_validate`, but after the full fit `cannot_qualify` (when given) sees its
+/// in-sample errors; when it says so, the fold refits are skipped and the in-sample errors
+/// stand in (`screened`).
 pub fn cross_validate_screened(
     template: &Template,
     data: &[CycleData],
@@ -1437,17 +1440,19 @@ pub fn cross_validate_screened(
     n_folds: usize,
     max_iterations: usize,
     n_threads: usize,
-    cannot_qualify: impl Fn(&[f64]) -> bool,
+    cannot_qualify: Option<&Screen<'_>>,
 ) -> CrossValidation {
     let all: Vec<&CycleData> = data.iter().collect();
     let full_fit = fit_template(template, &all, &template.starts(data), max_iterations);
-    let in_sample = in_sample_errors(&template.model(&full_fit.params), data);
-    if cannot_qualify(&in_sample) {
-        return CrossValidation {
-            full_fit,
-            held_out_error: in_sample,
-            screened: true,
-        };
+    if let Some(cannot_qualify) = cannot_qualify {
+        let in_sample = in_sample_errors(&template.model(&full_fit.params), data);
+        if cannot_qualify(&in_sample) {
+            return CrossValidation {
+                full_fit,
+                held_out_error: in_sample,
+                screened: true,
+            };
+        }
     }
     let fold_ids: Vec<usize> = (0..n_folds).collect();
     let fold_errors = run_parallel(&fold_ids, n_threads, |&fold| {
