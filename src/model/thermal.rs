@@ -24,18 +24,26 @@ pub const HEAT_TRANSFER_RANGE_W_PER_K: (f64, f64) = (1e-3, 1e3);
 pub struct ThermalInterval {
     pub start_s: f64,
     pub duration_s: f64,
+    /// Mean power dissipated, W (from the measured records).
     pub power_w: f64,
     pub probe_s: f64,
+    /// Change of `power_w` per second of force-channel lag corrected (`mean(dF/dt dz/dt)`,
+    /// W/s): a skew between the channels inflates or shrinks the measured loop's area,
+    /// which is no heat (`campaign_temperature_rise_k`'s `force_lag_s`).
+    pub power_per_lag_w_per_s: f64,
 }
 
 /// Temperature rise of the specimen at the probe time of test `index` of `schedule`
 /// (tests in time order, starting cold; rests between tests cool it, an overlap counts as
-/// no rest). Exact for piecewise-constant power: `dT/dt = (P - h T) / C`.
+/// no rest). Exact for piecewise-constant power: `dT/dt = (P - h T) / C`. `force_lag_s` is
+/// the force channel's lag behind the displacement's (a named `channel-delay`, else 0):
+/// each test's measured power is corrected for it, to first order.
 pub fn campaign_temperature_rise_k(
     schedule: &[ThermalInterval],
     index: usize,
     heat_capacity_j_per_k: f64,
     heat_transfer_w_per_k: f64,
+    force_lag_s: f64,
 ) -> f64 {
     let tau_s = heat_capacity_j_per_k / heat_transfer_w_per_k.max(1e-300);
     let relax = |rise: f64, target: f64, t_s: f64| target + (rise - target) * (-t_s / tau_s).exp();
@@ -45,7 +53,8 @@ pub fn campaign_temperature_rise_k(
         if end_s.is_finite() {
             rise = relax(rise, 0.0, (test.start_s - end_s).max(0.0));
         }
-        let target = test.power_w.max(0.0) / heat_transfer_w_per_k.max(1e-300);
+        let power_w = test.power_w + force_lag_s * test.power_per_lag_w_per_s;
+        let target = power_w.max(0.0) / heat_transfer_w_per_k.max(1e-300);
         if i == index {
             return relax(rise, target, test.probe_s.clamp(0.0, test.duration_s));
         }
@@ -106,18 +115,20 @@ mod tests {
                 duration_s: 10_000.0,
                 power_w: 10.0,
                 probe_s: 10_000.0,
+                power_per_lag_w_per_s: 0.0,
             },
             ThermalInterval {
                 start_s: 10_500.0,
                 duration_s: 100.0,
                 power_w: 0.0,
                 probe_s: 0.0,
+                power_per_lag_w_per_s: 0.0,
             },
         ];
-        let first = campaign_temperature_rise_k(&schedule, 0, 2000.0, 4.0);
+        let first = campaign_temperature_rise_k(&schedule, 0, 2000.0, 4.0, 0.0);
         assert!((first - 2.5).abs() < 1e-6, "{first}");
         // One time constant of rest: 2.5 / e.
-        let second = campaign_temperature_rise_k(&schedule, 1, 2000.0, 4.0);
+        let second = campaign_temperature_rise_k(&schedule, 1, 2000.0, 4.0, 0.0);
         assert!((second - 2.5 * (-1.0f64).exp()).abs() < 1e-6, "{second}");
     }
 

@@ -34,6 +34,14 @@ pub fn effect_panels(d: &Diagnosis, data: &[CycleData]) -> Vec<Panel> {
                 data,
                 heat_capacity_j_per_k,
                 heat_transfer_w_per_k,
+                d.final_model
+                    .effects
+                    .iter()
+                    .find_map(|e| match e {
+                        Effect::ChannelDelay { force_lag_s } => Some(*force_lag_s),
+                        _ => None,
+                    })
+                    .unwrap_or(0.0),
             )),
             Effect::CyclicSoftening {
                 softening_limit,
@@ -134,7 +142,12 @@ fn drift_panel(
     ))
 }
 
-fn heating_panel(data: &[CycleData], heat_capacity: f64, heat_transfer: f64) -> Panel {
+fn heating_panel(
+    data: &[CycleData],
+    heat_capacity: f64,
+    heat_transfer: f64,
+    force_lag_s: f64,
+) -> Panel {
     let Some(schedule) = data.iter().find_map(|c| c.time.schedule.clone()) else {
         return Panel::new("self-heating: no campaign times", "", "");
     };
@@ -144,7 +157,13 @@ fn heating_panel(data: &[CycleData], heat_capacity: f64, heat_transfer: f64) -> 
             let t = schedule[i];
             (
                 (t.start_s + t.probe_s - t0) / 3600.0,
-                campaign_temperature_rise_k(&schedule, i, heat_capacity, heat_transfer),
+                campaign_temperature_rise_k(
+                    &schedule,
+                    i,
+                    heat_capacity,
+                    heat_transfer,
+                    force_lag_s,
+                ),
             )
         })
         .unzip();

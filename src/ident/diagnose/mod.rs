@@ -147,6 +147,8 @@ pub struct Diagnosis {
     pub final_model: AugmentedModel,
     pub named: Vec<EffectKind>,
     pub rounds: Vec<Vec<CandidateResult>>,
+    /// Effects named and then replaced by a pair (`swap_last_named`), one sentence each.
+    pub replaced: Vec<String>,
     pub not_tried: Vec<NotTried>,
     /// Held-out gaps in excess of noise (the SPEC 5 `gap_before` / `gap_after`).
     pub gap_before: f64,
@@ -728,6 +730,142 @@ fn lookahead_pair(
         .map(|(r, _, _)| (first_index, r))
 }
 
+/// When a round's best description fits only outside its range beside the effect named
+/// alone in the round before (a load-train resonance pushed to zero damping by a springpot
+/// that took the phase a channel skew put there), that effect may have stood in for half
+/// of a pair. From the model before it, the unphysical candidate `x` is fitted beside each
+/// other candidate of that round; a pair replaces the last named effect only if it lies
+/// inside every range, passes the naming rule against the model before (penalised for both
+/// effects), each member passes it against the other alone, and it passes it against the
+/// current model too. Returns `x` and the partner, both carrying the pair's fit (the
+/// partner's comparison is against `x` alone), best joint score first.
+#[allow(clippy::too_many_arguments)]
+fn swap_last_named(
+    x: &CandidateResult,
+    last: EffectKind,
+    before_template: &Template,
+    before_cv: &CrossValidation,
+    before_results: &[CandidateResult],
+    current: &Reference<'_>,
+    scoring: &Scoring<'_>,
+    progress: &mut dyn FnMut(&str),
+) -> Option<(CandidateResult, CandidateResult)> {
+    let options = scoring.options;
+    let data = scoring.data;
+    let held_out = |r: &CandidateResult| {
+        if r.cv.screened {
+            cross_validate(
+                &r.template,
+                data,
+                scoring.folds,
+                scoring.n_folds,
+                options.max_iterations,
+                options.n_threads,
+            )
+        } else {
+            r.cv.clone()
+        }
+    };
+    let x_alone = held_out(before_results.iter().find(|r| r.kind == x.kind)?);
+    let before = Reference {
+        errors: &before_cv.held_out_error,
+        gap: excess_gap(&before_cv.held_out_error, data),
+        raw: raw_gap(&before_cv.held_out_error, data),
+    };
+    let x_reference = Reference {
+        errors: &x_alone.held_out_error,
+        gap: excess_gap(&x_alone.held_out_error, data),
+        raw: raw_gap(&x_alone.held_out_error, data),
+    };
+    let others: Vec<&CandidateResult> =
+        before_results.iter().filter(|r| r.kind != x.kind).collect();
+    let evaluated = run_parallel(&others, options.n_threads, |other| {
+        let mut t = before_template.with_effect(x.kind, Some(&before_cv.full_fit.params));
+        t.added.push(other.kind);
+        for source in [&x.template, &other.template] {
+            match source.added.last() {
+                Some(EffectKind::AmplitudeFriction) => t.friction_dahl = source.friction_dahl,
+                Some(EffectKind::TemperatureShift) => {
+                    t.time_shift_on_bound = source.time_shift_on_bound
+                }
+                Some(EffectKind::SpecimenDrift) => t.drift_clock = source.drift_clock,
+                _ => {}
+            }
+        }
+        let cv = cross_validate(
+            &t,
+            data,
+            scoring.folds,
+            scoring.n_folds,
+            options.max_iterations,
+            options.n_threads,
+        );
+        let raw = raw_gap(&cv.held_out_error, data);
+        let (n_x, n_other) = (x.kind.n_params(), other.kind.n_params());
+        let joint = scoring.compare(&cv.held_out_error, raw, n_x + n_other, &before);
+        let other_alone = held_out(other);
+        let other_reference = Reference {
+            errors: &other_alone.held_out_error,
+            gap: excess_gap(&other_alone.held_out_error, data),
+            raw: raw_gap(&other_alone.held_out_error, data),
+        };
+        let given_other = scoring.compare(&cv.held_out_error, raw, n_x, &other_reference);
+        let given_x = scoring.compare(&cv.held_out_error, raw, n_other, &x_reference);
+        let against_current = scoring.compare(&cv.held_out_error, raw, n_x + n_other, current);
+        let model = t.model_with_errors(&cv.full_fit);
+        let out_of_range = out_of_range(&model, &[x.kind, other.kind]);
+        let ok = joint.qualifies
+            && given_other.qualifies
+            && given_x.qualifies
+            && against_current.qualifies
+            && out_of_range.is_none();
+        let result = |kind: EffectKind, round: usize, m: &Comparison, law_note: &Option<String>| {
+            CandidateResult {
+                kind,
+                round,
+                raw_gap: raw,
+                cv: cv.clone(),
+                gap_ratio: m.gap_ratio,
+                raw_ratio: m.raw_ratio,
+                score: m.score,
+                wilcoxon_z: m.z,
+                folds_improved: m.folds_improved,
+                history_evidence: m.history_evidence,
+                qualifies: ok,
+                out_of_range,
+                would_qualify: ok,
+                model: model.clone(),
+                template: t.clone(),
+                law_note: law_note.clone(),
+            }
+        };
+        let round = other.round;
+        (
+            result(x.kind, round, &joint, &x.law_note),
+            result(other.kind, round + 1, &given_x, &other.law_note),
+            joint.score,
+            against_current.score,
+        )
+    });
+    for (xr, yr, joint_score, current_score) in &evaluated {
+        progress(&format!(
+            "swap: {} + {:<20} from the model before {}: joint score {:.3}, against the current model {:.3}{}{}",
+            xr.kind.name(),
+            yr.kind.name(),
+            last.name(),
+            joint_score,
+            current_score,
+            yr.out_of_range.map_or(String::new(), |o| format!(" {o}")),
+            if yr.qualifies { " qualifies" } else { "" }
+        ));
+    }
+    evaluated
+        .into_iter()
+        .filter(|(_, y, _, _)| y.qualifies)
+        .min_by(|a, b| a.2.total_cmp(&b.2))
+        .map(|(x, y, _, _)| (x, y))
+}
+
 /// Runs the workflow. `progress` receives one-line messages.
 pub fn diagnose(
     baseline: &AugmentedModel,
@@ -816,7 +954,12 @@ pub fn diagnose(
     let mut current_template = template;
     let mut current_cv = baseline_cv.clone();
     let mut named = Vec::new();
-    let mut rounds = Vec::new();
+    let mut rounds: Vec<Vec<CandidateResult>> = Vec::new();
+    // The model before the effect last named alone and the index of its round, for a
+    // swap (`swap_last_named`); one swap per diagnosis.
+    let mut before_last: Option<(Template, CrossValidation, usize)> = None;
+    let mut swapped = false;
+    let mut replaced: Vec<String> = Vec::new();
     loop {
         let remaining: Vec<EffectKind> = candidates
             .iter()
@@ -1008,6 +1151,54 @@ pub fn diagnose(
             .filter(|r| r.would_qualify && !r.out_of_range.is_some_and(|o| o.degenerates()))
             .min_by(|a, b| a.score.total_cmp(&b.score));
         if let Some(best) = best_would.filter(|b| b.out_of_range.is_some()) {
+            let swap = match (&before_last, named.last()) {
+                (Some((before_template, before_cv, k)), Some(&last)) if !swapped => {
+                    swap_last_named(
+                        best,
+                        last,
+                        before_template,
+                        before_cv,
+                        &rounds[*k],
+                        &reference,
+                        &scoring,
+                        progress,
+                    )
+                    .map(|pair| (pair, last, *k))
+                }
+                _ => None,
+            };
+            if let Some(((x, y), last, k)) = swap {
+                let why = format!(
+                    "`{}`, named in round {}, was replaced by `{}` and `{}`: beside it `{}` {}; from the model before it the pair fits inside every range, each member is needed beside the other, and its held-out errors beat `{}`'s by the naming rule",
+                    last.name(),
+                    k + 1,
+                    x.kind.name(),
+                    y.kind.name(),
+                    best.kind.name(),
+                    best.out_of_range.map_or(String::new(), |o| o.to_string()),
+                    last.name()
+                );
+                progress(&format!("round {round}: {why}"));
+                replaced.push(why);
+                named.pop();
+                rounds.truncate(k + 1);
+                let round_k = &mut rounds[k];
+                for r in round_k.iter_mut().filter(|r| r.kind == last) {
+                    r.qualifies = false;
+                }
+                current_template = y.template.clone();
+                current_cv = y.cv.clone();
+                match round_k.iter_mut().find(|r| r.kind == x.kind) {
+                    Some(entry) => *entry = x.clone(),
+                    None => round_k.push(x.clone()),
+                }
+                named.push(x.kind);
+                named.push(y.kind);
+                rounds.push(vec![y]);
+                swapped = true;
+                before_last = None;
+                continue;
+            }
             progress(&format!(
                 "round {round}: the best description, {}, is unphysical: nothing named",
                 best.kind.name()
@@ -1019,9 +1210,11 @@ pub fn diagnose(
             .iter()
             .filter(|r| r.qualifies)
             .filter(|r| !held_back_by_simpler_artefact(r, &results, &scoring))
+            .filter(|r| !held_back_on_bound(r, &results, &scoring))
             .min_by(|a, b| a.score.total_cmp(&b.score))
             .map(|r| (r.kind, r.cv.clone(), r.template.clone()));
         if let Some((kind, cv, template)) = winner {
+            before_last = Some((current_template.clone(), current_cv.clone(), rounds.len()));
             rounds.push(results);
             progress(&format!("round {round}: named {}", kind.name()));
             current_template = template;
@@ -1049,6 +1242,7 @@ pub fn diagnose(
                 ));
                 current_template = second.template.clone();
                 current_cv = second.cv.clone();
+                before_last = None;
                 named.push(first);
                 named.push(second.kind);
                 rounds.push(vec![second]);
@@ -1104,6 +1298,7 @@ pub fn diagnose(
         final_model,
         named,
         rounds,
+        replaced,
         not_tried,
     }
 }
@@ -1137,6 +1332,49 @@ fn held_back_by_simpler_artefact(
             wilcoxon_z(&differences) <= scoring.options.min_wilcoxon_z
         })
 }
+
+/// A springpot whose order sits on its upper bound (alpha at 1) is a plain dashpot: a
+/// damping that grows with frequency in proportion to the element's force, which is what a
+/// force-channel lead does too. Such a fit is named only if its held-out errors beat every
+/// other qualifying candidate's by the naming rule's Wilcoxon threshold (a cause inside
+/// its range is preferred to a law pinned on its bound when the data cannot tell them
+/// apart).
+fn held_back_on_bound(
+    candidate: &CandidateResult,
+    results: &[CandidateResult],
+    scoring: &Scoring<'_>,
+) -> bool {
+    if !pinned_on_bound(&candidate.model, candidate.kind) {
+        return false;
+    }
+    results
+        .iter()
+        .filter(|r| r.qualifies && r.kind != candidate.kind)
+        .filter(|r| !pinned_on_bound(&r.model, r.kind))
+        .any(|other| {
+            let differences: Vec<f64> = other
+                .cv
+                .held_out_error
+                .iter()
+                .zip(&candidate.cv.held_out_error)
+                .zip(scoring.data)
+                .map(|((o, c), d)| (o - c) * d.weight)
+                .collect();
+            wilcoxon_z(&differences) <= scoring.options.min_wilcoxon_z
+        })
+}
+
+/// Whether a fitted effect sits on a bound of its transformed range (`pinned_on_bound`
+/// of `held_back_on_bound`): today the springpot order at its upper clamp.
+fn pinned_on_bound(model: &AugmentedModel, kind: EffectKind) -> bool {
+    kind == EffectKind::FractionalDamping
+        && model.effects.iter().any(|e| {
+            matches!(e, Effect::FractionalDamping { alpha, .. } if *alpha >= FRACTIONAL_ORDER_PINNED)
+        })
+}
+
+/// A springpot order at or above this is on the fit's clamp (0.999): a dashpot.
+const FRACTIONAL_ORDER_PINNED: f64 = 0.99;
 
 /// Which clock a drift runs on, as the data say: the in-sample fits of each clock the
 /// campaign has, told apart when the worse one's sum of squares exceeds the best one's by

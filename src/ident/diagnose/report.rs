@@ -73,6 +73,7 @@ pub fn json_summary(d: &Diagnosis, model_path: &std::path::Path) -> serde_json::
     json!({
         "effect": named.first(),
         "effects": named,
+        "replaced": d.replaced,
         "gap_before": d.gap_before,
         "gap_after": d.gap_after,
         "raw_gap_before": d.raw_gap_before,
@@ -405,6 +406,9 @@ fn render_report(
             "none (nothing beats the calibrated baseline beyond noise, and the residual is at the noise floor)".to_string()
         }
     );
+    for why in &d.replaced {
+        let _ = writeln!(r, "- Replaced: {why}.");
+    }
     if let (None, Some(ratio)) = (&d.verdict.unexplained, d.verdict.held_back_by_materiality) {
         let _ = writeln!(
             r,

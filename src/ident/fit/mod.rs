@@ -206,6 +206,13 @@ pub fn assign_campaign_time(data: &mut [CycleData], campaign: &Campaign) {
             .map(|(z, f)| 0.5 * (f[0] + f[1]) * (z[1] - z[0]))
             .sum::<f64>()
             .max(0.0);
+        // sum dF/dt dz: the energy's change per second of force lag corrected.
+        let energy_per_lag_j_per_s: f64 = test
+            .displacement_m
+            .windows(2)
+            .zip(test.force_n.windows(2))
+            .map(|(z, f)| (f[1] - f[0]) / test.dt_s * (z[1] - z[0]))
+            .sum();
         let probe_s = if d.is_history() {
             0.5 * duration_s
         } else {
@@ -222,6 +229,7 @@ pub fn assign_campaign_time(data: &mut [CycleData], campaign: &Campaign) {
             duration_s,
             power_w: energy_j / duration_s.max(1e-300),
             probe_s,
+            power_per_lag_w_per_s: energy_per_lag_j_per_s / duration_s.max(1e-300),
         });
         energies.push(energy_j);
     }
@@ -277,6 +285,14 @@ pub fn assign_campaign_time(data: &mut [CycleData], campaign: &Campaign) {
 /// campaign's schedule gives it, the drift clocks' positions.
 pub fn model_for_test(model: &AugmentedModel, data: &CycleData) -> AugmentedModel {
     let mut out = model.at_temperature(data.temperature_c);
+    let force_lag_s = out
+        .effects
+        .iter()
+        .find_map(|e| match e {
+            Effect::ChannelDelay { force_lag_s } => Some(*force_lag_s),
+            _ => None,
+        })
+        .unwrap_or(0.0);
     for effect in &mut out.effects {
         match effect {
             Effect::SpecimenDrift {
@@ -296,6 +312,7 @@ pub fn model_for_test(model: &AugmentedModel, data: &CycleData) -> AugmentedMode
                         data.time.schedule_index,
                         *heat_capacity_j_per_k,
                         *heat_transfer_w_per_k,
+                        force_lag_s,
                     );
                 }
             }
