@@ -21,9 +21,16 @@ pub struct ActuatorTruth {
     pub perturb_seed: u64,
     /// The element's tangent stiffness at the configured preload, N/m.
     pub element_stiffness_n_per_m: f64,
-    /// Effective delay from command to force over 1-20 Hz on that element, s.
+    /// Effective delay from the rig's command, held over each loop period, to force over
+    /// 1-20 Hz on that element, s: `actuator_delay_s + zero_order_hold_s`, the delay the
+    /// controller identifies and its lead must make up for.
     pub effective_delay_s: f64,
+    /// The actuator's own part (transport delay and dynamics, as recorded), s.
+    pub actuator_delay_s: f64,
+    /// Half a loop period: the command is held over each period, s.
+    pub zero_order_hold_s: f64,
     pub amplitude_ratio: f64,
+    /// The nominal parameters' `effective_delay_s` (hold included), s.
     pub nominal_effective_delay_s: f64,
     pub nominal_amplitude_ratio: f64,
     pub parameters: Vec<ActuatorParameter>,
@@ -31,11 +38,14 @@ pub struct ActuatorTruth {
 
 impl ActuatorTruth {
     /// From the run's records; `None` without a `/rig/actuator` record.
+    /// `period_s`: the loop period (the zero-order hold is half of it).
     pub fn from_records(
         truth: Option<&ActuatorTruthRecord>,
         params: &[ActuatorParamRecord],
+        period_s: f64,
     ) -> Option<ActuatorTruth> {
         let t = truth?;
+        let hold_s = 0.5 * period_s;
         let kind = ActuatorKind::from_code(t.kind)?;
         let keys = kind.keys();
         Some(ActuatorTruth {
@@ -46,9 +56,11 @@ impl ActuatorTruth {
             perturb: t.perturb,
             perturb_seed: t.perturb_seed,
             element_stiffness_n_per_m: t.element_stiffness_n_per_m,
-            effective_delay_s: t.effective_delay_s,
+            effective_delay_s: t.effective_delay_s + hold_s,
+            actuator_delay_s: t.effective_delay_s,
+            zero_order_hold_s: hold_s,
             amplitude_ratio: t.amplitude_ratio,
-            nominal_effective_delay_s: t.nominal_effective_delay_s,
+            nominal_effective_delay_s: t.nominal_effective_delay_s + hold_s,
             nominal_amplitude_ratio: t.nominal_amplitude_ratio,
             parameters: params
                 .iter()
@@ -67,10 +79,12 @@ impl ActuatorTruth {
     /// One line for the summary.
     pub fn describe(&self) -> String {
         format!(
-            "actuator {}{}: effective delay {:.3} ms (nominal {:.3} ms), amplitude ratio {:.3} over 1-20 Hz on {:.1} MN/m{}",
+            "actuator {}{}: effective delay {:.3} ms ({:.3} ms its own + {:.3} ms of hold; nominal {:.3} ms), amplitude ratio {:.3} over 1-20 Hz on {:.1} MN/m{}",
             self.kind,
             self.preset.as_ref().map_or(String::new(), |p| format!(" ({p})")),
             self.effective_delay_s * 1e3,
+            self.actuator_delay_s * 1e3,
+            self.zero_order_hold_s * 1e3,
             self.nominal_effective_delay_s * 1e3,
             self.amplitude_ratio,
             self.element_stiffness_n_per_m * 1e-6,

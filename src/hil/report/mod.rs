@@ -521,6 +521,7 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
         actuator_truth: actuator::ActuatorTruth::from_records(
             side.actuator_truth.as_ref(),
             &side.actuator_params,
+            cfg.loop_.dt_s(),
         ),
         element_thermal,
     })
