@@ -240,7 +240,8 @@ impl DelayEstimator {
         let c22 = xx * dd - xd * xd;
         let det = xx * c00 + xd * c01 + xc * c02;
         // Determined: a determinant clear of rounding (false for NaN too).
-        if !(det > 1e-9 * xx * dd * cc) {
+        let determined = det > 1e-9 * xx * dd * cc;
+        if !determined {
             return None;
         }
         let a = (c00 * xy + c01 * dy + c02 * cy) / det;
