@@ -515,6 +515,8 @@ struct Comparison {
     folds_improved: usize,
     history_evidence: bool,
     qualifies: bool,
+    /// Every criterion but the size of what it explains (the materiality rule).
+    qualifies_but_size: bool,
 }
 
 impl Scoring<'_> {
@@ -581,11 +583,11 @@ impl Scoring<'_> {
                     && after < 0.6 * before
             })
             && (harmonic_differences.len() < 6 || wilcoxon_z(&harmonic_differences) > -1.0);
-        let qualifies = score < options.max_score
-            && explained > options.min_explained_gap
+        let qualifies_but_size = score < options.max_score
             && raw_ratio * penalty < options.max_raw_ratio
             && ((z > options.min_wilcoxon_z && folds_improved + 1 >= self.n_folds)
                 || history_evidence);
+        let qualifies = qualifies_but_size && explained > options.min_explained_gap;
         Comparison {
             gap_ratio,
             raw_ratio,
@@ -594,6 +596,7 @@ impl Scoring<'_> {
             folds_improved,
             history_evidence,
             qualifies,
+            qualifies_but_size,
         }
     }
 }
@@ -1000,8 +1003,8 @@ pub fn diagnose(
         // comes within `SCREEN_MARGIN` of the naming score nor shows a Wilcoxon or history
         // signal against the current model in sample cannot qualify held out, nor lead a
         // pair: its fold refits are skipped.
-        let current_in_sample =
-            in_sample_errors(&current_template.model(&current_cv.full_fit.params), data);
+        let current_model = current_template.model(&current_cv.full_fit.params);
+        let current_in_sample = in_sample_errors(&current_model, data);
         let in_sample_reference = Reference {
             errors: &current_in_sample,
             gap: excess_gap(&current_in_sample, data),
@@ -1092,6 +1095,15 @@ pub fn diagnose(
                 };
                 let model = candidate.model_with_errors(&cv.full_fit);
                 let out_of_range = out_of_range(&model, &[kind]);
+                // Too small to name by the materiality rule, but it moves what is named:
+                // the named effects' parameters are results too.
+                let moves_named = (!m.qualifies && m.qualifies_but_size && !cv.screened)
+                    .then(|| moved_named_parameter(&current_model, &model, &named))
+                    .flatten();
+                let m = Comparison {
+                    qualifies: m.qualifies || moves_named.is_some(),
+                    ..m
+                };
                 let law_note = match kind {
                     EffectKind::SpecimenDrift => Some(drift_clock_note(
                         &drift_fits,
@@ -1100,6 +1112,13 @@ pub fn diagnose(
                     )),
                     EffectKind::SelfHeating => heating_note(&model, data),
                     _ => None,
+                };
+                let law_note = match (law_note, moves_named) {
+                    (note, Some(moved)) => Some(match note {
+                        Some(n) => format!("{n}; {moved}"),
+                        None => moved,
+                    }),
+                    (note, None) => note,
                 };
                 CandidateResult {
                     law_note,
@@ -1332,6 +1351,44 @@ fn held_back_by_simpler_artefact(
             wilcoxon_z(&differences) <= scoring.options.min_wilcoxon_z
         })
 }
+
+/// How far a named effect's parameters move when `candidate` is fitted beside it: the
+/// sentence for the report when one moves by more than `MATERIAL_PARAMETER_CHANGE`
+/// (relative; parameters at 0 in the current model are left out).
+fn moved_named_parameter(
+    current: &AugmentedModel,
+    candidate: &AugmentedModel,
+    named: &[EffectKind],
+) -> Option<String> {
+    let mut worst: Option<(f64, String)> = None;
+    for &kind in named {
+        let before = effect_params(current, kind);
+        let after = effect_params(candidate, kind);
+        for ((key, b), (_, a)) in before.iter().zip(&after) {
+            if *b == 0.0 || !b.is_finite() || !a.is_finite() {
+                continue;
+            }
+            let change = (a - b) / b.abs();
+            if change.abs() > MATERIAL_PARAMETER_CHANGE
+                && worst.as_ref().is_none_or(|(w, _)| change.abs() > *w)
+            {
+                worst = Some((
+                    change.abs(),
+                    format!(
+                        "named though it explains under 0.1 % of the force: without it `{}`'s {key} is {b:.4e}, with it {a:.4e} ({:+.0} %)",
+                        kind.name(),
+                        100.0 * change
+                    ),
+                ));
+            }
+        }
+    }
+    worst.map(|(_, s)| s)
+}
+
+/// A named effect's parameter moving by more than this (relative) when a candidate too
+/// small for the materiality rule is fitted beside it makes that candidate material.
+const MATERIAL_PARAMETER_CHANGE: f64 = 0.05;
 
 /// A springpot whose order sits on its upper bound (alpha at 1) is a plain dashpot: a
 /// damping that grows with frequency in proportion to the element's force, which is what a

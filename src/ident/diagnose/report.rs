@@ -63,6 +63,9 @@ pub fn json_summary(d: &Diagnosis, model_path: &std::path::Path) -> serde_json::
                 "folds_improved": r.folds_improved,
                 "history_evidence": r.history_evidence,
                 "named": d.named.contains(&r.kind),
+                // A named effect's parameters in the final model (refitted beside the
+                // effects named after it), which the model file holds.
+                "final_params": d.named.contains(&r.kind).then(|| params_json(&d.final_model, r.kind)),
                 "would_qualify_but_for_range": r.would_qualify && r.out_of_range.is_some(),
                 "out_of_range": r.out_of_range.map(|o| out_of_range_json(&o)),
                 "law_note": r.law_note,
