@@ -368,6 +368,79 @@ pub struct Compensator {
     /// The last setpoint's (displacement, element force, measured force).
     last_values: (f64, f64, f64),
     status: CompensationStatus,
+    /// The first contact's gain read (`ContactGain`).
+    contact: ContactGain,
+}
+
+/// The gain read at the first contact: the first samples in force control give the
+/// actuator's force per command at once, before the specimen sinks far under a gain error
+/// (a perturbed electrodynamic shaker renders 0.73-0.86 of its command; the estimator
+/// needs 0.13 s of warm-up, in which the specimen sank 160 um). Over the `CONTACT_LEN`
+/// samples after the initial lead's periods (plus one) of the first stretch in force control:
+/// when the element's force is a load (over 1 kN) and the ratio of the actuator's own to
+/// the element's force stayed within `CONTACT_SPREAD` of its mean (no transient under way),
+/// the gain jumps to that mean, once per run; the estimator refines it from there.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct ContactGain {
+    /// Samples skipped first: the actuator's response to the first command is still on
+    /// its way (the initial lead's periods, plus one).
+    skip: u32,
+    samples: u32,
+    /// The newest `CONTACT_LEN` ratios, a ring.
+    recent: [f64; CONTACT_LEN],
+    done: bool,
+}
+
+const CONTACT_LEN: usize = 3;
+/// Give up after this many samples (about 10 ms at 4096 Hz).
+const CONTACT_MAX_SAMPLES: u32 = 40;
+const CONTACT_MIN_FORCE_N: f64 = 1e3;
+const CONTACT_SPREAD: f64 = 0.02;
+
+impl ContactGain {
+    fn new(initial_lead_s: f64, dt_s: f64) -> ContactGain {
+        ContactGain {
+            skip: (initial_lead_s / dt_s).ceil() as u32 + 1,
+            samples: 0,
+            recent: [f64::NAN; CONTACT_LEN],
+            done: false,
+        }
+    }
+
+    /// One sample (`ratio`: the actuator's own force per element force); returns the gain
+    /// to take, once: the mean of the first `CONTACT_LEN` consecutive ratios after the
+    /// skip that agree within `CONTACT_SPREAD` (the actuator has settled on the command).
+    #[inline]
+    fn observe(&mut self, ratio: f64, element_force_n: f64) -> Option<f64> {
+        if self.done {
+            return None;
+        }
+        self.samples += 1;
+        if self.samples <= self.skip {
+            return None;
+        }
+        if !(ratio.is_finite() && element_force_n.abs() > CONTACT_MIN_FORCE_N)
+            || self.samples > self.skip + CONTACT_MAX_SAMPLES
+        {
+            self.done = true;
+            return None;
+        }
+        self.recent[self.samples as usize % CONTACT_LEN] = ratio;
+        let (mut lo, mut hi, mut sum) = (f64::INFINITY, f64::NEG_INFINITY, 0.0);
+        for &r in &self.recent {
+            lo = lo.min(r);
+            hi = hi.max(r);
+            sum += r;
+        }
+        let mean = sum / CONTACT_LEN as f64;
+        // NaN (the ring not yet full) fails every comparison.
+        let steady = hi - lo <= CONTACT_SPREAD * mean.abs();
+        if steady && (0.5..=2.0).contains(&mean) {
+            self.done = true;
+            return Some(mean);
+        }
+        None
+    }
 }
 
 /// Longest run of samples without a setpoint that the compensator bridges.
@@ -396,6 +469,7 @@ impl Compensator {
                 identified_delay_sigma_s: f64::NAN,
                 guard: GuardState::default(),
             },
+            contact: ContactGain::new(lead_s, dt_s),
         }
     }
 
@@ -466,6 +540,10 @@ impl Compensator {
     #[inline]
     fn feed(&mut self, (displacement_m, element_force_n, measured_force_n): (f64, f64, f64)) {
         if self.cfg.adapt {
+            let own = measured_force_n * self.gain;
+            if let Some(gain) = self.contact.observe(own / element_force_n, element_force_n) {
+                self.gain = gain;
+            }
             // The rig divided by the gain in effect: the actuator's own force per command
             // is the measured force times that gain.
             if let Some(e) =
@@ -608,6 +686,44 @@ mod tests {
         }
         assert!((comp.gain - 0.8).abs() < 0.005, "gain {}", comp.gain);
         assert_eq!(comp.lead_s, guess);
+    }
+
+    /// The first contact: a static preload rendered with gain 0.75. The gain is taken at
+    /// once, a few samples after the initial lead, while the estimator is still warming
+    /// up; a ratio still moving (the actuator settling on its first command) is waited
+    /// out, and a contact that never settles leaves the gain to the estimator.
+    #[test]
+    fn the_first_contact_reads_the_gain_at_once_and_only_when_settled() {
+        let mut cfg = CompensationConfig::with_initial_delay(252e-6);
+        cfg.passivity_guard = false;
+        let mut c = Compensator::new(cfg, DT);
+        let mut comp = c.status().compensation;
+        let mut taken_at = None;
+        for i in 0..40u64 {
+            // The actuator settles on the command over the first 8 samples.
+            let settling = if i < 8 {
+                1.0 - (i as f64 / 8.0) * 0.25
+            } else {
+                0.75
+            };
+            let measured = settling * 20e3 / comp.gain;
+            comp = c.on_sample(i, 0.0, 20e3, measured);
+            if taken_at.is_none() && comp.gain != 1.0 {
+                taken_at = Some(i);
+            }
+        }
+        assert_eq!(comp.gain, 0.75, "gain {}", comp.gain);
+        // Not before the ratio had settled (samples 8-10 agree).
+        assert_eq!(taken_at, Some(10), "taken at {taken_at:?}");
+
+        // A contact whose ratio keeps moving by 5 % a sample is never read.
+        let mut c = Compensator::new(cfg, DT);
+        let mut comp = c.status().compensation;
+        for i in 0..60u64 {
+            let ratio = if i % 2 == 0 { 0.75 } else { 0.79 };
+            comp = c.on_sample(i, 0.0, 20e3, ratio * 20e3 / comp.gain);
+        }
+        assert_eq!(comp.gain, 1.0, "gain {}", comp.gain);
     }
 
     #[test]

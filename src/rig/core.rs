@@ -102,6 +102,7 @@ impl RigCore {
         let programme = ProgrammeRunner::new(load, dt_s);
         let f0 = programme.force_n();
         let x0 = cfg.model.element.static_displacement_m(f0);
+        let (physics, command0) = RigPhysics::holding(&cfg.rig, x0, f0);
         let injections = cfg
             .injections_for(LoopProcess::Rig)
             .into_iter()
@@ -115,13 +116,13 @@ impl RigCore {
         RigCore {
             dt_s,
             period_ns: cfg.loop_.period_ns,
-            physics: RigPhysics::new(&cfg.rig, x0, f0),
+            physics,
             sensor: Sensor::new(
                 cfg.rig.sensor_noise_m,
                 cfg.rig.sensor_resolution_m,
                 cfg.rig.seed,
             ),
-            servo: Servo::new(cfg.servo_config(), x0, f0),
+            servo: Servo::converged(cfg.servo_config(), x0, f0, command0),
             programme,
             duration_s: cfg.programme.end_s,
             step_idx: 0,

@@ -74,6 +74,24 @@ impl RigPhysics {
         }
     }
 
+    /// A rig at rest at `x0_m` whose actuator has been holding the specimen against the
+    /// load `force0_n` (the servo controller held position before the run, so its command
+    /// converged on whatever makes the actuator apply `force0_n`: with a gain error that
+    /// is not `force0_n`). Returns the rig and that command.
+    pub fn holding(cfg: &RigConfig, x0_m: f64, force0_n: f64) -> (RigPhysics, f64) {
+        let plant = ActuatorPlant::from_config(&cfg.actuator);
+        let probe = plant.applied_force_n(&plant.rest_state(force0_n), 0.0);
+        let command_n = if probe.is_finite() && probe != 0.0 && force0_n != 0.0 {
+            force0_n * (force0_n / probe)
+        } else {
+            force0_n
+        };
+        (
+            RigPhysics::with_plant(cfg, plant, x0_m, command_n),
+            command_n,
+        )
+    }
+
     /// The actuator plant (its true parameters).
     pub fn plant(&self) -> &ActuatorPlant {
         &self.plant
@@ -425,6 +443,39 @@ mod tests {
             perturb: 0.0,
             perturb_seed: 0,
         }
+    }
+
+    /// A rig that held its specimen before the run starts in equilibrium whatever its
+    /// actuator's gain: a perturbed shaker (force constant off its nominal) is commanded
+    /// what makes it apply the load, and nothing moves.
+    #[test]
+    fn a_rig_that_held_before_the_run_starts_in_equilibrium_with_a_gain_error() {
+        let mut actuator = preset_config("shaker-150kn");
+        actuator.perturb = 0.3;
+        actuator.perturb_seed = 2;
+        let cfg = rig_with(actuator);
+        let (mut p, command) = RigPhysics::holding(&cfg, 3.5e-4, 20e3);
+        let gain = p.plant().applied_force_n(&p.plant().rest_state(1e3), 0.0) / 1e3;
+        assert!(
+            (gain - 1.0).abs() > 0.05,
+            "the draw must put the gain off: {gain}"
+        );
+        assert!(
+            (command * gain - 20e3).abs() < 1e-6 * 20e3,
+            "{command} x {gain}"
+        );
+        assert!((p.actuator_force_n - 20e3).abs() < 1e-6 * 20e3);
+        let dt = 1.0 / 4096.0;
+        for k in 0..4096 {
+            p.advance(k as f64 * dt, dt, command, f64::NAN, 20e3, 20e3);
+        }
+        assert!((p.x_m - 3.5e-4).abs() < 1e-9, "moved to {}", p.x_m);
+        // The plain constructor rests under the command, not the load: it sinks.
+        let mut q = RigPhysics::new(&cfg, 3.5e-4, 20e3);
+        for k in 0..64 {
+            q.advance(k as f64 * dt, dt, 20e3, f64::NAN, 20e3, 20e3);
+        }
+        assert!((q.x_m - 3.5e-4).abs() > 1e-6, "{}", q.x_m);
     }
 
     #[test]

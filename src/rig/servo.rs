@@ -211,6 +211,12 @@ impl Servo {
     /// A servo at rest at measured displacement `z0_m` under the load `force0_n`, holding
     /// that position (with `force0_n` fed forward) until the first command arrives.
     pub fn new(cfg: ServoConfig, z0_m: f64, force0_n: f64) -> Servo {
+        Servo::converged(cfg, z0_m, force0_n, force0_n)
+    }
+
+    /// As `new`, the command that holds the specimen under `force0_n` being `command0_n`
+    /// (an actuator with a gain error: `RigPhysics::holding`).
+    pub fn converged(cfg: ServoConfig, z0_m: f64, force0_n: f64, command0_n: f64) -> Servo {
         let (value_weights, slope_weights) = lead_weights(0, cfg.period_s, 0.0);
         let rest_len =
             ((cfg.rest_window_s / cfg.period_s).round() as usize).clamp(2, REST_WINDOW_MAX);
@@ -227,11 +233,11 @@ impl Servo {
             law_since_step: 0,
             phase: Phase::Awaiting,
             hold_position_m: z0_m,
-            hold_feedforward_n: force0_n,
+            hold_feedforward_n: command0_n,
             hold_load_at_start_n: force0_n,
             load_now_n: force0_n,
             hold_integral_m_s: 0.0,
-            last_output_n: force0_n,
+            last_output_n: command0_n,
             measured_force_n: force0_n,
             resume_from_n: force0_n,
             step_idx: 0,
