@@ -223,7 +223,7 @@ impl DelayEstimator {
     /// `F_meas ~ a x + b dF/dt + e d2F/dt2`: the curvature term takes what rises with
     /// frequency squared (a moving mass's inertia in the measured force, the second-order
     /// term of a lag), which in a transient (an axle passage) correlates with the rate and
-    /// would otherwise bias `b` (an electrodynamic actuator's 100 kg armature: +40 % on
+    /// would otherwise bias `b` (an electrodynamic actuator's back-EMF, mass-like: +40 % on
     /// its delay). `None` when the three regressors are not determined (then the rate
     /// alone is fitted).
     #[inline]

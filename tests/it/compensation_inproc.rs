@@ -313,8 +313,8 @@ fn a_servo_hydraulic_hold_and_resume_switch_control_without_a_bump() {
 /// The delay the controller identifies is the actuator's effective delay as the rig's
 /// truth has it (its dynamics and transport over 1-20 Hz on the element, plus half a
 /// period of zero-order hold), within 25 %, for the shipped lag-delay actuator and for the
-/// electrodynamic shaker nominal and perturbed (its 100 kg armature once biased the
-/// estimate 40 % high through the curvature its inertia puts in the measured force).
+/// electrodynamic shaker nominal and perturbed (the mass-like force its back-EMF puts in
+/// the measured force once biased the estimate 40 % high through the force's curvature).
 #[test]
 fn the_identified_delay_is_the_actuators_effective_delay() {
     let cases = [
