@@ -392,14 +392,28 @@ fn rising_load_design() -> Vec<TestPoint> {
 /// (with the typical noise, about 1 %, the first cycle's 1-2 % change under this Mullins
 /// truth is not 5 sigma in any one record).
 fn quiet_noise() -> Noise {
+    scaled_noise(0.2)
+}
+
+/// The typical noise, every level times `factor`.
+fn scaled_noise(factor: f64) -> Noise {
     let n = Noise::typical();
     Noise {
-        white_force: 0.2 * n.white_force,
-        white_displacement: 0.2 * n.white_displacement,
-        coloured_force: 0.2 * n.coloured_force,
-        drift_force: 0.2 * n.drift_force,
+        white_force: factor * n.white_force,
+        white_displacement: factor * n.white_displacement,
+        coloured_force: factor * n.coloured_force,
+        drift_force: factor * n.drift_force,
         ..n
     }
+}
+
+/// A named effect's parameter in the final model (its model-file key).
+fn final_param(d: &Diagnosis, kind: EffectKind, key: &str) -> f64 {
+    fastemu::ident::diagnose::effect_params(&d.final_model, kind)
+        .iter()
+        .find(|(k, _)| *k == key)
+        .unwrap_or_else(|| panic!("{} has no {key}", kind.name()))
+        .1
 }
 
 /// Records from rest at the preload, start-up included.
@@ -797,16 +811,9 @@ fn a_channel_skew_beside_a_resonance_or_self_heating_is_named_with_it() {
         31,
     );
     assert_named_set(&d, &["channel-delay", "load-train-resonance"]);
-    let value = |kind: EffectKind, key: &str| {
-        fastemu::ident::diagnose::effect_params(&d.final_model, kind)
-            .iter()
-            .find(|(k, _)| *k == key)
-            .unwrap()
-            .1
-    };
-    let fn_hz = value(EffectKind::LoadTrainResonance, "natural_frequency_hz");
-    let zeta = value(EffectKind::LoadTrainResonance, "damping_ratio");
-    let lag = value(EffectKind::ChannelDelay, "force_lag_s");
+    let fn_hz = final_param(&d, EffectKind::LoadTrainResonance, "natural_frequency_hz");
+    let zeta = final_param(&d, EffectKind::LoadTrainResonance, "damping_ratio");
+    let lag = final_param(&d, EffectKind::ChannelDelay, "force_lag_s");
     // The mode's phase below it (2 zeta / w_n, 0.14 ms here) trades against the skew: the
     // two are told apart by the history tests' band, within a fifth of the skew.
     assert!((fn_hz - 90.0).abs() < 4.5, "natural frequency {fn_hz}");
@@ -852,14 +859,7 @@ fn a_small_moving_mass_that_moves_a_named_resonance_is_named_with_it() {
     // A lab's good acquisition (the blind generator's level, noise floor ~1e-5): with the
     // typical noise here the mass's remainder is at the noise floor and nothing more can
     // be said.
-    let n = Noise::typical();
-    let very_quiet = Noise {
-        white_force: 0.02 * n.white_force,
-        white_displacement: 0.02 * n.white_displacement,
-        coloured_force: 0.02 * n.coloured_force,
-        drift_force: 0.02 * n.drift_force,
-        ..n
-    };
+    let very_quiet = scaled_noise(0.02);
     let d = diagnose_case(
         "resonance-mass",
         &truth,
@@ -869,15 +869,8 @@ fn a_small_moving_mass_that_moves_a_named_resonance_is_named_with_it() {
         33,
     );
     assert_named_set(&d, &["load-train-resonance", "moving-mass"]);
-    let value = |kind: EffectKind, key: &str| {
-        fastemu::ident::diagnose::effect_params(&d.final_model, kind)
-            .iter()
-            .find(|(k, _)| *k == key)
-            .unwrap()
-            .1
-    };
-    let fn_hz = value(EffectKind::LoadTrainResonance, "natural_frequency_hz");
-    let mass = value(EffectKind::MovingMass, "mass_kg");
+    let fn_hz = final_param(&d, EffectKind::LoadTrainResonance, "natural_frequency_hz");
+    let mass = final_param(&d, EffectKind::MovingMass, "mass_kg");
     assert!(
         (fn_hz - 90.0).abs() < 4.5,
         "natural frequency {fn_hz} (mass {mass})"

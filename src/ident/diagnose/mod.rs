@@ -1339,17 +1339,21 @@ fn held_back_by_simpler_artefact(
         .filter(|r| {
             r.qualifies && matches!(r.kind, EffectKind::ChannelDelay | EffectKind::MovingMass)
         })
-        .any(|simpler| {
-            let differences: Vec<f64> = simpler
-                .cv
-                .held_out_error
-                .iter()
-                .zip(&candidate.cv.held_out_error)
-                .zip(scoring.data)
-                .map(|((s, c), d)| (s - c) * d.weight)
-                .collect();
-            wilcoxon_z(&differences) <= scoring.options.min_wilcoxon_z
-        })
+        .any(|simpler| !beats(candidate, simpler, scoring))
+}
+
+/// Whether `candidate`'s held-out errors beat `other`'s by the naming rule's Wilcoxon
+/// threshold (paired, precision-weighted).
+fn beats(candidate: &CandidateResult, other: &CandidateResult, scoring: &Scoring<'_>) -> bool {
+    let differences: Vec<f64> = other
+        .cv
+        .held_out_error
+        .iter()
+        .zip(&candidate.cv.held_out_error)
+        .zip(scoring.data)
+        .map(|((o, c), d)| (o - c) * d.weight)
+        .collect();
+    wilcoxon_z(&differences) > scoring.options.min_wilcoxon_z
 }
 
 /// How far a named effect's parameters move when `candidate` is fitted beside it: the
@@ -1408,17 +1412,7 @@ fn held_back_on_bound(
         .iter()
         .filter(|r| r.qualifies && r.kind != candidate.kind)
         .filter(|r| !pinned_on_bound(&r.model, r.kind))
-        .any(|other| {
-            let differences: Vec<f64> = other
-                .cv
-                .held_out_error
-                .iter()
-                .zip(&candidate.cv.held_out_error)
-                .zip(scoring.data)
-                .map(|((o, c), d)| (o - c) * d.weight)
-                .collect();
-            wilcoxon_z(&differences) <= scoring.options.min_wilcoxon_z
-        })
+        .any(|other| !beats(candidate, other, scoring))
 }
 
 /// Whether a fitted effect sits on a bound of its transformed range (`pinned_on_bound`
