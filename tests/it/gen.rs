@@ -67,6 +67,10 @@ pub struct Truth {
     pub fractional_maxwell_order: Option<f64>,
     /// Springpot coefficient per metre (N s^alpha / m^2) and order.
     pub springpot: Option<(f64, f64)>,
+    /// Out of the library: a second Maxwell branch in parallel, stiffness per metre
+    /// (N/m^2) and relaxation time (s): `k (i W tau) / (1 + i W tau)` per harmonic (linear,
+    /// harmonic tests only, like the springpot).
+    pub second_maxwell: Option<(f64, f64)>,
     /// WLF C1, C2, reference temperature and modulus slope per degC.
     pub wlf: Option<(f64, f64, f64, f64)>,
     pub force_lag_s: f64,
@@ -105,6 +109,7 @@ impl Truth {
             friction_exponent: 2.0,
             fractional_maxwell_order: None,
             springpot: None,
+            second_maxwell: None,
             wlf: None,
             force_lag_s: 0.0,
             mass_kg: 0.0,
@@ -348,6 +353,16 @@ pub fn simulate_test(
         modulus.0 += mag * (PI * alpha / 2.0).cos();
         modulus.1 += mag * (PI * alpha / 2.0).sin();
     }
+    // A second Maxwell branch: k (i W tau) / (1 + i W tau), its time temperature-shifted.
+    let maxwell2 = |w_h: f64| {
+        truth.second_maxwell.map_or((0.0, 0.0), |(k, tau)| {
+            let x = w_h * tau * a;
+            let kk = k * l * b / (1.0 + x * x);
+            (kk * x * x, kk * x)
+        })
+    };
+    modulus.0 += maxwell2(w).0;
+    modulus.1 += maxwell2(w).1;
     let z_amp = point.amplitude_n / modulus.0.hypot(modulus.1);
     let z_static = static_displacement(k1, chi, p0, point.preload_n);
     // Imperfect control: 2 % second harmonic.
@@ -435,6 +450,12 @@ pub fn simulate_test(
             f += m1 * a1 * (w * t + phi1 + phase).cos()
                 + m2 * a2 * (2.0 * w * t + phi2 + phase).cos();
         }
+        if truth.second_maxwell.is_some() {
+            let (b1, b2) = (maxwell2(w), maxwell2(2.0 * w));
+            let (p1, p2) = (w * t + phi1, 2.0 * w * t + phi2);
+            f +=
+                a1 * (b1.0 * p1.cos() - b1.1 * p1.sin()) + a2 * (b2.0 * p2.cos() - b2.1 * p2.sin());
+        }
         if let Some((b1, b2)) = cole {
             // Re(K Z e^{i phase}) for z = a cos(W t + phi): a (K_r cos - K_i sin).
             let (p1, p2) = (w * t + phi1, 2.0 * w * t + phi2);
@@ -509,7 +530,9 @@ impl Passage {
 /// cell as in harmonic tests; springpots and fractional branches are harmonic-only here).
 pub fn simulate_passage(truth: &Truth, passage: &Passage) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     assert!(
-        truth.springpot.is_none() && truth.fractional_maxwell_order.is_none(),
+        truth.springpot.is_none()
+            && truth.fractional_maxwell_order.is_none()
+            && truth.second_maxwell.is_none(),
         "passages simulate time-domain truths only"
     );
     let l = truth.length_m;

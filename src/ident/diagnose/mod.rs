@@ -116,12 +116,27 @@ pub struct CandidateResult {
     /// Whether it would qualify but for its physical range (a finding worth reporting:
     /// the best fit of this effect is unphysical, so its cause is something else).
     pub would_qualify: bool,
+    /// Its law does not hold across the tests (`springpot_law_broken`): never named, and,
+    /// like a fit outside the range, a sign of a cause outside the library.
+    pub law_broken: Option<String>,
     /// The candidate fitted on all tests.
     pub model: AugmentedModel,
     /// The template it was fitted with (the friction law chosen, for `amplitude-friction`).
     pub template: Template,
     /// How the law was chosen among its variants (a drift's clock), when it has several.
     pub law_note: Option<String>,
+}
+
+impl CandidateResult {
+    /// Why its best fit cannot be the cause: outside its range, or a law that does not
+    /// hold across the tests (empty when neither).
+    pub fn unphysical_text(&self) -> String {
+        match (&self.out_of_range, &self.law_broken) {
+            (Some(o), _) => o.to_string(),
+            (None, Some(b)) => b.clone(),
+            (None, None) => String::new(),
+        }
+    }
 }
 
 /// Why an effect was not tried.
@@ -608,6 +623,7 @@ impl Scoring<'_> {
 /// first alone) of the best qualifying pair.
 fn lookahead_pair(
     results: &[CandidateResult],
+    forced_first: Option<usize>,
     reference: &Reference<'_>,
     scoring: &Scoring<'_>,
     progress: &mut dyn FnMut(&str),
@@ -616,11 +632,14 @@ fn lookahead_pair(
     let (first_index, first) = results
         .iter()
         .enumerate()
-        .filter(|(_, r)| {
-            !r.cv.screened
-                && r.score < 1.0
-                && r.wilcoxon_z > options.min_wilcoxon_z
-                && r.out_of_range.is_none()
+        .filter(|(i, _)| forced_first.is_none_or(|f| f == *i))
+        .filter(|(i, r)| {
+            forced_first == Some(*i)
+                || !r.cv.screened
+                    && r.score < 1.0
+                    && r.wilcoxon_z > options.min_wilcoxon_z
+                    && r.out_of_range.is_none()
+                    && r.law_broken.is_none()
         })
         .min_by(|a, b| a.1.score.total_cmp(&b.1.score))?;
     let others: Vec<&CandidateResult> = results.iter().filter(|r| r.kind != first.kind).collect();
@@ -689,6 +708,19 @@ fn lookahead_pair(
         );
         let model = pair_template.model_with_errors(&cv.full_fit);
         let out_of_range = out_of_range(&model, &[first.kind, other.kind]);
+        let would = joint.qualifies && given_first.qualifies && given_other.qualifies;
+        let law_broken = (would
+            && out_of_range.is_none()
+            && [first.kind, other.kind].contains(&EffectKind::FractionalDamping))
+        .then(|| {
+            springpot_law_broken(
+                &pair_template,
+                &cv.full_fit,
+                scoring.data,
+                options.max_iterations,
+            )
+        })
+        .flatten();
         let result = CandidateResult {
             law_note: other.law_note.clone(),
             kind: other.kind,
@@ -701,12 +733,10 @@ fn lookahead_pair(
             wilcoxon_z: given_first.z,
             folds_improved: given_first.folds_improved,
             history_evidence: given_first.history_evidence,
-            qualifies: joint.qualifies
-                && given_first.qualifies
-                && given_other.qualifies
-                && out_of_range.is_none(),
-            would_qualify: joint.qualifies && given_first.qualifies && given_other.qualifies,
+            qualifies: would && out_of_range.is_none() && law_broken.is_none(),
+            would_qualify: would,
             out_of_range,
+            law_broken,
             model,
             template: pair_template,
         };
@@ -822,6 +852,10 @@ fn swap_last_named(
             && given_x.qualifies
             && against_current.qualifies
             && out_of_range.is_none();
+        let law_broken = (ok && [x.kind, other.kind].contains(&EffectKind::FractionalDamping))
+            .then(|| springpot_law_broken(&t, &cv.full_fit, data, options.max_iterations))
+            .flatten();
+        let ok = ok && law_broken.is_none();
         let result = |kind: EffectKind, round: usize, m: &Comparison, law_note: &Option<String>| {
             CandidateResult {
                 kind,
@@ -836,6 +870,7 @@ fn swap_last_named(
                 history_evidence: m.history_evidence,
                 qualifies: ok,
                 out_of_range,
+                law_broken: law_broken.clone(),
                 would_qualify: ok,
                 model: model.clone(),
                 template: t.clone(),
@@ -1104,6 +1139,13 @@ pub fn diagnose(
                     qualifies: m.qualifies || moves_named.is_some(),
                     ..m
                 };
+                let law_broken = (kind == EffectKind::FractionalDamping
+                    && m.qualifies
+                    && out_of_range.is_none())
+                .then(|| {
+                    springpot_law_broken(&candidate, &cv.full_fit, data, options.max_iterations)
+                })
+                .flatten();
                 let law_note = match kind {
                     EffectKind::SpecimenDrift => Some(drift_clock_note(
                         &drift_fits,
@@ -1132,9 +1174,10 @@ pub fn diagnose(
                     wilcoxon_z: m.z,
                     folds_improved: m.folds_improved,
                     history_evidence: m.history_evidence,
-                    qualifies: m.qualifies && out_of_range.is_none(),
+                    qualifies: m.qualifies && out_of_range.is_none() && law_broken.is_none(),
                     would_qualify: m.qualifies,
                     out_of_range,
+                    law_broken,
                     model,
                     template: candidate,
                 }
@@ -1142,7 +1185,7 @@ pub fn diagnose(
             .collect();
         for r in &results {
             progress(&format!(
-                "round {round}: {:<20} held-out gap {:.4e} (raw {:.4e}) ratio {:.3} raw ratio {:.3} score {:.3} z {:.2} folds {}/{}{}{}{} [{:.1} s]",
+                "round {round}: {:<20} held-out gap {:.4e} (raw {:.4e}) ratio {:.3} raw ratio {:.3} score {:.3} z {:.2} folds {}/{}{}{}{}{} [{:.1} s]",
                 r.kind.name(),
                 excess_gap(&r.cv.held_out_error, data),
                 raw_gap(&r.cv.held_out_error, data),
@@ -1154,6 +1197,7 @@ pub fn diagnose(
                 n_folds,
                 if r.history_evidence { " (history evidence)" } else { "" },
                 r.out_of_range.map_or(String::new(), |o| format!(" {o}")),
+                r.law_broken.as_ref().map_or(String::new(), |b| format!(" {b}")),
                 if r.qualifies { " qualifies" } else if r.cv.screened { " (screened out in sample: folds not refitted)" } else { "" },
                 seconds
                     .iter()
@@ -1169,7 +1213,40 @@ pub fn diagnose(
             .iter()
             .filter(|r| r.would_qualify && !r.out_of_range.is_some_and(|o| o.degenerates()))
             .min_by(|a, b| a.score.total_cmp(&b.score));
-        if let Some(best) = best_would.filter(|b| b.out_of_range.is_some()) {
+        // A springpot that is the best description but has no single order across the
+        // tests may be half of a pair (a channel skew bends its apparent order): it is
+        // fitted beside each other candidate, and the pair is named if the springpot's law
+        // holds there and the pair passes the lookahead's rule. Else nothing is named.
+        let broken_law_pair = best_would
+            .filter(|b| b.out_of_range.is_none() && b.law_broken.is_some())
+            .and_then(|b| results.iter().position(|r| r.kind == b.kind))
+            .and_then(|i| lookahead_pair(&results, Some(i), &reference, &scoring, progress));
+        if let Some((first_index, second)) = broken_law_pair {
+            let first = &mut results[first_index];
+            let why = first.law_broken.take().unwrap_or_default();
+            first.law_note = Some(format!(
+                "alone it {why}; beside `{}` its order holds across the tests",
+                second.kind.name()
+            ));
+            first.qualifies = true;
+            let first = first.kind;
+            rounds.push(results);
+            progress(&format!(
+                "round {round}: named {} and {} (jointly: alone the first has no single order)",
+                first.name(),
+                second.kind.name()
+            ));
+            current_template = second.template.clone();
+            current_cv = second.cv.clone();
+            before_last = None;
+            named.push(first);
+            named.push(second.kind);
+            rounds.push(vec![second]);
+            continue;
+        }
+        if let Some(best) =
+            best_would.filter(|b| b.out_of_range.is_some() || b.law_broken.is_some())
+        {
             let swap = match (&before_last, named.last()) {
                 (Some((before_template, before_cv, k)), Some(&last)) if !swapped => {
                     swap_last_named(
@@ -1194,7 +1271,7 @@ pub fn diagnose(
                     x.kind.name(),
                     y.kind.name(),
                     best.kind.name(),
-                    best.out_of_range.map_or(String::new(), |o| o.to_string()),
+                    best.unphysical_text(),
                     last.name()
                 );
                 progress(&format!("round {round}: {why}"));
@@ -1248,7 +1325,7 @@ pub fn diagnose(
         // each other candidate. The pair is named only if it passes the naming rule
         // against the current model (penalised for both effects) and each member passes
         // it against the other member alone (neither is redundant).
-        let pair = lookahead_pair(&results, &reference, &scoring, progress);
+        let pair = lookahead_pair(&results, None, &reference, &scoring, progress);
         match pair {
             Some((first_index, second)) => {
                 let first = results[first_index].kind;
@@ -1426,6 +1503,110 @@ fn pinned_on_bound(model: &AugmentedModel, kind: EffectKind) -> bool {
 
 /// A springpot order at or above this is on the fit's clamp (0.999): a dashpot.
 const FRACTIONAL_ORDER_PINNED: f64 = 0.99;
+
+/// The springpot's order refitted on the lower and on the upper half of the test
+/// frequencies (harmonic tests; the element refitted with it, every other effect held at
+/// the fit on all tests): `(alpha, standard error)` per half and the frequency that splits
+/// them. None without a springpot or with fewer than four test frequencies.
+pub fn springpot_orders_by_band(
+    template: &Template,
+    fit: &crate::ident::fit::LmFit,
+    data: &[CycleData],
+    max_iterations: usize,
+) -> Option<([(f64, f64); 2], [(f64, f64); 2])> {
+    let k = template
+        .added
+        .iter()
+        .position(|k| *k == EffectKind::FractionalDamping)?;
+    let offset = template.n_params()
+        - template.added[k..]
+            .iter()
+            .map(|k| k.n_params())
+            .sum::<usize>();
+    let mut fixed = template.model(&fit.params);
+    fixed
+        .effects
+        .retain(|e| e.name() != EffectKind::FractionalDamping.name());
+    let mut springpot = Template::new(fixed, template.reference_temperature_c);
+    springpot.fit_element = template.fit_element;
+    springpot.fit_chi = template.fit_chi;
+    springpot.clock_spans = template.clock_spans;
+    springpot.drift_clock = template.drift_clock;
+    springpot.added = vec![EffectKind::FractionalDamping];
+    let n_element = springpot.n_params() - 2;
+    let mut start: Vec<f64> = fit.params[..n_element].to_vec();
+    start.extend_from_slice(&fit.params[offset..offset + 2]);
+    let mut freqs: Vec<f64> = data
+        .iter()
+        .filter(|d| !d.is_history())
+        .map(|d| d.frequency_hz)
+        .collect();
+    freqs.sort_by(f64::total_cmp);
+    freqs.dedup_by(|a, b| (*a - *b).abs() <= 1e-6 * b.abs());
+    if freqs.len() < 4 {
+        return None;
+    }
+    // The lower and the upper half of the frequencies; with an odd count both hold the
+    // middle one (each half then has at least two frequencies more than the order's
+    // single one needs, and the overlap makes the comparison conservative).
+    let n = freqs.len();
+    let bands = [(freqs[0], freqs[(n - 1) / 2]), (freqs[n / 2], freqs[n - 1])];
+    let half = |(lo, hi): (f64, f64)| {
+        let subset: Vec<&CycleData> = data
+            .iter()
+            .filter(|d| {
+                !d.is_history()
+                    && d.frequency_hz >= lo * (1.0 - 1e-6)
+                    && d.frequency_hz <= hi * (1.0 + 1e-6)
+            })
+            .collect();
+        let f = crate::ident::fit::fit_template(
+            &springpot,
+            &subset,
+            std::slice::from_ref(&start),
+            max_iterations,
+        );
+        let alpha = (1.0 / (1.0 + (-f.params[n_element + 1]).exp())).clamp(1e-3, 0.999);
+        // d alpha = alpha (1 - alpha) d logit(alpha). An order on the model's clamp (a
+        // dashpot, or a spring) has no standard error (the clamp flattens the fit there);
+        // the band would take it further out if it could, so it is at least as far from
+        // the other band's as it is: counted as exact.
+        let pinned = !(1.0 - FRACTIONAL_ORDER_PINNED..FRACTIONAL_ORDER_PINNED).contains(&alpha);
+        let se = if pinned {
+            0.0
+        } else {
+            f.standard_errors()[n_element + 1].map_or(f64::INFINITY, |s| s * alpha * (1.0 - alpha))
+        };
+        (alpha, se)
+    };
+    Some(([half(bands[0]), half(bands[1])], bands))
+}
+
+/// A springpot is a law of every frequency: its loss angle is `alpha pi / 2` at each, so
+/// its order fitted on the lower test frequencies and on the upper ones must agree. When
+/// the two differ by more than `SPRINGPOT_ORDER_Z` standard errors and by more than
+/// `SPRINGPOT_ORDER_MATERIAL`, the springpot imitates something with a time scale of its
+/// own (a discrete relaxation, a second Maxwell branch): it is not named. Returns why.
+fn springpot_law_broken(
+    template: &Template,
+    fit: &crate::ident::fit::LmFit,
+    data: &[CycleData],
+    max_iterations: usize,
+) -> Option<String> {
+    let ([(lo, lo_se), (hi, hi_se)], [(a, b), (c, d)]) =
+        springpot_orders_by_band(template, fit, data, max_iterations)?;
+    let z = (lo - hi).abs() / (lo_se * lo_se + hi_se * hi_se).sqrt().max(1e-12);
+    ((lo - hi).abs() > SPRINGPOT_ORDER_MATERIAL && z > SPRINGPOT_ORDER_Z).then(|| {
+        format!(
+            "has no single order: alpha = {lo:.3} +- {lo_se:.3} on the tests at {a}-{b} Hz, {hi:.3} +- {hi_se:.3} on those at {c}-{d} Hz ({z:.1} standard errors apart)"
+        )
+    })
+}
+
+/// Standard errors apart at which the springpot's two band orders disagree.
+const SPRINGPOT_ORDER_Z: f64 = 3.0;
+/// Smallest difference of the band orders that counts (a tenth of the order's range).
+const SPRINGPOT_ORDER_MATERIAL: f64 = 0.1;
 
 /// Which clock a drift runs on, as the data say: the in-sample fits of each clock the
 /// campaign has, told apart when the worse one's sum of squares exceeds the best one's by

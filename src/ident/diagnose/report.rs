@@ -68,6 +68,7 @@ pub fn json_summary(d: &Diagnosis, model_path: &std::path::Path) -> serde_json::
                 "final_params": d.named.contains(&r.kind).then(|| params_json(&d.final_model, r.kind)),
                 "would_qualify_but_for_range": r.would_qualify && r.out_of_range.is_some(),
                 "out_of_range": r.out_of_range.map(|o| out_of_range_json(&o)),
+                "law_broken": r.law_broken,
                 "law_note": r.law_note,
             })
         })
@@ -430,7 +431,7 @@ fn render_report(
         .rounds
         .iter()
         .flatten()
-        .filter(|c| c.would_qualify && c.out_of_range.is_some())
+        .filter(|c| c.would_qualify && (c.out_of_range.is_some() || c.law_broken.is_some()))
         .collect();
     for c in &unphysical {
         if let Some(o) = c.out_of_range {
@@ -439,6 +440,12 @@ fn render_report(
                 "- `{}` {o}: not named. This suggests {}.",
                 c.kind.name(),
                 o.suggestion()
+            );
+        } else if let Some(b) = &c.law_broken {
+            let _ = writeln!(
+                r,
+                "- `{}` {b}: not named. A springpot has one order at every frequency; an order that changes with the band suggests a relaxation with a time scale of its own (a second Maxwell branch), which the library does not hold.",
+                c.kind.name()
             );
         }
     }
@@ -529,11 +536,12 @@ fn render_report(
             c.wilcoxon_z,
             c.folds_improved,
             d.folds.iter().max().map_or(0, |m| m + 1),
-            match (c.qualifies, c.out_of_range) {
-                (_, Some(o)) => format!("no: {o}"),
-                (true, None) if c.history_evidence => "yes (history tests)".to_string(),
-                (true, None) => "yes".to_string(),
-                (false, None) => "no".to_string(),
+            match (c.qualifies, c.out_of_range, &c.law_broken) {
+                (_, Some(o), _) => format!("no: {o}"),
+                (_, None, Some(b)) => format!("no: {b}"),
+                (true, None, None) if c.history_evidence => "yes (history tests)".to_string(),
+                (true, None, None) => "yes".to_string(),
+                (false, None, None) => "no".to_string(),
             }
         );
     }
