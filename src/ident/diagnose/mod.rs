@@ -1221,18 +1221,49 @@ pub fn diagnose(
             .filter(|b| b.out_of_range.is_none() && b.law_broken.is_some())
             .and_then(|b| results.iter().position(|r| r.kind == b.kind))
             .and_then(|i| lookahead_pair(&results, Some(i), &reference, &scoring, progress));
-        if let Some((first_index, second)) = broken_law_pair {
+        // The springpot's partner may pair better with something else (a skew beside a
+        // load-train resonance, for which the springpot stood in): the partner is fitted
+        // beside each other candidate too, and a qualifying pair without the springpot
+        // whose joint score is better is named instead.
+        let joint_score = |first: EffectKind, pair: &CandidateResult| {
+            scoring
+                .compare(
+                    &pair.cv.held_out_error,
+                    raw_gap(&pair.cv.held_out_error, data),
+                    first.n_params() + pair.kind.n_params(),
+                    &reference,
+                )
+                .score
+        };
+        let broken_law_pair = broken_law_pair.map(|(first_index, second)| {
+            let springpot_score = joint_score(results[first_index].kind, &second);
+            let alternative = results
+                .iter()
+                .position(|r| r.kind == second.kind)
+                .and_then(|i| lookahead_pair(&results, Some(i), &reference, &scoring, progress))
+                .filter(|(i, alt)| {
+                    alt.kind != EffectKind::FractionalDamping
+                        && joint_score(results[*i].kind, alt) < springpot_score
+                });
+            match alternative {
+                Some((i, alt)) => (i, alt, false),
+                None => (first_index, second, true),
+            }
+        });
+        if let Some((first_index, second, with_springpot)) = broken_law_pair {
             let first = &mut results[first_index];
-            let why = first.law_broken.take().unwrap_or_default();
-            first.law_note = Some(format!(
-                "alone it {why}; beside `{}` its order holds across the tests",
-                second.kind.name()
-            ));
+            if with_springpot {
+                let why = first.law_broken.take().unwrap_or_default();
+                first.law_note = Some(format!(
+                    "alone it {why}; beside `{}` its order holds across the tests",
+                    second.kind.name()
+                ));
+            }
             first.qualifies = true;
             let first = first.kind;
             rounds.push(results);
             progress(&format!(
-                "round {round}: named {} and {} (jointly: alone the first has no single order)",
+                "round {round}: named {} and {} (jointly: the springpot alone has no single order)",
                 first.name(),
                 second.kind.name()
             ));
@@ -1504,6 +1535,10 @@ fn pinned_on_bound(model: &AugmentedModel, kind: EffectKind) -> bool {
 /// A springpot order at or above this is on the fit's clamp (0.999): a dashpot.
 const FRACTIONAL_ORDER_PINNED: f64 = 0.99;
 
+/// `(alpha, standard error)` on the lower and the upper half of the test frequencies, and
+/// each half's frequency range, Hz.
+pub type BandOrders = ([(f64, f64); 2], [(f64, f64); 2]);
+
 /// The springpot's order refitted on the lower and on the upper half of the test
 /// frequencies (harmonic tests; the element refitted with it, every other effect held at
 /// the fit on all tests): `(alpha, standard error)` per half and the frequency that splits
@@ -1513,7 +1548,7 @@ pub fn springpot_orders_by_band(
     fit: &crate::ident::fit::LmFit,
     data: &[CycleData],
     max_iterations: usize,
-) -> Option<([(f64, f64); 2], [(f64, f64); 2])> {
+) -> Option<BandOrders> {
     let k = template
         .added
         .iter()
