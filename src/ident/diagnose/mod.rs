@@ -1246,10 +1246,16 @@ pub fn diagnose(
                         && joint_score(results[*i].kind, alt) < springpot_score
                 });
             match alternative {
-                Some((i, alt)) => (i, alt, false),
-                None => (first_index, second, true),
+                Some((i, alt)) => Some((i, alt, false)),
+                // A springpot whose law held only beside a partner is named with it only
+                // when the pair leaves nothing material: its broken law alone, and a
+                // residual beside its partner, say it stands in for a cause outside the
+                // library.
+                None => (excess_gap(&second.cv.held_out_error, data) < verdict::MIN_GAP)
+                    .then_some((first_index, second, true)),
             }
         });
+        let broken_law_pair = broken_law_pair.flatten();
         if let Some((first_index, second, with_springpot)) = broken_law_pair {
             let first = &mut results[first_index];
             if with_springpot {
@@ -1535,14 +1541,26 @@ fn pinned_on_bound(model: &AugmentedModel, kind: EffectKind) -> bool {
 /// A springpot order at or above this is on the fit's clamp (0.999): a dashpot.
 const FRACTIONAL_ORDER_PINNED: f64 = 0.99;
 
-/// `(alpha, standard error)` on the lower and the upper half of the test frequencies, and
-/// each half's frequency range, Hz.
-pub type BandOrders = ([(f64, f64); 2], [(f64, f64); 2]);
+/// The springpot's order on the lower and the upper half of the test frequencies.
+#[derive(Debug, Clone, Copy)]
+pub struct BandOrders {
+    /// Each half's order (on the model's clamp, 0.001 or 0.999, when the band would take
+    /// it further).
+    pub alpha: [f64; 2],
+    /// Each half's frequency range, Hz.
+    pub bands: [(f64, f64); 2],
+    /// What one order for both halves costs: the smallest rise of the two halves' summed
+    /// squared residuals, with the order held at either half's or midway and everything
+    /// else refitted, over their residual variance. A likelihood ratio: about chi-square
+    /// with one degree of freedom when the order is the same, so 9 is 3 standard errors.
+    pub common_order_cost: f64,
+}
 
 /// The springpot's order refitted on the lower and on the upper half of the test
 /// frequencies (harmonic tests; the element refitted with it, every other effect held at
-/// the fit on all tests): `(alpha, standard error)` per half and the frequency that splits
-/// them. None without a springpot or with fewer than four test frequencies.
+/// the fit on all tests; with an odd count of frequencies both halves hold the middle
+/// one, which makes the comparison conservative). None without a springpot or with fewer
+/// than four test frequencies.
 pub fn springpot_orders_by_band(
     template: &Template,
     fit: &crate::ident::fit::LmFit,
@@ -1568,8 +1586,8 @@ pub fn springpot_orders_by_band(
     springpot.clock_spans = template.clock_spans;
     springpot.drift_clock = template.drift_clock;
     springpot.added = vec![EffectKind::FractionalDamping];
-    let n_element = springpot.n_params() - 2;
-    let mut start: Vec<f64> = fit.params[..n_element].to_vec();
+    let n_params = springpot.n_params();
+    let mut start: Vec<f64> = fit.params[..n_params - 2].to_vec();
     start.extend_from_slice(&fit.params[offset..offset + 2]);
     let mut freqs: Vec<f64> = data
         .iter()
@@ -1581,65 +1599,96 @@ pub fn springpot_orders_by_band(
     if freqs.len() < 4 {
         return None;
     }
-    // The lower and the upper half of the frequencies; with an odd count both hold the
-    // middle one (each half then has at least two frequencies more than the order's
-    // single one needs, and the overlap makes the comparison conservative).
     let n = freqs.len();
     let bands = [(freqs[0], freqs[(n - 1) / 2]), (freqs[n / 2], freqs[n - 1])];
-    let half = |(lo, hi): (f64, f64)| {
-        let subset: Vec<&CycleData> = data
-            .iter()
-            .filter(|d| {
-                !d.is_history()
-                    && d.frequency_hz >= lo * (1.0 - 1e-6)
-                    && d.frequency_hz <= hi * (1.0 + 1e-6)
-            })
-            .collect();
-        let f = crate::ident::fit::fit_template(
-            &springpot,
-            &subset,
-            std::slice::from_ref(&start),
-            max_iterations,
-        );
-        let alpha = (1.0 / (1.0 + (-f.params[n_element + 1]).exp())).clamp(1e-3, 0.999);
-        // d alpha = alpha (1 - alpha) d logit(alpha). An order on the model's clamp (a
-        // dashpot, or a spring) has no standard error (the clamp flattens the fit there);
-        // the band would take it further out if it could, so it is at least as far from
-        // the other band's as it is: counted as exact.
-        let pinned = !(1.0 - FRACTIONAL_ORDER_PINNED..FRACTIONAL_ORDER_PINNED).contains(&alpha);
-        let se = if pinned {
-            0.0
-        } else {
-            f.standard_errors()[n_element + 1].map_or(f64::INFINITY, |s| s * alpha * (1.0 - alpha))
-        };
-        (alpha, se)
+    let subsets: Vec<Vec<&CycleData>> = bands
+        .iter()
+        .map(|&(lo, hi)| {
+            data.iter()
+                .filter(|d| {
+                    !d.is_history()
+                        && d.frequency_hz >= lo * (1.0 - 1e-6)
+                        && d.frequency_hz <= hi * (1.0 + 1e-6)
+                })
+                .collect()
+        })
+        .collect();
+    let free: Vec<crate::ident::fit::LmFit> = subsets
+        .iter()
+        .map(|subset| {
+            crate::ident::fit::fit_template(
+                &springpot,
+                subset,
+                std::slice::from_ref(&start),
+                max_iterations,
+            )
+        })
+        .collect();
+    let order = |f: &crate::ident::fit::LmFit| {
+        (1.0 / (1.0 + (-f.params[n_params - 1]).exp())).clamp(1e-3, 0.999)
     };
-    Some(([half(bands[0]), half(bands[1])], bands))
+    let alpha = [order(&free[0]), order(&free[1])];
+    // A half's sum of squares with the order held at `a` (the rest refitted from its own
+    // free fit).
+    let held = |half: usize, a: f64| {
+        if (a - alpha[half]).abs() < 1e-9 {
+            return free[half].sse;
+        }
+        let theta_a = (a / (1.0 - a)).ln();
+        let subset = &subsets[half];
+        crate::ident::fit::levenberg_marquardt(
+            |theta: &[f64]| {
+                let mut full = theta.to_vec();
+                full.push(theta_a);
+                springpot.residuals(&full, subset)
+            },
+            &free[half].params[..n_params - 1],
+            max_iterations,
+        )
+        .sse
+    };
+    let separate = free[0].sse + free[1].sse;
+    let common = [alpha[0], alpha[1], 0.5 * (alpha[0] + alpha[1])]
+        .into_iter()
+        .map(|a| held(0, a) + held(1, a))
+        .fold(f64::INFINITY, f64::min);
+    let dof = (free[0].n_residuals + free[1].n_residuals)
+        .saturating_sub(2 * n_params)
+        .max(1);
+    let variance = separate / dof as f64;
+    Some(BandOrders {
+        alpha,
+        bands,
+        common_order_cost: (common - separate).max(0.0) / variance.max(1e-300),
+    })
 }
 
 /// A springpot is a law of every frequency: its loss angle is `alpha pi / 2` at each, so
 /// its order fitted on the lower test frequencies and on the upper ones must agree. When
-/// the two differ by more than `SPRINGPOT_ORDER_Z` standard errors and by more than
-/// `SPRINGPOT_ORDER_MATERIAL`, the springpot imitates something with a time scale of its
-/// own (a discrete relaxation, a second Maxwell branch): it is not named. Returns why.
+/// the two differ by more than `SPRINGPOT_ORDER_MATERIAL` and one order for both costs more
+/// than `SPRINGPOT_ORDER_COST` residual variances, the springpot imitates something with a
+/// time scale of its own (a discrete relaxation, a second Maxwell branch): it is not
+/// named. Returns why.
 fn springpot_law_broken(
     template: &Template,
     fit: &crate::ident::fit::LmFit,
     data: &[CycleData],
     max_iterations: usize,
 ) -> Option<String> {
-    let ([(lo, lo_se), (hi, hi_se)], [(a, b), (c, d)]) =
-        springpot_orders_by_band(template, fit, data, max_iterations)?;
-    let z = (lo - hi).abs() / (lo_se * lo_se + hi_se * hi_se).sqrt().max(1e-12);
-    ((lo - hi).abs() > SPRINGPOT_ORDER_MATERIAL && z > SPRINGPOT_ORDER_Z).then(|| {
+    let b = springpot_orders_by_band(template, fit, data, max_iterations)?;
+    let [lo, hi] = b.alpha;
+    let [(f0, f1), (f2, f3)] = b.bands;
+    let cost = b.common_order_cost;
+    ((lo - hi).abs() > SPRINGPOT_ORDER_MATERIAL && cost > SPRINGPOT_ORDER_COST).then(|| {
         format!(
-            "has no single order: alpha = {lo:.3} +- {lo_se:.3} on the tests at {a}-{b} Hz, {hi:.3} +- {hi_se:.3} on those at {c}-{d} Hz ({z:.1} standard errors apart)"
+            "has no single order: alpha = {lo:.3} on the tests at {f0}-{f1} Hz, {hi:.3} on those at {f2}-{f3} Hz, and one order for both costs {cost:.1} residual variances (a likelihood ratio; 9 is 3 standard errors)"
         )
     })
 }
 
-/// Standard errors apart at which the springpot's two band orders disagree.
-const SPRINGPOT_ORDER_Z: f64 = 3.0;
+/// Likelihood ratio (residual variances) beyond which the two band orders disagree: 3
+/// standard errors of one degree of freedom.
+const SPRINGPOT_ORDER_COST: f64 = 9.0;
 /// Smallest difference of the band orders that counts (a tenth of the order's range).
 const SPRINGPOT_ORDER_MATERIAL: f64 = 0.1;
 
