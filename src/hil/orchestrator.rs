@@ -119,6 +119,17 @@ pub struct RunOutcome {
     pub completed: bool,
 }
 
+/// Whether a child's exit is part of the run's end rather than a death: an exit with a
+/// code once the rig has finished or a stop was sent, or with code 3 (a loop process that
+/// ended on its own fault) when its heartbeat has already named that fault (an emulator
+/// that tripped exits at the rig's end of run, which it can see before the orchestrator
+/// sees the rig's exit).
+fn exit_is_orderly(name: &str, code: Option<i32>, ending: bool, faults: &[String]) -> bool {
+    let ended_on_named_fault =
+        code == Some(3) && faults.iter().any(|f| f.starts_with(&format!("{name}: ")));
+    code.is_some() && (ending || ended_on_named_fault)
+}
+
 fn describe_status(status: &ExitStatus) -> String {
     use std::os::unix::process::ExitStatusExt;
     match (status.code(), status.signal()) {
@@ -375,8 +386,12 @@ impl Supervisor {
                 if self.child_process[i] == Some(process_id::RIG) && status.code().is_some() {
                     self.outcome.rig_finished = true;
                 }
-                let orderly = status.code().is_some()
-                    && (self.outcome.rig_finished || self.stop_sent_at.is_some());
+                let orderly = exit_is_orderly(
+                    &name,
+                    status.code(),
+                    self.outcome.rig_finished || self.stop_sent_at.is_some(),
+                    &self.outcome.faults,
+                );
                 if name == "link" && !status.success() {
                     // The link names its own failure (a silent rig, a wrong period).
                     self.push_fault(format!("link: {}", self.link_error(&status)));
@@ -779,5 +794,24 @@ pub fn lock_machine(
             )));
         }
         std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::exit_is_orderly;
+
+    #[test]
+    fn a_process_that_ended_on_its_own_named_fault_did_not_die() {
+        let faults = vec!["emulator: loop-unstable".to_string()];
+        // The emulator tripped, then exited with code 3 before the rig's exit was seen.
+        assert!(exit_is_orderly("emulator", Some(3), false, &faults));
+        // Code 3 without its fault named, another code, or a signal: a death.
+        assert!(!exit_is_orderly("controller", Some(3), false, &faults));
+        assert!(!exit_is_orderly("emulator", Some(1), false, &faults));
+        assert!(!exit_is_orderly("emulator", None, false, &faults));
+        // At the run's end any exit with a code is orderly; a signal never is.
+        assert!(exit_is_orderly("controller", Some(0), true, &[]));
+        assert!(!exit_is_orderly("controller", None, true, &[]));
     }
 }
