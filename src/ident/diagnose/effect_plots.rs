@@ -66,13 +66,7 @@ fn resonance_panel(fn_hz: f64, zeta: f64, data: &[CycleData]) -> Panel {
         let h = load_train_transfer(fn_hz, zeta, 2.0 * std::f64::consts::PI * x);
         h.0.hypot(h.1)
     };
-    let mut tested: Vec<f64> = data
-        .iter()
-        .filter(|c| !c.is_history())
-        .map(|c| c.frequency_hz)
-        .collect();
-    tested.sort_by(f64::total_cmp);
-    tested.dedup();
+    let tested = super::harmonic_frequencies(data);
     Panel::new(
         format!("load-train-resonance: {fn_hz:.1} Hz, damping ratio {zeta:.3}"),
         "frequency (Hz)",

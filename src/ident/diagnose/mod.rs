@@ -1267,18 +1267,14 @@ pub fn diagnose(
             }
             first.qualifies = true;
             let first = first.kind;
-            rounds.push(results);
             progress(&format!(
                 "round {round}: named {} and {} (jointly: the springpot alone has no single order)",
                 first.name(),
                 second.kind.name()
             ));
-            current_template = second.template.clone();
-            current_cv = second.cv.clone();
+            (current_template, current_cv) =
+                name_pair(&mut rounds, &mut named, results, first, second);
             before_last = None;
-            named.push(first);
-            named.push(second.kind);
-            rounds.push(vec![second]);
             continue;
         }
         if let Some(best) =
@@ -1367,18 +1363,14 @@ pub fn diagnose(
             Some((first_index, second)) => {
                 let first = results[first_index].kind;
                 results[first_index].qualifies = true;
-                rounds.push(results);
                 progress(&format!(
                     "round {round}: named {} and {} (jointly: neither qualifies alone)",
                     first.name(),
                     second.kind.name()
                 ));
-                current_template = second.template.clone();
-                current_cv = second.cv.clone();
+                (current_template, current_cv) =
+                    name_pair(&mut rounds, &mut named, results, first, second);
                 before_last = None;
-                named.push(first);
-                named.push(second.kind);
-                rounds.push(vec![second]);
             }
             None => {
                 rounds.push(results);
@@ -1434,6 +1426,24 @@ pub fn diagnose(
         replaced,
         not_tried,
     }
+}
+
+/// Names a pair in one round: the round's `results` (the first member's marked as
+/// qualifying by the caller), then the second member's result, which carries the pair's
+/// fit; returns the pair's template and cross-validation, the new current model.
+fn name_pair(
+    rounds: &mut Vec<Vec<CandidateResult>>,
+    named: &mut Vec<EffectKind>,
+    results: Vec<CandidateResult>,
+    first: EffectKind,
+    second: CandidateResult,
+) -> (Template, CrossValidation) {
+    rounds.push(results);
+    named.push(first);
+    named.push(second.kind);
+    let current = (second.template.clone(), second.cv.clone());
+    rounds.push(vec![second]);
+    current
 }
 
 /// A load-train resonance can imitate a channel delay (its phase) or a moving mass (its
@@ -1541,6 +1551,18 @@ fn pinned_on_bound(model: &AugmentedModel, kind: EffectKind) -> bool {
 /// A springpot order at or above this is on the fit's clamp (0.999): a dashpot.
 const FRACTIONAL_ORDER_PINNED: f64 = 0.99;
 
+/// The distinct frequencies of the harmonic tests, ascending (equal within 1e-6).
+pub fn harmonic_frequencies(data: &[CycleData]) -> Vec<f64> {
+    let mut freqs: Vec<f64> = data
+        .iter()
+        .filter(|d| !d.is_history())
+        .map(|d| d.frequency_hz)
+        .collect();
+    freqs.sort_by(f64::total_cmp);
+    freqs.dedup_by(|a, b| (*a - *b).abs() <= 1e-6 * b.abs());
+    freqs
+}
+
 /// The springpot's order on the lower and the upper half of the test frequencies.
 #[derive(Debug, Clone, Copy)]
 pub struct BandOrders {
@@ -1589,13 +1611,7 @@ pub fn springpot_orders_by_band(
     let n_params = springpot.n_params();
     let mut start: Vec<f64> = fit.params[..n_params - 2].to_vec();
     start.extend_from_slice(&fit.params[offset..offset + 2]);
-    let mut freqs: Vec<f64> = data
-        .iter()
-        .filter(|d| !d.is_history())
-        .map(|d| d.frequency_hz)
-        .collect();
-    freqs.sort_by(f64::total_cmp);
-    freqs.dedup_by(|a, b| (*a - *b).abs() <= 1e-6 * b.abs());
+    let freqs = harmonic_frequencies(data);
     if freqs.len() < 4 {
         return None;
     }
