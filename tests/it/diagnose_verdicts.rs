@@ -548,6 +548,13 @@ fn self_heating_beside_friction_and_a_resonance_beside_a_temperature_shift_are_b
         &acquisition,
     );
     assert_named_set(&d, &["amplitude-friction", "self-heating"]);
+    // The heating's parameters come with 95 % intervals the data determine, and its
+    // memory is the truth's (C / h = 120 s) within 2x: a 1 K start alone once settled on
+    // a memory of a second beside friction (the blind weak-heating campaign).
+    let heat = heating_intervals(&d);
+    let tau = heat[0].value / heat[1].value;
+    assert!(heat.iter().all(|i| i.determined()), "{heat:?}");
+    assert!((60.0..240.0).contains(&tau), "tau {tau} s: {heat:?}");
     let resonance = Truth {
         load_path_resonance: Some((90.0, 0.04)),
         wlf: Some((2.0, 80.0, 23.0, 0.005)),
@@ -562,6 +569,58 @@ fn self_heating_beside_friction_and_a_resonance_beside_a_temperature_shift_are_b
         29,
     );
     assert_named_set(&d, &["load-train-resonance", "temperature-shift"]);
+}
+
+/// The named `self-heating`'s parameter intervals (heat capacity, heat transfer), each
+/// checked to hold its value.
+fn heating_intervals(d: &Diagnosis) -> Vec<fastemu::ident::fit::ParamInterval> {
+    let heat = d
+        .final_template
+        .effect_intervals(&d.final_cv, EffectKind::SelfHeating);
+    let names: Vec<&str> = heat.iter().map(|i| i.name).collect();
+    assert_eq!(names, ["heat_capacity_j_per_k", "heat_transfer_w_per_k"]);
+    for i in &heat {
+        let (lo, hi) = i.ci95.unwrap_or_else(|| panic!("no interval: {i:?}"));
+        assert!(lo <= i.value && i.value <= hi, "{i:?}");
+    }
+    heat
+}
+
+/// A thermal memory far shorter than a record (2 s against 20 s records), where a rule of
+/// thumb would say only `h` can be measured: the warming within each record shows `C`
+/// too, and both 95 % intervals hold the truth (as the fit's default law, -0.8 %/K, sees
+/// the truth's -1 %/K: `C` and `h` times 0.8), each within a factor of 10, so the report
+/// claims no parameter is undetermined.
+#[test]
+fn a_short_thermal_memory_is_measured_with_intervals_that_hold_the_truth() {
+    let truth = Truth {
+        self_heating: Some((2.0, 1.0, 0.01)),
+        rest_s: Some(10.0),
+        ..Truth::paper_like()
+    };
+    let d = diagnose_case_with(
+        "short-thermal-memory",
+        &truth,
+        &standard_design(),
+        &[],
+        &Noise::typical(),
+        32,
+        &long_records(),
+    );
+    assert_named_set(&d, &["self-heating"]);
+    let heat = heating_intervals(&d);
+    for (interval, truth) in heat.iter().zip([2.0 * 0.8, 1.0 * 0.8]) {
+        let (lo, hi) = interval.ci95.expect("interval");
+        assert!(lo <= truth && truth <= hi, "truth {truth}: {interval:?}");
+        assert!(interval.determined(), "{interval:?}");
+    }
+    let named = d
+        .rounds
+        .iter()
+        .flatten()
+        .find(|c| c.kind == EffectKind::SelfHeating && c.qualifies)
+        .expect("the named self-heating's candidate");
+    assert_eq!(named.law_note, None, "no claim that C is unmeasured");
 }
 
 /// Self-heating beside a chamber-temperature law that moves the modulus only (no

@@ -1152,7 +1152,15 @@ pub fn diagnose(
                         &candidate.clocks_like_order,
                         data,
                     )),
-                    EffectKind::SelfHeating => heating_note(&model, data),
+                    EffectKind::SelfHeating => heating_note(
+                        &model,
+                        data,
+                        candidate
+                            .effect_intervals(&cv, kind)
+                            .iter()
+                            .find(|i| i.name == "heat_capacity_j_per_k")
+                            .is_none_or(|i| i.determined()),
+                    ),
                     _ => None,
                 };
                 let law_note = match (law_note, moves_named) {
@@ -1708,13 +1716,19 @@ const SPRINGPOT_ORDER_COST: f64 = 9.0;
 /// Smallest difference of the band orders that counts (a tenth of the order's range).
 const SPRINGPOT_ORDER_MATERIAL: f64 = 0.1;
 
-/// Which clock a drift runs on, as the data say: the in-sample fits of each clock the
-/// campaign has, told apart when the worse one's sum of squares exceeds the best one's by
-/// more than 4 noise variances (a likelihood-ratio test at about 95 %), else "cannot tell".
-/// What a self-heating fit cannot say: with a time constant under a fifth of the median
-/// record every test reaches its steady rise `P / h` within its record and nothing is
-/// carried between tests, so the heat capacity is not identified by the data.
-fn heating_note(model: &AugmentedModel, data: &[CycleData]) -> Option<String> {
+/// What a self-heating fit cannot say, when its heat capacity's 95 % interval spans more
+/// than a factor of 10 (`capacity_determined` false) and its time constant is under a fifth
+/// of the median record: every test reaches its steady rise `P / h` within its record and
+/// nothing is carried between tests. (A short memory alone says nothing: the warming within
+/// a record can still show it.)
+fn heating_note(
+    model: &AugmentedModel,
+    data: &[CycleData],
+    capacity_determined: bool,
+) -> Option<String> {
+    if capacity_determined {
+        return None;
+    }
     let Some(&Effect::SelfHeating {
         heat_capacity_j_per_k,
         heat_transfer_w_per_k,
@@ -1739,6 +1753,9 @@ fn heating_note(model: &AugmentedModel, data: &[CycleData]) -> Option<String> {
     })
 }
 
+/// Which clock a drift runs on, as the data say: the in-sample fits of each clock the
+/// campaign has, told apart when the worse one's sum of squares exceeds the best one's by
+/// more than 4 noise variances (a likelihood-ratio test at about 95 %), else "cannot tell".
 fn drift_clock_note(
     fits: &[(crate::model::effects::DriftClock, f64, usize)],
     like_order: &[crate::model::effects::DriftClock],

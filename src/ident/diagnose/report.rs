@@ -66,6 +66,9 @@ pub fn json_summary(d: &Diagnosis, model_path: &std::path::Path) -> serde_json::
                 // A named effect's parameters in the final model (refitted beside the
                 // effects named after it), which the model file holds.
                 "final_params": d.named.contains(&r.kind).then(|| params_json(&d.final_model, r.kind)),
+                // Their 95 % intervals from the final fit's covariance, and whether the
+                // data determine each (an interval within a factor of 10, not crossing 0).
+                "final_param_intervals": d.named.contains(&r.kind).then(|| intervals_json(d, r.kind)),
                 "would_qualify_but_for_range": r.would_qualify && r.out_of_range.is_some(),
                 "out_of_range": r.out_of_range.map(|o| out_of_range_json(&o)),
                 "law_broken": r.law_broken,
@@ -475,6 +478,34 @@ fn render_report(
         // The note of the fit that was named (earlier rounds' fits of it were not).
         if let (Some(note), true) = (&c.law_note, c.qualifies && d.named.contains(&c.kind)) {
             let _ = writeln!(r, "- `{}` {note}", c.kind.name());
+        }
+    }
+    for kind in &d.named {
+        let intervals = d.final_template.effect_intervals(&d.final_cv, *kind);
+        if intervals.is_empty() {
+            continue;
+        }
+        let text: Vec<String> = intervals.iter().map(interval_text).collect();
+        let _ = writeln!(
+            r,
+            "- `{}` fitted (95 % interval): {}",
+            kind.name(),
+            text.join(", ")
+        );
+        let loose: Vec<&str> = intervals
+            .iter()
+            .filter(|i| !i.determined())
+            .map(|i| i.name)
+            .collect();
+        if !loose.is_empty() {
+            let _ = writeln!(
+                r,
+                "- **`{}`: {} not determined by these data** (95 % interval wider than a factor of 10): the effect is named because it lowers the held-out gap, but do not act on {} value{} without tests that pin it down.",
+                kind.name(),
+                loose.join(", "),
+                if loose.len() == 1 { "that" } else { "those" },
+                if loose.len() == 1 { "" } else { "s" }
+            );
         }
     }
     let _ = writeln!(r, "- Augmented model: `{}`", model_path.display());
@@ -1043,6 +1074,38 @@ fn params_text(model: &AugmentedModel, kind: EffectKind) -> String {
         .map(|(k, v)| format!("{k} = {v:.4e}"))
         .collect::<Vec<_>>()
         .join(", ")
+}
+
+/// `name = value (lo .. hi)`, or `(interval n/a)` when the covariance is singular.
+fn interval_text(i: &crate::ident::fit::ParamInterval) -> String {
+    match i.ci95 {
+        Some((lo, hi)) => format!(
+            "{} = {:.3e} ({lo:.2e} .. {hi:.2e}{})",
+            i.name,
+            i.value,
+            if i.consistent_with_zero() {
+                ": about 0"
+            } else {
+                ""
+            }
+        ),
+        None => format!("{} = {:.3e} (interval n/a: singular fit)", i.name, i.value),
+    }
+}
+
+/// A named effect's parameter intervals in the final model, as a JSON object.
+fn intervals_json(d: &Diagnosis, kind: crate::ident::fit::EffectKind) -> serde_json::Value {
+    d.final_template
+        .effect_intervals(&d.final_cv, kind)
+        .into_iter()
+        .map(|i| {
+            (
+                i.name.to_string(),
+                json!({"value": i.value, "ci95": i.ci95.map(|(lo, hi)| [lo, hi]), "determined": i.determined(), "consistent_with_zero": i.consistent_with_zero()}),
+            )
+        })
+        .collect::<serde_json::Map<String, serde_json::Value>>()
+        .into()
 }
 
 /// An effect's parameters as a JSON object (file units).

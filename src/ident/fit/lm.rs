@@ -23,17 +23,40 @@ impl LmFit {
     /// `sigma^2 = SSE / (n - p)`. `None` where `J^T J` is singular.
     pub fn standard_errors(&self) -> Vec<Option<f64>> {
         let p = self.params.len();
-        let dof = self.n_residuals.saturating_sub(p).max(1) as f64;
-        let sigma2 = self.sse / dof;
-        match self.jtj.clone().try_inverse() {
-            Some(inv) => (0..p)
+        match self.covariance() {
+            Some(cov) => (0..p)
                 .map(|i| {
-                    let v = inv[(i, i)] * sigma2;
+                    let v = cov[(i, i)];
                     (v.is_finite() && v >= 0.0).then(|| v.sqrt())
                 })
                 .collect(),
             None => vec![None; p],
         }
+    }
+
+    /// The parameters' covariance `sigma^2 (J^T J)^-1`, `sigma^2 = SSE / (n - p)`, over
+    /// the parameters that move the residuals at all (a parameter held on a bound, whose
+    /// column of `J` is zero, gets NaN in its row and column); `None` where the rest of
+    /// `J^T J` is singular.
+    pub fn covariance(&self) -> Option<DMatrix<f64>> {
+        let p = self.params.len();
+        let dof = self.n_residuals.saturating_sub(p).max(1) as f64;
+        let sigma2 = self.sse / dof;
+        let largest = (0..p).map(|i| self.jtj[(i, i)]).fold(0.0, f64::max);
+        let moving: Vec<usize> = (0..p)
+            .filter(|&i| self.jtj[(i, i)] > 1e-14 * largest)
+            .collect();
+        let reduced = DMatrix::from_fn(moving.len(), moving.len(), |a, b| {
+            self.jtj[(moving[a], moving[b])]
+        });
+        let inverse = reduced.try_inverse()?;
+        let mut covariance = DMatrix::from_element(p, p, f64::NAN);
+        for (a, &i) in moving.iter().enumerate() {
+            for (b, &j) in moving.iter().enumerate() {
+                covariance[(i, j)] = inverse[(a, b)] * sigma2;
+            }
+        }
+        Some(covariance)
     }
 }
 
@@ -161,5 +184,36 @@ mod tests {
         );
         assert!((fit.params[0].exp() - 3.0).abs() < 1e-6);
         assert!((fit.params[1] - 1.5).abs() < 1e-6);
+    }
+
+    /// A straight line `y = a x + b` plus a parameter that moves nothing: the covariance of
+    /// `a` and `b` is the textbook one, `sigma^2 (X^T X)^-1`, and the dead parameter's row
+    /// is NaN instead of making the whole matrix singular.
+    #[test]
+    fn covariance_is_the_textbook_one_and_skips_a_parameter_that_moves_nothing() {
+        let x: Vec<f64> = (0..10).map(f64::from).collect();
+        let wiggle = [0.3, -0.1, 0.2, -0.4, 0.1, 0.0, -0.2, 0.3, -0.1, -0.1];
+        let y: Vec<f64> = x
+            .iter()
+            .zip(wiggle)
+            .map(|(x, w)| 2.0 * x + 1.0 + w)
+            .collect();
+        let fit = levenberg_marquardt(
+            |p| x.iter().zip(&y).map(|(x, y)| p[0] * x + p[1] - y).collect(),
+            &[0.0, 0.0, 5.0],
+            100,
+        );
+        let cov = fit.covariance().expect("covariance");
+        // Independent: normal equations by hand.
+        let n = x.len() as f64;
+        let (sx, sxx) = (x.iter().sum::<f64>(), x.iter().map(|x| x * x).sum::<f64>());
+        let det = n * sxx - sx * sx;
+        let sigma2 = fit.sse / (n - 3.0);
+        assert!((cov[(0, 0)] - sigma2 * n / det).abs() < 1e-9 * cov[(0, 0)]);
+        assert!((cov[(1, 1)] - sigma2 * sxx / det).abs() < 1e-9 * cov[(1, 1)]);
+        assert!((cov[(0, 1)] + sigma2 * sx / det).abs() < 1e-9 * cov[(1, 1)]);
+        assert!(cov[(2, 2)].is_nan() && cov[(0, 2)].is_nan());
+        let se = fit.standard_errors();
+        assert!(se[0].is_some() && se[1].is_some() && se[2].is_none());
     }
 }
