@@ -822,6 +822,26 @@ struct BankState {
     inverse_damping: [f64; SPRINGPOT_BRANCHES],
     low_tail_stiffness_n_per_m: f64,
     high_tail_damping_ns_per_m: f64,
+    /// The springpot's order.
+    alpha: f64,
+    /// Its coefficient now over the one it was built with (self-heating retunes it).
+    scale: f64,
+}
+
+impl BankState {
+    /// Scales every branch's stiffness (and the tails) by `ratio` without a force jump:
+    /// the branch forces are kept, and the low tail's spring is re-anchored so it carries
+    /// the same force at `z_m`. Returns the new anchor.
+    fn rescale(&mut self, ratio: f64, z_m: f64, anchor_m: f64) -> f64 {
+        for j in 0..SPRINGPOT_BRANCHES {
+            self.gain[j] *= ratio;
+            self.inverse_damping[j] /= ratio;
+        }
+        self.low_tail_stiffness_n_per_m *= ratio;
+        self.high_tail_damping_ns_per_m *= ratio;
+        self.scale *= ratio;
+        z_m - (z_m - anchor_m) / ratio
+    }
 }
 
 /// Number of Jenkins elements of the Iwan friction element.
@@ -1113,6 +1133,14 @@ impl SelfHeatingRuntime {
         }
         element
     }
+
+    /// A springpot's coefficient at `rise_k` over its coefficient at the base rise:
+    /// `c (a_T s)^alpha b_T` with the law's modulus and time factors.
+    fn springpot_scale_at(&self, rise_k: f64, alpha: f64) -> f64 {
+        let d = rise_k - self.base_rise_k;
+        (-self.ln_modulus_shift_per_c * d).exp()
+            * 10f64.powf(-self.log10_time_shift_per_c * d).powf(alpha)
+    }
 }
 
 /// Standard normal quantile (Acklam's rational approximation, |error| < 1.2e-9).
@@ -1204,6 +1232,9 @@ pub struct ModelStepper {
     /// bank) add to the local law at that frequency.
     law_effects_n_per_m: f64,
     law_effects_ns_per_m: f64,
+    /// The springpot bank's share of those (retuned with it).
+    law_bank_n_per_m: f64,
+    law_bank_ns_per_m: f64,
     /// Load-train resonance (measurement mode only).
     resonance: Option<ResonanceFilter>,
     self_heating: Option<SelfHeatingRuntime>,
@@ -1247,6 +1278,8 @@ impl ModelStepper {
                         inverse_damping: [0.0; SPRINGPOT_BRANCHES],
                         low_tail_stiffness_n_per_m: springpot.low_tail_stiffness_n_per_m,
                         high_tail_damping_ns_per_m: springpot.high_tail_damping_ns_per_m,
+                        alpha,
+                        scale: 1.0,
                     };
                     for j in 0..SPRINGPOT_BRANCHES {
                         let x = springpot.rates_per_s[j] * dt_s;
@@ -1325,6 +1358,8 @@ impl ModelStepper {
             law_omega_rad_per_s: 0.0,
             law_effects_n_per_m: 0.0,
             law_effects_ns_per_m: 0.0,
+            law_bank_n_per_m: 0.0,
+            law_bank_ns_per_m: 0.0,
             resonance,
             self_heating,
             softening,
@@ -1397,10 +1432,14 @@ impl ModelStepper {
                         alpha,
                         (modulus_factor, time_factor),
                     );
-                    let (re, im) = SpringpotBank::new(coefficient, alpha).modulus(omega);
+                    // At the bank's present scale (a self-heated element's retuned bank).
+                    let scale = self.bank.map_or(1.0, |b| b.scale);
+                    let (re, im) = SpringpotBank::new(coefficient * scale, alpha).modulus(omega);
                     k += re;
+                    self.law_bank_n_per_m = re;
                     if omega > 0.0 {
                         c += im / omega;
+                        self.law_bank_ns_per_m = im / omega;
                     }
                 }
                 _ => {}
@@ -1571,6 +1610,16 @@ impl ModelStepper {
                 if (rise - heating.tuned_rise_k).abs() >= RETUNE_STEP_K {
                     heating.tuned_rise_k = rise;
                     self.base.retune(heating.element_at(rise));
+                    // The springpot follows the same temperature law (as offline, where
+                    // each test's rise shifts its coefficient).
+                    if let Some(bank) = &mut self.bank {
+                        let ratio = heating.springpot_scale_at(rise, bank.alpha) / bank.scale;
+                        self.z_start_m = bank.rescale(ratio, z_m, self.z_start_m);
+                        self.law_effects_n_per_m += self.law_bank_n_per_m * (ratio - 1.0);
+                        self.law_effects_ns_per_m += self.law_bank_ns_per_m * (ratio - 1.0);
+                        self.law_bank_n_per_m *= ratio;
+                        self.law_bank_ns_per_m *= ratio;
+                    }
                 }
             }
         }
