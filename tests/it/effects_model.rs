@@ -622,7 +622,7 @@ fn a_self_heated_springpot_answers_like_one_built_at_that_temperature() {
     let z: Vec<f64> = (0..=n)
         .map(|i| z_static + amplitude_m * (w * i as f64 * dt).sin())
         .collect();
-    let warming = model_with(vec![springpot.clone(), heating(0.0)]);
+    let warming = model_with(vec![springpot, heating(0.0)]);
     let mut stepper = ModelStepper::new(&warming, StepperMode::Emulation, dt, z[0]);
     let heated = run(&mut stepper, &z[1..]);
     let rise = stepper.temperature_rise_k();
