@@ -1,6 +1,6 @@
 //! A small external rig written from `include/fastemu_rig.h` and the README alone: its own
 //! `#[repr(C)]` messages (none of fastemu's types), the iceoryx2 crate for
-//! `--ipc RUN_ID` (rig ABI 3) and std's UDP socket for `--udp BIND PEER` (link protocol 2).
+//! `--ipc RUN_ID` (rig ABI 4) and std's UDP socket for `--udp BIND PEER` (link protocol 3).
 //!
 //! The "hardware" is a mass on the actuator (`m x'' = P(t) - F - c x'`, P the external
 //! load programme: preload + harmonic, F the actuator force), integrated in sub-steps; its
@@ -34,7 +34,7 @@ use iceoryx2::prelude::*;
 // ---- the messages, as fastemu_rig.h declares them ---------------------------------------
 
 /// Header: FASTEMU_LINK_VERSION.
-const LINK_VERSION: u16 = 2;
+const LINK_VERSION: u16 = 3;
 const HEARTBEAT_READY: u32 = 100;
 const RIG_RUNNING: u32 = 1;
 const RIG_HOLD: u32 = 2;
@@ -68,6 +68,7 @@ struct Sample {
     rig_state: u32,
     rig_fault_code: u32,
     reserved: u32,
+    commanded_force_n: f64,
 }
 
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
@@ -511,7 +512,7 @@ impl Transport for Udp {
         }
     }
     fn send(&mut self, s: &Sample) {
-        let mut d = Vec::with_capacity(88);
+        let mut d = Vec::with_capacity(96);
         self.header(1, &mut d);
         d.extend_from_slice(&s.sequence.to_le_bytes());
         d.extend_from_slice(&s.rig_time_ns.to_le_bytes());
@@ -528,6 +529,7 @@ impl Transport for Udp {
         };
         d.extend_from_slice(&self.echo_command_time_ns.to_le_bytes());
         d.extend_from_slice(&hold.to_le_bytes());
+        d.extend_from_slice(&s.commanded_force_n.to_le_bytes());
         let _ = self.socket.send_to(&d, self.peer);
     }
     fn commands(&mut self, out: &mut Vec<Command>) {
@@ -673,6 +675,8 @@ fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
             rig_state: state,
             rig_fault_code: fault,
             reserved: 0,
+            // The actuator is ideal: it applies what it was commanded.
+            commanded_force_n: force,
         });
         // b. commands; HOLD commands latch the interlock; a command nobody may act on is
         // dropped as if it had not arrived (it does not count for the interlock either).
@@ -862,6 +866,7 @@ fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
         rig_state: RIG_FINISHED,
         rig_fault_code: fault,
         reserved: 0,
+        commanded_force_n: force,
     });
     eprintln!(
         "example_rig: {k} periods, final state {}, fault code {fault}{}",

@@ -1,8 +1,8 @@
 /*
  * fastemu_rig.h: the interface between fastemu and a rig it did not start.
  *
- *   rig ABI version 3   (iceoryx2 shared memory, same machine)
- *   link protocol 2     (UDP datagrams, any machine: Speedgoat, TwinCAT, VeriStand, a DAQ PC)
+ *   rig ABI version 4   (iceoryx2 shared memory, same machine)
+ *   link protocol 3     (UDP datagrams, any machine: Speedgoat, TwinCAT, VeriStand, a DAQ PC)
  *
  * Every layout below is checked against fastemu's Rust types by the test
  * tests/it/rig_header.rs (sizes and offsets of every field). Units are SI; displacement
@@ -43,7 +43,8 @@
  * ======================================================================================
  *  a. Measure displacement z_k (and, if it can, the actuator force); send the sample
  *     {sequence k, rig_time_ns k*T, displacement, force (NaN if not measured), status,
- *     its state and latched fault code}.
+ *     its state and latched fault code, and the force command applied over period k-1
+ *     (NaN if the rig does not say; from sample 0, its own servo's command)}.
  *  b. Take every command that arrived since the last period; the newest counts. A
  *     command with mode HOLD or HOLD_UNLOAD latches the interlock (fault 22
  *     hold-requested) and is never left in this session. Drop, as if it had not
@@ -109,7 +110,7 @@
  * checked before the sequence, so a dropped datagram moves nothing), or whose sequence is
  * not newer than the newest accepted one of its kind (duplicates, reordering).
  *
- *   kind 1 SAMPLE   rig -> fastemu   88 bytes, one per period
+ *   kind 1 SAMPLE   rig -> fastemu   96 bytes, one per period
  *   kind 2 COMMAND  fastemu -> rig  184 bytes, one per command
  *   kind 3 CONTROL  fastemu -> rig   56 bytes, run control (sent 3 times; START repeated
  *                                    every 5 ms until the first sample): act once per
@@ -135,8 +136,8 @@
 #include <math.h>
 #include <stdint.h>
 
-#define FASTEMU_RIG_ABI_VERSION 3u
-#define FASTEMU_LINK_VERSION 2u
+#define FASTEMU_RIG_ABI_VERSION 4u
+#define FASTEMU_LINK_VERSION 3u
 
 /* fastemu_displacement_sample.status */
 #define FASTEMU_SAMPLE_OK 0u          /* reading valid */
@@ -197,7 +198,7 @@
 
 /* ---- iceoryx2 payloads (natural alignment, 8-byte aligned) ---------------------------- */
 
-/* Rig -> emulator, "fastemu::DisplacementSample", 56 bytes. */
+/* Rig -> emulator, "fastemu::DisplacementSample", 64 bytes. */
 typedef struct fastemu_displacement_sample {
     uint64_t sequence;        /*  0  sample counter k, from 0, +1 per period               */
     uint64_t rig_time_ns;     /*  8  k * T, the sample instant on the rig's clock, ns      */
@@ -208,6 +209,12 @@ typedef struct fastemu_displacement_sample {
     uint32_t rig_state;       /* 44  FASTEMU_RIG_*                                         */
     uint32_t rig_fault_code;  /* 48  the rig's latched fault, 0 none                       */
     uint32_t reserved;        /* 52  0                                                     */
+    double commanded_force_n; /* 56  the force command in effect at the sample instant, N:  */
+                              /*     what the rig asked its actuator for over the period    */
+                              /*     before (law / gain + damping, or its own hold servo's  */
+                              /*     command); NaN: not reported. fastemu reads the          */
+                              /*     actuator's gain as measured / commanded at rest (the   */
+                              /*     first samples, under the rig's servo) (ABI 4)          */
 } fastemu_displacement_sample;
 
 /* The element's local linear law at an operating point (see fastemu_law_evaluate), 56 bytes. */
@@ -281,7 +288,7 @@ typedef struct fastemu_link_header {
 #define FASTEMU_LINK_CONTROL 3u
 #define FASTEMU_LINK_STATUS 4u
 
-/* Rig -> fastemu, 88 bytes. */
+/* Rig -> fastemu, 96 bytes. */
 typedef struct fastemu_link_sample {
     fastemu_link_header header;    /*  0                                                    */
     uint64_t sample_sequence;      /* 24  k                                                 */
@@ -294,6 +301,7 @@ typedef struct fastemu_link_sample {
     uint32_t reserved;             /* 68  0                                                 */
     uint64_t echo_command_time_ns; /* 72  sender_time_ns of the newest command; 0 none yet  */
     uint64_t echo_hold_ns;         /* 80  rig clock from reading that command to now        */
+    double commanded_force_n;      /* 88  command in effect at the sample, N; NaN: none     */
 } fastemu_link_sample;
 
 /* fastemu -> rig, 184 bytes: fastemu_actuator_command's content. */
@@ -332,17 +340,17 @@ typedef struct fastemu_link_status {
 } fastemu_link_status;
 
 #if defined(__STDC_VERSION__) && __STDC_VERSION__ >= 201112L
-_Static_assert(sizeof(fastemu_displacement_sample) == 56, "rig ABI 3");
-_Static_assert(sizeof(fastemu_local_law) == 56, "rig ABI 3");
-_Static_assert(sizeof(fastemu_compensation) == 40, "rig ABI 3");
-_Static_assert(sizeof(fastemu_actuator_command) == 160, "rig ABI 3");
-_Static_assert(sizeof(fastemu_heartbeat) == 32, "rig ABI 3");
-_Static_assert(sizeof(fastemu_run_control) == 32, "rig ABI 3");
-_Static_assert(sizeof(fastemu_link_header) == 24, "link protocol 2");
-_Static_assert(sizeof(fastemu_link_sample) == 88, "link protocol 2");
-_Static_assert(sizeof(fastemu_link_command) == 184, "link protocol 2");
-_Static_assert(sizeof(fastemu_link_control) == 56, "link protocol 2");
-_Static_assert(sizeof(fastemu_link_status) == 40, "link protocol 2");
+_Static_assert(sizeof(fastemu_displacement_sample) == 64, "rig ABI 4");
+_Static_assert(sizeof(fastemu_local_law) == 56, "rig ABI 4");
+_Static_assert(sizeof(fastemu_compensation) == 40, "rig ABI 4");
+_Static_assert(sizeof(fastemu_actuator_command) == 160, "rig ABI 4");
+_Static_assert(sizeof(fastemu_heartbeat) == 32, "rig ABI 4");
+_Static_assert(sizeof(fastemu_run_control) == 32, "rig ABI 4");
+_Static_assert(sizeof(fastemu_link_header) == 24, "link protocol 3");
+_Static_assert(sizeof(fastemu_link_sample) == 96, "link protocol 3");
+_Static_assert(sizeof(fastemu_link_command) == 184, "link protocol 3");
+_Static_assert(sizeof(fastemu_link_control) == 56, "link protocol 3");
+_Static_assert(sizeof(fastemu_link_status) == 40, "link protocol 3");
 #endif
 
 /* The law's force at displacement z (m), velocity v (m/s), since_s after its sample:

@@ -88,6 +88,9 @@ fn setpoints(run: &InProcessRun) -> Vec<ForceSetpoint> {
             model_flags: 0,
             rig_state: e.rig_state,
             measured_force_n: e.rig_force_n,
+            // Not in the emulator's records: the first contact falls back to the ratio
+            // of measured to element force (the timing is the same).
+            commanded_force_n: f64::NAN,
         })
         .collect()
 }

@@ -388,6 +388,10 @@ struct ContactGain {
     samples: u32,
     /// The newest `CONTACT_LEN` ratios, a ring.
     recent: [f64; CONTACT_LEN],
+    /// The last measured-to-commanded ratio a rig of ABI 4 reported (NaN none yet), and
+    /// how many such samples came.
+    rest_last: f64,
+    rest_samples: u32,
     done: bool,
 }
 
@@ -396,6 +400,9 @@ const CONTACT_LEN: usize = 3;
 const CONTACT_MAX_SAMPLES: u32 = 40;
 const CONTACT_MIN_FORCE_N: f64 = 1e3;
 const CONTACT_SPREAD: f64 = 0.02;
+/// Two consecutive measured-to-commanded ratios this close (relative) are a settled
+/// actuator: its gain.
+const CONTACT_REST_SPREAD: f64 = 0.005;
 
 impl ContactGain {
     fn new(initial_lead_s: f64, dt_s: f64) -> ContactGain {
@@ -403,8 +410,41 @@ impl ContactGain {
             skip: (initial_lead_s / dt_s).ceil() as u32 + 1,
             samples: 0,
             recent: [f64::NAN; CONTACT_LEN],
+            rest_last: f64::NAN,
+            rest_samples: 0,
             done: false,
         }
+    }
+
+    /// One sample of a rig that reports its commanded force (rig ABI 4), from its first,
+    /// whatever its state: the measured over the commanded force is the actuator's own
+    /// gain whenever the actuator has settled on its command, as under the rig's own servo
+    /// before the run. Returns the gain to take, once: the mean of the first two
+    /// consecutive ratios within `CONTACT_REST_SPREAD` of each other, if in 0.5-2 and the
+    /// command is a load (over 1 kN). A rig that does not report it (NaN) leaves the read
+    /// to `observe`.
+    #[inline]
+    fn observe_commanded(&mut self, measured_force_n: f64, commanded_force_n: f64) -> Option<f64> {
+        if self.done || !(measured_force_n.is_finite() && commanded_force_n.is_finite()) {
+            return None;
+        }
+        self.rest_samples += 1;
+        if self.rest_samples > CONTACT_MAX_SAMPLES {
+            return None;
+        }
+        if commanded_force_n.abs() <= CONTACT_MIN_FORCE_N {
+            self.rest_last = f64::NAN;
+            return None;
+        }
+        let ratio = measured_force_n / commanded_force_n;
+        let last = std::mem::replace(&mut self.rest_last, ratio);
+        let mean = 0.5 * (ratio + last);
+        // NaN (no previous ratio) fails the comparison.
+        if (ratio - last).abs() <= CONTACT_REST_SPREAD * mean.abs() && (0.5..=2.0).contains(&mean) {
+            self.done = true;
+            return Some(mean);
+        }
+        None
     }
 
     /// One sample (`ratio`: the actuator's own force per element force); returns the gain
@@ -483,6 +523,23 @@ impl Compensator {
 
     pub fn guard_activity(&self) -> GuardActivity {
         self.guard.activity
+    }
+
+    /// Every new sample of a rig, in any state, before `on_sample` (or `pause`): the rig's
+    /// measured and commanded force (NaN when it does not report them). With `adapt`, the
+    /// actuator's gain is read from the first samples where the actuator has settled on the
+    /// rig's command (`ContactGain::observe_commanded`), so the first commands already
+    /// carry it.
+    #[inline]
+    pub fn observe_rig(&mut self, measured_force_n: f64, commanded_force_n: f64) {
+        if self.cfg.adapt {
+            if let Some(gain) = self
+                .contact
+                .observe_commanded(measured_force_n, commanded_force_n)
+            {
+                self.gain = gain;
+            }
+        }
     }
 
     /// The rig left force control (a hold): the observers restart when it comes back.
@@ -724,6 +781,52 @@ mod tests {
             comp = c.on_sample(i, 0.0, 20e3, ratio * 20e3 / comp.gain);
         }
         assert_eq!(comp.gain, 1.0, "gain {}", comp.gain);
+    }
+
+    /// A rig of ABI 4 reports its commanded force: the gain is measured over commanded
+    /// force on the first two samples that agree, before force control (the rig's servo
+    /// holds the preload with a command of 20 kN / 0.74), so the very first command in
+    /// force control divides by it; the element's force plays no part. A rig whose ratio
+    /// keeps moving is not read this way, and one that does not report it (NaN) falls back
+    /// to the contact read above.
+    #[test]
+    fn a_rig_that_reports_its_command_gives_the_gain_before_force_control() {
+        let mut cfg = CompensationConfig::with_initial_delay(252e-6);
+        cfg.passivity_guard = false;
+        let mut c = Compensator::new(cfg, DT);
+        let command = 20e3 / 0.74;
+        // Sample 0 (the rig starting) and 1, under the rig's servo: ratio 0.74 twice.
+        c.observe_rig(20e3, command);
+        c.pause();
+        c.observe_rig(20e3 * (1.0 + 1e-4), command);
+        // The first sample in force control: the element's force says nothing of the gain.
+        let comp = c.on_sample(2, 0.0, 25e3, 20e3);
+        assert!((comp.gain - 0.74).abs() < 1e-4, "gain {}", comp.gain);
+
+        // A ratio moving by 2 % a sample is not a settled actuator: no read.
+        let mut c = Compensator::new(cfg, DT);
+        for i in 0..60u64 {
+            let ratio = if i % 2 == 0 { 0.74 } else { 0.755 };
+            c.observe_rig(ratio * command, command);
+        }
+        assert_eq!(c.on_sample(0, 0.0, 20e3, 20e3).gain, 1.0);
+
+        // No command reported: the contact read of the first stretch decides (0.8 here).
+        let mut c = Compensator::new(cfg, DT);
+        let mut comp = c.status().compensation;
+        for i in 0..20u64 {
+            c.observe_rig(0.8 * 20e3 / comp.gain, f64::NAN);
+            comp = c.on_sample(i, 0.0, 20e3, 0.8 * 20e3 / comp.gain);
+        }
+        assert!((comp.gain - 0.8).abs() < 1e-12, "gain {}", comp.gain);
+
+        // Without adaptation the gain stays 1.
+        let mut fixed = cfg;
+        fixed.adapt = false;
+        let mut c = Compensator::new(fixed, DT);
+        c.observe_rig(20e3, command);
+        c.observe_rig(20e3, command);
+        assert_eq!(c.on_sample(0, 0.0, 20e3, 20e3).gain, 1.0);
     }
 
     #[test]

@@ -412,6 +412,7 @@ impl EmulatorCore {
                     .last_sample
                     .map_or(rig_state::STARTING, |s| s.rig_state),
                 measured_force_n: self.last_sample.map_or(f64::NAN, |s| s.actuator_force_n),
+                commanded_force_n: self.last_sample.map_or(f64::NAN, |s| s.commanded_force_n),
             });
             self.setpoint_seq += 1;
         }

@@ -285,6 +285,7 @@ pub fn run_emulator(
         model_flags: 0,
         rig_state: 0,
         measured_force_n: f64::NAN,
+        commanded_force_n: f64::NAN,
     });
     wake.notify();
     heartbeat.publish(Heartbeat {

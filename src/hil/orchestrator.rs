@@ -729,9 +729,10 @@ fn wait_for_external_rig(
         }
         if t0.elapsed() > wait {
             sup.push_fault(format!(
-                "hil: no rig connected within {} s (docs/rig-interface.md; a rig built for rig ABI 2 cannot open this run's command service: ABI {}'s ActuatorCommand is {} bytes, carrying the controller's compensation, and iceoryx2 refuses the old 120-byte type)",
+                "hil: no rig connected within {} s (docs/rig-interface.md; a rig built for an older rig ABI cannot open this run's services: in ABI {} the DisplacementSample is {} bytes (ABI 4 added the rig's commanded force; ABI 3's was 56) and the ActuatorCommand {} bytes (ABI 3 added the controller's compensation; ABI 2's was 120), and iceoryx2 refuses the old types)",
                 wait.as_secs_f64(),
                 crate::ipc::messages::ABI_VERSION,
+                std::mem::size_of::<crate::ipc::messages::DisplacementSample>(),
                 std::mem::size_of::<crate::ipc::messages::ActuatorCommand>()
             ));
             return Ok(false);

@@ -15,7 +15,10 @@ use iceoryx2::prelude::ZeroCopySend;
 /// 2: `DisplacementSample` carries the rig's measured force, state and latched fault.
 /// 3: `ActuatorCommand` carries the controller's `Compensation` (output lead, actuator
 /// gain, guard damping): the rig no longer has a lead of its own.
-pub const ABI_VERSION: u32 = 3;
+/// 4: `DisplacementSample` carries the force the rig commanded its actuator
+/// (`commanded_force_n`), so the controller reads the actuator's gain from the rig's own
+/// equilibrium before its first command.
+pub const ABI_VERSION: u32 = 4;
 
 /// Status of a displacement sample (`DisplacementSample::status`).
 pub mod sample_status {
@@ -50,6 +53,11 @@ pub struct DisplacementSample {
     /// The rig's latched fault code (its own interlock, e.g. `commands-stale`), 0 none.
     pub rig_fault_code: u32,
     pub reserved: u32,
+    /// The force command in effect at the sample instant, N (what the rig asked its
+    /// actuator for over the period before it: the evaluated law divided by the gain, the
+    /// guard's damping, or its own hold servo's command); NaN when the rig does not say.
+    /// Measured over commanded force at rest is the actuator's gain.
+    pub commanded_force_n: f64,
 }
 
 /// The element's local linear law at an operating point: near the point, the force the
@@ -174,6 +182,9 @@ pub struct ForceSetpoint {
     /// The force the rig measured at that sample (its `actuator_force_n`), N; NaN when the
     /// rig does not measure it. The controller learns the actuator from it.
     pub measured_force_n: f64,
+    /// The force the rig had commanded at that sample (its `commanded_force_n`), N; NaN
+    /// when the rig does not say.
+    pub commanded_force_n: f64,
 }
 
 /// What the actuator side does with an `ActuatorCommand` (`ActuatorCommand::mode`).

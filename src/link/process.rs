@@ -533,5 +533,6 @@ fn end_of_run_sample() -> DisplacementSample {
         rig_state: rig_state::FINISHED,
         rig_fault_code: 0,
         reserved: 0,
+        commanded_force_n: f64::NAN,
     }
 }

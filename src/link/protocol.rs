@@ -18,7 +18,8 @@ use crate::ipc::messages::{ActuatorCommand, Compensation, DisplacementSample, Lo
 /// First four bytes of every datagram.
 pub const MAGIC: [u8; 4] = *b"FEMU";
 /// Version of the datagram layouts and their meaning; bumped on any change.
-pub const LINK_VERSION: u16 = 2;
+/// 3: the sample carries the rig's commanded force (rig ABI 4).
+pub const LINK_VERSION: u16 = 3;
 /// Bytes of the common header.
 pub const HEADER_BYTES: usize = 24;
 
@@ -35,7 +36,7 @@ pub mod kind {
 }
 
 /// Size of each kind's datagram, bytes (a datagram of any other length is rejected).
-pub const SAMPLE_BYTES: usize = 88;
+pub const SAMPLE_BYTES: usize = 96;
 pub const COMMAND_BYTES: usize = 184;
 pub const CONTROL_BYTES: usize = 56;
 pub const STATUS_BYTES: usize = 40;
@@ -166,6 +167,8 @@ pub struct SampleDatagram {
     pub echo_command_time_ns: u64,
     /// Rig clock from that command's arrival to this datagram's sending, ns.
     pub echo_hold_ns: u64,
+    /// The force command in effect at the sample instant, N; NaN: the rig does not say.
+    pub commanded_force_n: f64,
 }
 
 impl SampleDatagram {
@@ -181,6 +184,7 @@ impl SampleDatagram {
             rig_fault_code: sample.rig_fault_code,
             echo_command_time_ns,
             echo_hold_ns,
+            commanded_force_n: sample.commanded_force_n,
         }
     }
 
@@ -196,6 +200,7 @@ impl SampleDatagram {
             rig_state: self.rig_state,
             rig_fault_code: self.rig_fault_code,
             reserved: 0,
+            commanded_force_n: self.commanded_force_n,
         }
     }
 }
@@ -338,6 +343,7 @@ pub fn encode_sample(
     p.u32(0);
     p.u64(d.echo_command_time_ns);
     p.u64(d.echo_hold_ns);
+    p.f64(d.commanded_force_n);
     debug_assert_eq!(p.at, SAMPLE_BYTES);
     SAMPLE_BYTES
 }
@@ -482,6 +488,7 @@ pub fn decode(bytes: &[u8], side: Side) -> Result<(Header, Datagram), Reject> {
                 rig_fault_code,
                 echo_command_time_ns: g.u64(),
                 echo_hold_ns: g.u64(),
+                commanded_force_n: g.f64(),
             })
         }
         kind::COMMAND => {
@@ -565,6 +572,7 @@ mod tests {
             rig_fault_code: 0,
             echo_command_time_ns: 77,
             echo_hold_ns: 12_000,
+            commanded_force_n: 26_842.0,
         }
     }
 

@@ -91,6 +91,8 @@ pub struct RigCore {
     was_at_rest: bool,
     was_unloaded: bool,
     last_state: u32,
+    /// The command applied over the last period (in effect at the next sample), N.
+    last_command_n: f64,
     events: [Option<EventRecord>; MAX_EVENTS_PER_PERIOD],
 }
 
@@ -136,6 +138,7 @@ impl RigCore {
             was_at_rest: false,
             was_unloaded: false,
             last_state: crate::ipc::messages::rig_state::STARTING,
+            last_command_n: command0,
             events: [None; MAX_EVENTS_PER_PERIOD],
         }
     }
@@ -261,6 +264,7 @@ impl RigCore {
             rig_state: self.last_state,
             rig_fault_code: self.servo.trip().map_or(0, |t| t.fault.code()),
             reserved: 0,
+            commanded_force_n: self.last_command_n,
         })
     }
 
@@ -335,6 +339,7 @@ impl RigCore {
             .load()
             .position(self.programme.programme_time_s());
         self.last_state = out.state;
+        self.last_command_n = out.command_n;
         let record = RigRecord {
             t_s: t,
             step_idx: self.step_idx,

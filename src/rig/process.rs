@@ -325,6 +325,7 @@ fn run_rig_loop(
             rig_state: rig_state::FINISHED,
             rig_fault_code: fault_code,
             reserved: 0,
+            commanded_force_n: f64::NAN,
         },
         &Heartbeat {
             process: process_id::RIG,

@@ -52,6 +52,7 @@ fn sample(seq: u64, z: f64) -> DisplacementSample {
         rig_state: 1,
         rig_fault_code: 0,
         reserved: 0,
+        commanded_force_n: f64::NAN,
     }
 }
 
@@ -216,6 +217,7 @@ fn controller_and_rig_cores_do_not_allocate() {
                 // (estimator, guard) runs on every setpoint.
                 rig_state: sample.rig_state,
                 measured_force_n: sample.actuator_force_n,
+                commanded_force_n: sample.commanded_force_n,
             };
             let now = k * period_ns + 50_000;
             if let Some((cmd, _)) = controller.on_setpoint(&sp, now) {
@@ -422,6 +424,7 @@ fn setpoint(k: u64, period_ns: u64, law: LocalLaw) -> ForceSetpoint {
         model_flags: 0,
         rig_state: fastemu::ipc::messages::rig_state::RUNNING,
         measured_force_n: f64::NAN,
+        commanded_force_n: f64::NAN,
     }
 }
 

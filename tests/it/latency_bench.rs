@@ -179,6 +179,7 @@ fn socket_rounds_carry_the_rig_links_datagrams_and_keys_round_trip() {
         rig_state: 1,
         rig_fault_code: 0,
         reserved: 0,
+        commanded_force_n: 2.5e4,
     };
     let mut buf = [0u8; fastemu::link::protocol::MAX_DATAGRAM_BYTES];
     let n = encode_sample(&mut buf, 7, 8, &SampleDatagram::of(&sample, 0, 0));
@@ -340,10 +341,10 @@ fn tiny_run_reports_every_transport_and_writes_its_files() {
         }
     }
     assert!(report["ratio_udp_over_iceoryx2_p99"].is_number());
-    assert_eq!(report["message_bytes"], 56);
+    assert_eq!(report["message_bytes"], 64);
     assert_eq!(
         report["socket_datagram_bytes"],
-        serde_json::json!([88, 184])
+        serde_json::json!([96, 184])
     );
     assert!(report["loop"]["end_to_end_udp_link"]["note"].is_string());
     assert_eq!(report["out_dir"], out.to_str().unwrap());

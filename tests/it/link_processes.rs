@@ -46,6 +46,7 @@ fn sample_datagram(seq: u64) -> SampleDatagram {
         rig_fault_code: 0,
         echo_command_time_ns: 0,
         echo_hold_ns: 0,
+        commanded_force_n: 2e4,
     }
 }
 
@@ -642,7 +643,7 @@ fn a_rig_of_the_previous_link_protocol_is_named_with_its_version() {
             "20",
         ],
     );
-    // The old rig announces itself: READY status datagrams whose header says version 1,
+    // The old rig announces itself: READY status datagrams whose header says version 2,
     // every 10 ms until hil has ended.
     let socket = UdpSocket::bind(rig).unwrap();
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
@@ -658,7 +659,7 @@ fn a_rig_of_the_previous_link_protocol_is_named_with_its_version() {
             let mut seq = 0;
             while !stop.load(std::sync::atomic::Ordering::Relaxed) {
                 let n = encode_status(&mut buf, seq, 0, &status);
-                buf[4] = 1; // the previous protocol's version
+                buf[4] = 2; // the previous protocol's version
                 let _ = socket.send_to(&buf[..n], link);
                 seq += 1;
                 std::thread::sleep(Duration::from_millis(10));
@@ -672,7 +673,7 @@ fn a_rig_of_the_previous_link_protocol_is_named_with_its_version() {
     let stderr = hil.stderr();
     assert_ne!(code, 0, "{stderr}");
     assert!(
-        stderr.contains("speaks link protocol 1; this fastemu speaks 2"),
+        stderr.contains("speaks link protocol 2; this fastemu speaks 3"),
         "{stderr}"
     );
     assert_nothing_left(&json);

@@ -32,6 +32,7 @@ const FIELDS: &[(&str, &[&str])] = &[
             "rig_state",
             "rig_fault_code",
             "reserved",
+            "commanded_force_n",
         ],
     ),
     (
@@ -113,6 +114,7 @@ const FIELDS: &[(&str, &[&str])] = &[
             "reserved",
             "echo_command_time_ns",
             "echo_hold_ns",
+            "commanded_force_n",
         ],
     ),
     (
@@ -335,6 +337,7 @@ fn the_c_header_matches_the_rust_types_field_by_field() {
         rig_fault_code: 17,
         echo_command_time_ns: 18,
         echo_hold_ns: 19,
+        commanded_force_n: 20.5,
     };
     let n = protocol::encode_sample(&mut buf, 1, 2, &sample);
     assert_eq!(n, at(&m, "fastemu_link_sample"));
@@ -350,6 +353,7 @@ fn the_c_header_matches_the_rust_types_field_by_field() {
     assert_eq!(u32_at(&buf, s("reserved")), 0);
     assert_eq!(u64_at(&buf, s("echo_command_time_ns")), 18);
     assert_eq!(u64_at(&buf, s("echo_hold_ns")), 19);
+    assert_eq!(f64_at(&buf, s("commanded_force_n")), 20.5);
 
     let law = LocalLaw {
         force_n: 21.5,

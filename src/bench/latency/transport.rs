@@ -136,6 +136,7 @@ fn answered(command: &CommandDatagram) -> DisplacementSample {
         rig_fault_code: 0,
         echo_command_time_ns: 0,
         echo_hold_ns: 0,
+        commanded_force_n: 0.0,
     }
     .to_sample(0)
 }
@@ -209,6 +210,7 @@ fn ping_loop(
             rig_state: 0,
             rig_fault_code: 0,
             reserved: 0,
+            commanded_force_n: 0.0,
         };
         let echo = exchange(ping)?;
         let round_trip_ns = monotonic_now_ns() - sent_ns;
