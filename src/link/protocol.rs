@@ -658,7 +658,7 @@ mod tests {
         let mut buf = [0u8; MAX_DATAGRAM_BYTES];
         encode_sample(&mut buf, 0x0102_0304_0506_0708, 0x1112, &sample());
         assert_eq!(&buf[0..4], b"FEMU");
-        assert_eq!(&buf[4..6], &[2, 0]);
+        assert_eq!(&buf[4..6], &[3, 0]);
         assert_eq!(&buf[6..8], &[1, 0]);
         assert_eq!(&buf[8..16], &[8, 7, 6, 5, 4, 3, 2, 1]);
         assert_eq!(&buf[16..18], &[0x12, 0x11]);
@@ -666,6 +666,11 @@ mod tests {
         assert_eq!(
             f64::from_le_bytes(buf[40..48].try_into().unwrap()),
             -3.25e-4
+        );
+        // The commanded force, last, at offset 88 (link protocol 3).
+        assert_eq!(
+            f64::from_le_bytes(buf[88..96].try_into().unwrap()),
+            26_842.0
         );
     }
 
