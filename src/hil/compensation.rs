@@ -388,9 +388,9 @@ struct ContactGain {
     samples: u32,
     /// The newest `CONTACT_LEN` ratios, a ring.
     recent: [f64; CONTACT_LEN],
-    /// The last measured-to-commanded ratio a rig of ABI 4 reported (NaN none yet), and
-    /// how many such samples came.
-    rest_last: f64,
+    /// The last sample of a rig of ABI 4 (its sequence, measured-to-commanded ratio and
+    /// commanded force; NaN none yet), and how many such samples came.
+    rest_last: (u64, f64, f64),
     rest_samples: u32,
     done: bool,
 }
@@ -410,7 +410,7 @@ impl ContactGain {
             skip: (initial_lead_s / dt_s).ceil() as u32 + 1,
             samples: 0,
             recent: [f64::NAN; CONTACT_LEN],
-            rest_last: f64::NAN,
+            rest_last: (u64::MAX, f64::NAN, f64::NAN),
             rest_samples: 0,
             done: false,
         }
@@ -418,13 +418,18 @@ impl ContactGain {
 
     /// One sample of a rig that reports its commanded force (rig ABI 4), from its first,
     /// whatever its state: the measured over the commanded force is the actuator's own
-    /// gain whenever the actuator has settled on its command, as under the rig's own servo
-    /// before the run. Returns the gain to take, once: the mean of the first two
-    /// consecutive ratios within `CONTACT_REST_SPREAD` of each other, if in 0.5-2 and the
-    /// command is a load (over 1 kN). A rig that does not report it (NaN) leaves the read
-    /// to `observe`.
+    /// gain whenever the actuator has settled on a steady command, as under the rig's own
+    /// servo before the run. Returns the gain to take, once: the mean of the ratios of the
+    /// first two consecutive samples (sequence `k` and `k + 1`) whose commands and whose
+    /// ratios each agree within `CONTACT_REST_SPREAD`, if in 0.5-2 and the command is a
+    /// load (over 1 kN). A rig that does not report it (NaN) leaves the read to `observe`.
     #[inline]
-    fn observe_commanded(&mut self, measured_force_n: f64, commanded_force_n: f64) -> Option<f64> {
+    fn observe_commanded(
+        &mut self,
+        sample_seq: u64,
+        measured_force_n: f64,
+        commanded_force_n: f64,
+    ) -> Option<f64> {
         if self.done || !(measured_force_n.is_finite() && commanded_force_n.is_finite()) {
             return None;
         }
@@ -432,15 +437,22 @@ impl ContactGain {
         if self.rest_samples > CONTACT_MAX_SAMPLES {
             return None;
         }
-        if commanded_force_n.abs() <= CONTACT_MIN_FORCE_N {
-            self.rest_last = f64::NAN;
-            return None;
-        }
-        let ratio = measured_force_n / commanded_force_n;
-        let last = std::mem::replace(&mut self.rest_last, ratio);
-        let mean = 0.5 * (ratio + last);
-        // NaN (no previous ratio) fails the comparison.
-        if (ratio - last).abs() <= CONTACT_REST_SPREAD * mean.abs() && (0.5..=2.0).contains(&mean) {
+        let ratio = if commanded_force_n.abs() > CONTACT_MIN_FORCE_N {
+            measured_force_n / commanded_force_n
+        } else {
+            f64::NAN
+        };
+        let (last_seq, last_ratio, last_command) =
+            std::mem::replace(&mut self.rest_last, (sample_seq, ratio, commanded_force_n));
+        let mean = 0.5 * (ratio + last_ratio);
+        let steady_command = (commanded_force_n - last_command).abs()
+            <= CONTACT_REST_SPREAD * commanded_force_n.abs();
+        // NaN (no previous ratio, or no load) fails the comparisons.
+        if last_seq.checked_add(1) == Some(sample_seq)
+            && steady_command
+            && (ratio - last_ratio).abs() <= CONTACT_REST_SPREAD * mean.abs()
+            && (0.5..=2.0).contains(&mean)
+        {
             self.done = true;
             return Some(mean);
         }
@@ -525,17 +537,17 @@ impl Compensator {
         self.guard.activity
     }
 
-    /// Every new sample of a rig, in any state, before `on_sample` (or `pause`): the rig's
-    /// measured and commanded force (NaN when it does not report them). With `adapt`, the
+    /// Every new sample of a rig, in any state, before `on_sample` (or `pause`): its
+    /// sequence, the rig's measured and commanded force (NaN when it does not report them). With `adapt`, the
     /// actuator's gain is read from the first samples where the actuator has settled on the
     /// rig's command (`ContactGain::observe_commanded`), so the first commands already
     /// carry it.
     #[inline]
-    pub fn observe_rig(&mut self, measured_force_n: f64, commanded_force_n: f64) {
+    pub fn observe_rig(&mut self, sample_seq: u64, measured_force_n: f64, commanded_force_n: f64) {
         if self.cfg.adapt {
-            if let Some(gain) = self
-                .contact
-                .observe_commanded(measured_force_n, commanded_force_n)
+            if let Some(gain) =
+                self.contact
+                    .observe_commanded(sample_seq, measured_force_n, commanded_force_n)
             {
                 self.gain = gain;
             }
@@ -796,9 +808,9 @@ mod tests {
         let mut c = Compensator::new(cfg, DT);
         let command = 20e3 / 0.74;
         // Sample 0 (the rig starting) and 1, under the rig's servo: ratio 0.74 twice.
-        c.observe_rig(20e3, command);
+        c.observe_rig(0, 20e3, command);
         c.pause();
-        c.observe_rig(20e3 * (1.0 + 1e-4), command);
+        c.observe_rig(1, 20e3 * (1.0 + 1e-4), command);
         // The first sample in force control: the element's force says nothing of the gain.
         let comp = c.on_sample(2, 0.0, 25e3, 20e3);
         assert!((comp.gain - 0.74).abs() < 1e-4, "gain {}", comp.gain);
@@ -807,15 +819,29 @@ mod tests {
         let mut c = Compensator::new(cfg, DT);
         for i in 0..60u64 {
             let ratio = if i % 2 == 0 { 0.74 } else { 0.755 };
-            c.observe_rig(ratio * command, command);
+            c.observe_rig(i, ratio * command, command);
         }
         assert_eq!(c.on_sample(0, 0.0, 20e3, 20e3).gain, 1.0);
+
+        // Nor is a ramping command, though a lagging actuator's ratio barely moves
+        // (1 % more command a sample, the ratio 0.74 within 0.1 %), nor two samples that
+        // are not consecutive.
+        let mut c = Compensator::new(cfg, DT);
+        for i in 0..60u64 {
+            let ramp = command * (1.0 + 0.01 * i as f64);
+            c.observe_rig(i, 0.74 * (1.0 + 1e-3 * (i % 2) as f64) * ramp, ramp);
+        }
+        assert_eq!(c.on_sample(0, 0.0, 20e3, 20e3).gain, 1.0);
+        let mut c = Compensator::new(cfg, DT);
+        c.observe_rig(0, 20e3, command);
+        c.observe_rig(2, 20e3, command);
+        assert_eq!(c.on_sample(3, 0.0, 20e3, 20e3).gain, 1.0);
 
         // No command reported: the contact read of the first stretch decides (0.8 here).
         let mut c = Compensator::new(cfg, DT);
         let mut comp = c.status().compensation;
         for i in 0..20u64 {
-            c.observe_rig(0.8 * 20e3 / comp.gain, f64::NAN);
+            c.observe_rig(i, 0.8 * 20e3 / comp.gain, f64::NAN);
             comp = c.on_sample(i, 0.0, 20e3, 0.8 * 20e3 / comp.gain);
         }
         assert!((comp.gain - 0.8).abs() < 1e-12, "gain {}", comp.gain);
@@ -824,8 +850,8 @@ mod tests {
         let mut fixed = cfg;
         fixed.adapt = false;
         let mut c = Compensator::new(fixed, DT);
-        c.observe_rig(20e3, command);
-        c.observe_rig(20e3, command);
+        c.observe_rig(0, 20e3, command);
+        c.observe_rig(1, 20e3, command);
         assert_eq!(c.on_sample(0, 0.0, 20e3, 20e3).gain, 1.0);
     }
 

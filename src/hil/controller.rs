@@ -459,8 +459,11 @@ impl ControllerCore {
         let e2e = now_ns.saturating_sub(sp.sample_publish_time_ns);
         match self.cfg.command_mode {
             CommandMode::Law => {
-                self.compensator
-                    .observe_rig(sp.measured_force_n, sp.commanded_force_n);
+                self.compensator.observe_rig(
+                    sp.sample_sequence,
+                    sp.measured_force_n,
+                    sp.commanded_force_n,
+                );
                 if sp.rig_state == rig_state::RUNNING {
                     self.compensator.on_sample(
                         sp.sample_sequence,

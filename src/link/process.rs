@@ -367,7 +367,7 @@ fn serve(
         let version = shared.peer_version.load(Ordering::Relaxed);
         if version != 0 {
             return Err(ProcessError(format!(
-                "the rig at {} speaks link protocol {version}; this fastemu speaks {} (include/fastemu_rig.h, docs/rig-interface.md): since protocol 2 every COMMAND carries the controller's compensation (184 bytes), which the rig must apply",
+                "the rig at {} speaks link protocol {version}; this fastemu speaks {} (include/fastemu_rig.h, docs/rig-interface.md): since protocol 2 every COMMAND carries the controller's compensation (184 bytes), which the rig must apply, and since protocol 3 every SAMPLE the rig's commanded force (96 bytes)",
                 plan.peer,
                 super::protocol::LINK_VERSION
             )));

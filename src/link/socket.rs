@@ -346,7 +346,7 @@ pub struct Received {
 /// What one call to `LinkReceiver::receive` found.
 #[derive(Debug, Clone, Copy, PartialEq)]
 // The accepted datagram stays inline: boxing it would allocate per datagram, which the
-// link must not (a command datagram is 160 bytes since link protocol 2).
+// link must not (a command datagram is 184 bytes since link protocol 2).
 #[allow(clippy::large_enum_variant)]
 pub enum Receive {
     Accepted(Received),

@@ -66,8 +66,9 @@ pub fn json_summary(d: &Diagnosis, model_path: &std::path::Path) -> serde_json::
                 // A named effect's parameters in the final model (refitted beside the
                 // effects named after it), which the model file holds.
                 "final_params": d.named.contains(&r.kind).then(|| params_json(&d.final_model, r.kind)),
-                // Their 95 % intervals from the final fit's covariance, and whether the
-                // data determine each (an interval within a factor of 10, not crossing 0).
+                // Their 95 % intervals (the final fit's covariance joined with the folds'
+                // jackknife), and whether the data determine each
+                // (`ParamInterval::determined`).
                 "final_param_intervals": d.named.contains(&r.kind).then(|| intervals_json(d, r.kind)),
                 "would_qualify_but_for_range": r.would_qualify && r.out_of_range.is_some(),
                 "out_of_range": r.out_of_range.map(|o| out_of_range_json(&o)),

@@ -34,18 +34,20 @@ impl LmFit {
         }
     }
 
-    /// The parameters' covariance `sigma^2 (J^T J)^-1`, `sigma^2 = SSE / (n - p)`, over
+    /// The parameters' covariance `sigma^2 (J^T J)^-1`, `sigma^2 = SSE / (n - p)` (p the
+    /// parameters that move the residuals), over
     /// the parameters that move the residuals at all (a parameter held on a bound, whose
     /// column of `J` is zero, gets NaN in its row and column); `None` where the rest of
     /// `J^T J` is singular.
     pub fn covariance(&self) -> Option<DMatrix<f64>> {
         let p = self.params.len();
-        let dof = self.n_residuals.saturating_sub(p).max(1) as f64;
-        let sigma2 = self.sse / dof;
         let largest = (0..p).map(|i| self.jtj[(i, i)]).fold(0.0, f64::max);
         let moving: Vec<usize> = (0..p)
             .filter(|&i| self.jtj[(i, i)] > 1e-14 * largest)
             .collect();
+        // The degrees of freedom count only the parameters that move the residuals.
+        let dof = self.n_residuals.saturating_sub(moving.len()).max(1) as f64;
+        let sigma2 = self.sse / dof;
         let reduced = DMatrix::from_fn(moving.len(), moving.len(), |a, b| {
             self.jtj[(moving[a], moving[b])]
         });
@@ -208,7 +210,8 @@ mod tests {
         let n = x.len() as f64;
         let (sx, sxx) = (x.iter().sum::<f64>(), x.iter().map(|x| x * x).sum::<f64>());
         let det = n * sxx - sx * sx;
-        let sigma2 = fit.sse / (n - 3.0);
+        // Two parameters move the residuals: n - 2 degrees of freedom.
+        let sigma2 = fit.sse / (n - 2.0);
         assert!((cov[(0, 0)] - sigma2 * n / det).abs() < 1e-9 * cov[(0, 0)]);
         assert!((cov[(1, 1)] - sigma2 * sxx / det).abs() < 1e-9 * cov[(1, 1)]);
         assert!((cov[(0, 1)] + sigma2 * sx / det).abs() < 1e-9 * cov[(1, 1)]);

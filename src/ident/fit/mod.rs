@@ -790,17 +790,26 @@ pub struct ParamInterval {
     pub name: &'static str,
     pub value: f64,
     pub ci95: Option<(f64, f64)>,
+    /// The parameter's change per unit of the fitted coordinate that sets it (NaN when
+    /// several do): the scale an interval across zero is judged on.
+    pub unit: f64,
 }
 
 impl ParamInterval {
     /// Whether the data determine it: a finite 95 % interval that, away from zero, spans
-    /// at most a factor of 10 (an interval across zero says the value is about zero, e.g.
-    /// a shift the data show absent: determined, `consistent_with_zero`).
+    /// at most a factor of 10; an interval across zero determines the value as about zero
+    /// (a shift the data show absent, `consistent_with_zero`) only when it is no wider
+    /// than one unit of the fitted coordinate either way (`unit`: a moving mass of -50 to
+    /// +400 kg is no measurement; a temperature slope within +-8e-4 per degC is).
     pub fn determined(&self) -> bool {
         self.ci95.is_some_and(|(lo, hi)| {
             lo.is_finite()
                 && hi.is_finite()
-                && (lo * hi <= 0.0 || lo.abs().max(hi.abs()) <= 10.0 * lo.abs().min(hi.abs()))
+                && if lo * hi <= 0.0 {
+                    lo.abs().max(hi.abs()) <= self.unit
+                } else {
+                    lo.abs().max(hi.abs()) <= 10.0 * lo.abs().min(hi.abs())
+                }
         })
     }
 
@@ -1070,18 +1079,29 @@ impl Template {
                     None
                 }
             };
-            // The fit's own covariance must exist (else the fit is singular: no interval).
+            // The fit's own covariance must exist (else the fit is singular: no interval);
+            // the union of the intervals the two covariances give.
             let ci95 = if !has_own {
                 None
             } else {
                 covariances
                     .iter()
-                    .map(interval)
-                    .try_fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), i| {
-                        i.map(|(a, b)| (lo.min(a), hi.max(b)))
-                    })
+                    .filter_map(interval)
+                    .reduce(|(lo, hi), (a, b)| (lo.min(a), hi.max(b)))
             };
-            out.push(ParamInterval { name, value, ci95 });
+            // A parameter set by one coordinate: its change per unit of that coordinate
+            // (the fit's natural unit of it: 10 kg of a moving mass, 0.1 ms of a delay,
+            // 0.01 per degC of a temperature slope, a factor e of a log-mapped one).
+            let unit = match moving[..] {
+                [c] => gradients[c][j].abs(),
+                _ => f64::NAN,
+            };
+            out.push(ParamInterval {
+                name,
+                value,
+                ci95,
+                unit,
+            });
         }
         out
     }
@@ -1678,6 +1698,7 @@ mod tests {
             name: "x",
             value,
             ci95: Some((lo, hi)),
+            unit: 0.01,
         }
     }
 
@@ -1689,6 +1710,13 @@ mod tests {
         assert!(!interval(-1.0, -5.1, -0.5).determined());
         let about_zero = interval(1e-6, -8e-4, 8e-4);
         assert!(about_zero.determined() && about_zero.consistent_with_zero());
+        // Across zero and wider than a unit of its coordinate (a mass of -50 to 400 kg,
+        // fitted in units of 10 kg): not determined.
+        let mass = ParamInterval {
+            unit: 10.0,
+            ..interval(170.0, -50.0, 400.0)
+        };
+        assert!(!mass.determined() && mass.consistent_with_zero());
         assert!(!interval(1.0, 0.5, 2.0).consistent_with_zero());
         assert!(!interval(1.0, 0.5, f64::INFINITY).determined());
         let singular = ParamInterval {
