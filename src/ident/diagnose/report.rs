@@ -501,7 +501,7 @@ fn render_report(
         if !loose.is_empty() {
             let _ = writeln!(
                 r,
-                "- **`{}`: {} not determined by these data** (95 % interval wider than a factor of 10): the effect is named because it lowers the held-out gap, but do not act on {} value{} without tests that pin it down.",
+                "- **`{}`: {} not determined by these data** (95 % interval wider than a factor of 10, or the value on the fit's bound): the effect is named because it lowers the held-out gap, but do not act on {} value{} without tests that pin it down.",
                 kind.name(),
                 loose.join(", "),
                 if loose.len() == 1 { "that" } else { "those" },
@@ -1079,6 +1079,12 @@ fn params_text(model: &AugmentedModel, kind: EffectKind) -> String {
 
 /// `name = value (lo .. hi)`, or `(interval n/a)` when the covariance is singular.
 fn interval_text(i: &crate::ident::fit::ParamInterval) -> String {
+    if i.on_bound {
+        return format!(
+            "{} = {:.3e} (on the fit's bound: no interval)",
+            i.name, i.value
+        );
+    }
     match i.ci95 {
         Some((lo, hi)) => format!(
             "{} = {:.3e} ({lo:.2e} .. {hi:.2e}{})",
@@ -1102,7 +1108,7 @@ fn intervals_json(d: &Diagnosis, kind: crate::ident::fit::EffectKind) -> serde_j
         .map(|i| {
             (
                 i.name.to_string(),
-                json!({"value": i.value, "ci95": i.ci95.map(|(lo, hi)| [lo, hi]), "determined": i.determined(), "consistent_with_zero": i.consistent_with_zero()}),
+                json!({"value": i.value, "ci95": i.ci95.map(|(lo, hi)| [lo, hi]), "determined": i.determined(), "consistent_with_zero": i.consistent_with_zero(), "on_bound": i.on_bound}),
             )
         })
         .collect::<serde_json::Map<String, serde_json::Value>>()

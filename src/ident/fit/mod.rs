@@ -793,6 +793,8 @@ pub struct ParamInterval {
     /// The parameter's change per unit of the fitted coordinate that sets it (NaN when
     /// several do): the scale an interval across zero is judged on.
     pub unit: f64,
+    /// Pinned on its map's bound (a clamp): the data do not move it, no interval.
+    pub on_bound: bool,
 }
 
 impl ParamInterval {
@@ -1043,6 +1045,28 @@ impl Template {
                 .filter(|&c| gradients[c][j].abs() > 1e-9 * value.abs().max(1e-300))
                 .collect();
             if moving.is_empty() {
+                // A state (no coordinate moves it at all) is left out; a parameter that a
+                // coordinate moves once it is a unit away, or at the middle of its map, is
+                // pinned on its map's bound (a springpot's order on its clamp): no
+                // interval, and no measurement.
+                let moves_further = coords.clone().any(|k| {
+                    [fit.params[k] - 1.0, fit.params[k] + 1.0, 0.0]
+                        .iter()
+                        .any(|&at| {
+                            let mut theta = fit.params.clone();
+                            theta[k] = at;
+                            (params_at(&theta)[j].1 - value).abs() > 1e-9 * value.abs().max(1e-300)
+                        })
+                });
+                if moves_further {
+                    out.push(ParamInterval {
+                        name,
+                        value,
+                        ci95: None,
+                        unit: f64::NAN,
+                        on_bound: true,
+                    });
+                }
                 continue;
             }
             let interval = |cov: &nalgebra::DMatrix<f64>| -> Option<(f64, f64)> {
@@ -1101,6 +1125,7 @@ impl Template {
                 value,
                 ci95,
                 unit,
+                on_bound: false,
             });
         }
         out
@@ -1691,7 +1716,68 @@ pub fn cross_validate_screened(
 
 #[cfg(test)]
 mod tests {
-    use super::ParamInterval;
+    use super::{CrossValidation, EffectKind, LmFit, ParamInterval, Template};
+    use crate::model::effects::AugmentedModel;
+    use crate::model::params::{ElementModel, ZenerParams};
+
+    /// A springpot whose order sits on its clamp (0.999: the logistic coordinate far out)
+    /// is reported on its bound, with no interval and not determined; its coefficient gets
+    /// the interval its coordinate's standard error maps to (`exp(theta +- 1.96 se)`).
+    #[test]
+    fn an_order_on_its_clamp_is_on_its_bound_and_its_coefficient_has_an_interval() {
+        let baseline = AugmentedModel {
+            element: ElementModel::Consistent(ZenerParams::paper_table3(0.75)),
+            length_m: 0.75,
+            effects: Vec::new(),
+        };
+        let mut template = Template::new(baseline, 23.0);
+        template.added = vec![EffectKind::FractionalDamping];
+        let n = template.n_params();
+        let mut params = vec![0.0; n];
+        params[..4].copy_from_slice(&[62e6f64.ln(), 9.6e6f64.ln(), 0.7e6f64.ln(), 0.0]);
+        params[n - 2] = 1e5f64.ln();
+        params[n - 1] = 30.0; // logistic(30) = 1 - 1e-13: clamped at 0.999
+                              // Unit J^T J and sigma^2 = SSE / (n_residuals - n) = 1 / 100: the coefficient's
+                              // coordinate has se = 0.1.
+        let n_residuals = 100 + n;
+        let fit = LmFit {
+            params,
+            sse: 1.0,
+            n_residuals,
+            jtj: nalgebra::DMatrix::identity(n, n),
+            iterations: 1,
+        };
+        let cv = CrossValidation {
+            full_fit: fit,
+            held_out_error: Vec::new(),
+            screened: false,
+            fold_params: Vec::new(),
+        };
+        let intervals = template.effect_intervals(&cv, EffectKind::FractionalDamping);
+        let alpha = intervals
+            .iter()
+            .find(|i| i.name == "alpha")
+            .expect("alpha listed");
+        assert!(
+            alpha.on_bound && alpha.ci95.is_none() && !alpha.determined(),
+            "{alpha:?}"
+        );
+        let coefficient = intervals
+            .iter()
+            .find(|i| i.name != "alpha")
+            .expect("the coefficient");
+        let (lo, hi) = coefficient.ci95.expect("an interval");
+        let half: f64 = 1.96 * 0.1; // se = sqrt(1 / 100)
+        assert!(
+            (hi / coefficient.value - half.exp()).abs() < 1e-6,
+            "{coefficient:?}"
+        );
+        assert!(
+            (coefficient.value / lo - half.exp()).abs() < 1e-6,
+            "{coefficient:?}"
+        );
+        assert!(coefficient.determined() && !coefficient.on_bound);
+    }
 
     fn interval(value: f64, lo: f64, hi: f64) -> ParamInterval {
         ParamInterval {
@@ -1699,6 +1785,7 @@ mod tests {
             value,
             ci95: Some((lo, hi)),
             unit: 0.01,
+            on_bound: false,
         }
     }
 
