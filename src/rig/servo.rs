@@ -377,17 +377,32 @@ impl Servo {
         }
     }
 
+    /// The actuator's force per commanded force as the last command identified it (1
+    /// before any command). Feed-forwards in the hold divide by it, as the law does.
+    #[inline]
+    fn actuator_gain(&self) -> f64 {
+        self.command
+            .as_ref()
+            .map(|c| c.compensation.gain)
+            .filter(|g| g.is_finite() && *g > 0.0)
+            .unwrap_or(1.0)
+    }
+
     fn enter_hold(&mut self, step_idx: u64, unload: bool, operator: bool) {
         self.hold_position_m = self.z_history_m[0];
         // The force that holds the specimen at rest there is the load it carries; the last
         // output may be far from it when the hold ends an unstable loop (an actuator
         // slamming between its limits), and fed forward it would push the specimen away.
         // Within the normal band the last output is kept (a bumpless hold).
-        let deviation = (self.last_output_n - self.load_now_n).abs();
-        self.hold_feedforward_n = if deviation <= 0.2 * self.load_now_n.abs().max(1e3) {
+        // Both are commands: the actuator delivers the identified gain times its command,
+        // so the load is carried by load / gain (an actuator 0.74 strong fed the load
+        // itself forward lets the specimen go by a quarter of its load).
+        let needed_n = self.load_now_n / self.actuator_gain();
+        let deviation = (self.last_output_n - needed_n).abs();
+        self.hold_feedforward_n = if deviation <= 0.2 * needed_n.abs().max(1e3) {
             self.last_output_n
         } else {
-            self.load_now_n
+            needed_n
         };
         self.hold_load_at_start_n = self.load_now_n;
         self.hold_integral_m_s = 0.0;
@@ -634,11 +649,15 @@ impl Servo {
         let error_m = z_m - self.hold_position_m;
         self.hold_integral_m_s += error_m * dt;
         let velocity = (self.z_history_m[0] - self.z_history_m[1]) / dt;
+        // The feed-forward is a command already; the load's change and the PID are
+        // forces, so they are divided by the actuator's gain, which keeps the position
+        // loop's poles where `hold_gains` placed them.
         self.hold_feedforward_n
-            + (self.load_now_n - self.hold_load_at_start_n)
-            + self.cfg.hold_kp * error_m
-            + self.cfg.hold_ki * self.hold_integral_m_s
-            + self.cfg.hold_kd * velocity
+            + ((self.load_now_n - self.hold_load_at_start_n)
+                + self.cfg.hold_kp * error_m
+                + self.cfg.hold_ki * self.hold_integral_m_s
+                + self.cfg.hold_kd * velocity)
+                / self.actuator_gain()
     }
 
     fn hold_step(

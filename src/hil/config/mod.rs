@@ -108,8 +108,13 @@ pub struct HilConfig {
 impl HilConfig {
     /// The rig servo's settings.
     pub fn servo_config(&self) -> ServoConfig {
+        // The hold moves the specimen and whatever of the actuator rides with it (an
+        // electrodynamic shaker's armature: 100 kg against a 60 kg rail segment); a servo
+        // controller is tuned for its own actuator, so the rig places the poles on both.
+        let moved_kg = self.rig.specimen_mass_kg
+            + crate::rig::actuator::ActuatorPlant::from_config(&self.rig.actuator).moving_mass_kg();
         let (hold_kp, hold_ki, hold_kd) = ServoConfig::hold_gains(
-            self.rig.specimen_mass_kg,
+            moved_kg,
             self.hold_bandwidth_hz(),
             self.rig.hold_damping_ratio,
         );
