@@ -334,7 +334,10 @@ fn stability_warning(cfg: &HilConfig) -> Option<String> {
     if cfg.controller.command_mode != crate::hil::config::CommandMode::Law {
         return None;
     }
-    let lead_s = cfg.compensation.initial_delay_s;
+    let lead_s = cfg
+        .compensation
+        .initial_delay_s
+        .min(crate::hil::check::starting_lead_cap_s(cfg));
     let lin = LinearLoop::new(cfg, actuator_response(cfg), lead_s, 1.0);
     if lin.margins().stable {
         return None;
@@ -342,7 +345,7 @@ fn stability_warning(cfg: &HilConfig) -> Option<String> {
     let max = cfg.compensation.max_delay_s;
     Some(match lin.stable_leads(max) {
         Some((lo, hi)) => format!(
-            "the linearised loop is not stable with the starting lead of {:.0} us ([compensation] initial_delay_us); it is with {:.0}-{:.0} us. The run relies on the adaptation and the guard, and ends in loop-unstable and a hold if they do not make up for it (fastemu hil --check)",
+            "the linearised loop is not stable with the starting lead of {:.0} us ([compensation] initial_delay_us, capped for an actuator twice as fast); it is with {:.0}-{:.0} us. The run relies on the adaptation and the guard, and ends in loop-unstable and a hold if they do not make up for it (fastemu hil --check)",
             lead_s * 1e6,
             lo * 1e6,
             hi * 1e6
@@ -363,7 +366,8 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
         "{}: [controller] command_mode = \"force\": --check models local-law commands (the rig's prediction over the controller's lead) only",
         cfg.origin
     );
-    let lead_s = cfg.compensation.initial_delay_s;
+    let cap_s = crate::hil::check::starting_lead_cap_s(cfg);
+    let lead_s = cfg.compensation.initial_delay_s.min(cap_s);
     let lin = LinearLoop::new(cfg, actuator_response(cfg), lead_s, 1.0);
     let m = lin.margins();
     let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("."));
@@ -382,6 +386,8 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                 "margins": m,
                 "stable_leads_us": lin.stable_leads(cfg.compensation.max_delay_s).map(|(a, b)| [a * 1e6, b * 1e6]),
                 "lead_us": lead_s * 1e6,
+                "initial_delay_us": cfg.compensation.initial_delay_s * 1e6,
+                "starting_lead_capped": cap_s.is_finite(),
                 "lead_order": cfg.compensation.lead_order,
                 "actuator": describe_actuator(cfg),
                 "plot": plot.display().to_string(),
@@ -411,8 +417,15 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
             force_max_n, peak_load_n
         );
     }
+    if cap_s.is_finite() {
+        eprintln!(
+            "  starting lead capped at {:.0} us: the guess ({:.0} us) would diverge within milliseconds in front of an actuator twice as fast as it (a lead too long; one too short is what the guard makes up for)",
+            cap_s * 1e6,
+            cfg.compensation.initial_delay_s * 1e6
+        );
+    }
     eprintln!(
-        "  compensation: lead {:.0} us ([compensation] initial_delay_us), prediction order {}",
+        "  compensation: starting lead {:.0} us ([compensation] initial_delay_us), prediction order {}",
         lead_s * 1e6,
         cfg.compensation.lead_order
     );

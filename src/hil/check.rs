@@ -35,6 +35,50 @@ pub fn actuator_response(cfg: &HilConfig) -> impl Fn(f64) -> (Complex64, Complex
     move |w| plant.response(w)
 }
 
+/// The longest lead the run may start with: the guess, or, when the linearised loop
+/// in front of an actuator twice as fast as the guess (a pure delay of half the guessed
+/// effective delay: the fastest the "off by 100 %" allows, and, without a lag's
+/// roll-off, the most exposed to a lead too long) is not stable at the guess, the
+/// longest shorter lead with which it is (in 2 % steps). Asymmetric on purpose: a lead
+/// too long makes the prediction's gain near Nyquist diverge within milliseconds (lag-delay
+/// 450 + 150 us, truth 722 us, started at 1500 us: `loop-unstable` after 20 ms, before
+/// the estimator has seen anything), a lead too short leaves the resonance's negative
+/// damping, which the guard takes out while the lead is learned. `INFINITY` (no cap) in
+/// force mode, when the guess is stable for that actuator, or when no lead below it is.
+pub fn starting_lead_cap_s(cfg: &HilConfig) -> f64 {
+    let guess = cfg.compensation.initial_delay_s;
+    if cfg.controller.command_mode != super::config::CommandMode::Law || guess <= 0.0 {
+        return f64::INFINITY;
+    }
+    let tau = (0.5 * guess - 0.5 * cfg.loop_.dt_s()).max(0.0);
+    let fastest = move |w: f64| {
+        (
+            Complex64::from_polar(1.0, -w * tau),
+            Complex64::new(0.0, 0.0),
+        )
+    };
+    let mut probe = LinearLoop::new(cfg, fastest, guess, 1.0);
+    let step = (0.02 * guess).max(5e-6);
+    let mut lead = guess;
+    while lead > 0.0 {
+        probe.lead_s = lead;
+        if probe.is_stable(0.0, 1.0) {
+            return if lead == guess { f64::INFINITY } else { lead };
+        }
+        lead -= step;
+    }
+    f64::INFINITY
+}
+
+/// `cfg`'s `[compensation]` with its starting lead capped (`starting_lead_cap_s`): what
+/// the controller runs with.
+pub fn starting_compensation(cfg: &HilConfig) -> crate::hil::compensation::CompensationConfig {
+    crate::hil::compensation::CompensationConfig {
+        starting_lead_cap_s: starting_lead_cap_s(cfg),
+        ..cfg.compensation
+    }
+}
+
 /// One line naming the simulated rig's actuator: kind, preset, its parameters.
 pub fn describe_actuator(cfg: &HilConfig) -> String {
     let a = &cfg.rig.actuator;
@@ -374,6 +418,38 @@ mod tests {
         assert!(!short.is_stable(0.0, 1.0));
         // Lead 0: diverges (the table).
         assert!(!LinearLoop::new(&cfg, lag_delay(50e-6, 80e-6), 0.0, 1.0).is_stable(0.0, 1.0));
+    }
+
+    /// A guess twice the truth (lag-delay 450 + 150 us: 722 us effective, with the hold's
+    /// half period) lies beyond the leads that actuator is stable with (600-1320 us): the
+    /// start is capped below, inside that range, as the fastest actuator the guess allows
+    /// dictates. The shipped guess on the shipped actuator is not capped.
+    #[test]
+    fn a_starting_lead_too_long_for_the_fastest_actuator_allowed_is_capped() {
+        let slow = crate::hil::config::DEFAULT_CONFIG_TOML
+            .replace(
+                "transport_delay_us = 50.0\nlag_us = 80.0",
+                "transport_delay_us = 450.0\nlag_us = 150.0",
+            )
+            .replace("initial_delay_us = 252.0", "initial_delay_us = 1444.0");
+        let cfg = crate::hil::config::parse_hil_config(&slow, "slow.toml", None).unwrap();
+        let truth = lag_delay(450e-6, 150e-6);
+        assert!(!LinearLoop::new(&cfg, &truth, 1444e-6, 1.0).is_stable(0.0, 1.0));
+        let cap = starting_lead_cap_s(&cfg);
+        assert!(cap < 1444e-6 && cap > 722e-6, "{cap}");
+        assert!(
+            LinearLoop::new(&cfg, &truth, cap, 1.0).is_stable(0.0, 1.0),
+            "{cap}"
+        );
+        assert_eq!(starting_compensation(&cfg).starting_lead_cap_s, cap);
+        // The guess itself, and the shipped guess on the shipped actuator: no cap.
+        let mut at_truth = cfg.clone();
+        at_truth.compensation.initial_delay_s = 722e-6;
+        assert_eq!(starting_lead_cap_s(&at_truth), f64::INFINITY);
+        assert_eq!(
+            starting_lead_cap_s(&default_hil_config().unwrap()),
+            f64::INFINITY
+        );
     }
 
     #[test]

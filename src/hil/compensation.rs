@@ -21,8 +21,12 @@ use crate::ipc::messages::Compensation;
 /// `[compensation]`: the controller's settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CompensationConfig {
-    /// The starting lead (the actuator's effective output delay as first guessed), s.
+    /// The actuator's effective output delay as first guessed, s.
     pub initial_delay_s: f64,
+    /// The longest lead the run may start with, s (`check::starting_lead_cap_s`: a lead
+    /// too long for the fastest actuator the guess allows diverges within milliseconds,
+    /// before anything is learned; one too short is what the guard makes up for).
+    pub starting_lead_cap_s: f64,
     /// Prediction polynomial order (0-3).
     pub lead_order: u32,
     /// Learn the delay and gain during the run.
@@ -57,6 +61,7 @@ impl CompensationConfig {
     pub fn with_initial_delay(initial_delay_s: f64) -> CompensationConfig {
         CompensationConfig {
             initial_delay_s,
+            starting_lead_cap_s: f64::INFINITY,
             lead_order: 2,
             adapt: true,
             passivity_guard: true,
@@ -500,7 +505,10 @@ const MAX_BRIDGED_GAP: u64 = 8;
 
 impl Compensator {
     pub fn new(cfg: CompensationConfig, dt_s: f64) -> Compensator {
-        let lead_s = cfg.initial_delay_s.clamp(0.0, cfg.max_delay_s);
+        let lead_s = cfg
+            .initial_delay_s
+            .min(cfg.starting_lead_cap_s)
+            .clamp(0.0, cfg.max_delay_s);
         let compensation = Compensation {
             lead_s,
             added_damping_corner_hz: cfg.guard_band_hz,

@@ -80,7 +80,7 @@ pub fn run_controller(
         period_ns,
         (cfg.safety.stall_limit_s * 1e9) as u64,
     )
-    .with_compensation(cfg.compensation);
+    .with_compensation(crate::hil::check::starting_compensation(cfg));
     core.set_start_time_ns(start.t0_ns);
     let mut injector = Injector::new(cfg, LoopProcess::Controller, process_id::CONTROLLER);
     // Ends when the emulator stops, on STOP or SIGTERM; as a last resort, after a minute

@@ -400,3 +400,41 @@ fn a_perturbed_shakers_gain_is_read_from_the_rigs_own_command() {
     let error = displacement_error(&cfg, &run);
     assert!(error < 0.01, "displacement error {:.2} %", 100.0 * error);
 }
+
+/// An actuator of 722 us effective delay (lag-delay 450 + 150 us) started from a guess
+/// twice that: the linearised loop is stable with 600-1320 us only, and the lead of the
+/// guess itself diverged within 20 ms (`loop-unstable` before the estimator had seen
+/// anything). The starting lead is capped for an actuator twice as fast as the guess
+/// (`check::starting_lead_cap_s`), so the run starts inside the stable range, learns the
+/// delay (the truth's effective delay within 5 %) and stays faithful, without a fault.
+#[test]
+fn a_guess_twice_a_slow_actuators_delay_starts_capped_and_is_learned() {
+    let cfg = config_with_actuator(
+        "kind = \"lag-delay\"\ntransport_delay_us = 450.0\nlag_us = 150.0\nforce_max_n = 150000.0",
+        1444.0,
+        true,
+        true,
+    );
+    let run = run_in_process(&cfg, &script(4.0));
+    assert!(faults(&run).is_empty(), "{:?}", faults(&run));
+    let first = run
+        .controller
+        .iter()
+        .find(|r| r.mode == command_mode::LAW)
+        .expect("a law command");
+    assert!(
+        first.lead_s > 722e-6 && first.lead_s < 1320e-6,
+        "started at {} us",
+        first.lead_s * 1e6
+    );
+    let truth = 0.5 / RATE + 450e-6 + 150e-6;
+    let lead = final_lead_s(&run);
+    assert!(
+        (lead / truth - 1.0).abs() < 0.05,
+        "final lead {} us against {} us",
+        lead * 1e6,
+        truth * 1e6
+    );
+    let error = displacement_error(&cfg, &run);
+    assert!(error < 0.005, "displacement error {:.3} %", 100.0 * error);
+}

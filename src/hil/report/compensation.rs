@@ -66,6 +66,9 @@ pub struct RenderingPoint {
 pub struct CompensationReport {
     pub adapt: bool,
     pub initial_delay_us: f64,
+    /// The lead of the first law command, us: the guess, or less when it was capped
+    /// (`check::starting_lead_cap_s`; null: no law command).
+    pub starting_lead_us: Option<f64>,
     /// The effective delay the controller identified at the end of force control, and
     /// its standard error, us (null: never identified).
     pub identified_delay_us: Option<f64>,
@@ -311,6 +314,7 @@ impl CompensationAnalyser {
         CompensationReport {
             adapt: c.adapt,
             initial_delay_us: c.initial_delay_s * 1e6,
+            starting_lead_us: self.lead_points.first().map(|p| p.1 * 1e6),
             identified_delay_us: self.identified.map(|(d, _)| d * 1e6),
             identified_delay_sigma_us: self.identified.map(|(_, s)| s * 1e6),
             final_lead_us: final_lead * 1e6,
