@@ -1139,14 +1139,16 @@ pub fn diagnose(
                     qualifies: m.qualifies || moves_named.is_some(),
                     ..m
                 };
-                let law_broken = (kind == EffectKind::FractionalDamping
+                let (law_broken, springpot_note) = if kind == EffectKind::FractionalDamping
                     && m.qualifies
-                    && out_of_range.is_none())
-                .then(|| {
-                    springpot_law_broken(&candidate, &cv.full_fit, data, options.max_iterations)
-                })
-                .flatten();
+                    && out_of_range.is_none()
+                {
+                    springpot_check(&candidate, &cv.full_fit, data, options.max_iterations)
+                } else {
+                    (None, None)
+                };
                 let law_note = match kind {
+                    EffectKind::FractionalDamping => springpot_note,
                     EffectKind::SpecimenDrift => Some(drift_clock_note(
                         &drift_fits,
                         &candidate.clocks_like_order,
@@ -1687,28 +1689,222 @@ pub fn springpot_orders_by_band(
     })
 }
 
+/// The discrete rival of a springpot: a second Maxwell branch (stiffness `k`, time
+/// constant `tau`) in parallel with the element, fitted in its place on the harmonic tests.
+#[derive(Debug, Clone, Copy)]
+pub struct MaxwellRival {
+    pub stiffness_n_per_m: f64,
+    pub tau_s: f64,
+    /// What the springpot's fit is better by: the rival's sum of squares minus the
+    /// springpot's, over the springpot's residual variance (negative: the rival fits
+    /// better). Both have two parameters beside the element, so this is a likelihood ratio
+    /// between non-nested laws: under 9 (3 standard errors) the data do not prefer the
+    /// springpot.
+    pub springpot_advantage: f64,
+    /// The same advantage on the fitted springpot's own noise-free predictions (the rival
+    /// fitted to them, over the same residual variance): what these tests would show were
+    /// the springpot the truth. Small: the design cannot tell the two apart.
+    pub expected_advantage: f64,
+}
+
+/// Fits the springpot's discrete rival (`MaxwellRival`): the template with the springpot
+/// taken out and a Maxwell branch's force `k j w tau / (1 + j w tau) X` added to each
+/// harmonic test's first harmonic, the element refitted with it, every other effect held
+/// at `fit`. Both laws are fitted on the harmonic tests only. None without a springpot or
+/// with fewer than four test frequencies.
+pub fn springpot_maxwell_rival(
+    template: &Template,
+    fit: &crate::ident::fit::LmFit,
+    data: &[CycleData],
+    max_iterations: usize,
+) -> Option<MaxwellRival> {
+    let k = template
+        .added
+        .iter()
+        .position(|k| *k == EffectKind::FractionalDamping)?;
+    let offset = template.n_params()
+        - template.added[k..]
+            .iter()
+            .map(|k| k.n_params())
+            .sum::<usize>();
+    let freqs = harmonic_frequencies(data);
+    if freqs.len() < 4 {
+        return None;
+    }
+    let mut fixed = template.model(&fit.params);
+    fixed
+        .effects
+        .retain(|e| e.name() != EffectKind::FractionalDamping.name());
+    let mut springpot = Template::new(fixed.clone(), template.reference_temperature_c);
+    springpot.fit_element = template.fit_element;
+    springpot.fit_chi = template.fit_chi;
+    springpot.clock_spans = template.clock_spans;
+    springpot.drift_clock = template.drift_clock;
+    springpot.added = vec![EffectKind::FractionalDamping];
+    let n_params = springpot.n_params();
+    let ne = n_params - 2;
+    let mut start: Vec<f64> = fit.params[..ne].to_vec();
+    start.extend_from_slice(&fit.params[offset..offset + 2]);
+    let harmonic: Vec<&CycleData> = data.iter().filter(|d| !d.is_history()).collect();
+    let sp = crate::ident::fit::fit_template(
+        &springpot,
+        &harmonic,
+        std::slice::from_ref(&start),
+        max_iterations,
+    );
+    let mut bare = springpot.clone();
+    bare.added.clear();
+    // The fitted springpot's own predictions, noise-free, as data.
+    let sp_model = springpot.model(&sp.params);
+    let ideal: Vec<CycleData> = harmonic
+        .iter()
+        .map(|d| CycleData {
+            force_harmonics_n: crate::ident::fit::predict_cycle(&sp_model, d),
+            ..(*d).clone()
+        })
+        .collect();
+    let ideal: Vec<&CycleData> = ideal.iter().collect();
+    let branch_on = |tests: &[&CycleData], theta: &[f64]| -> Vec<f64> {
+        let model = bare.model(&theta[..ne]);
+        let (kb, tau) = (theta[ne].exp(), theta[ne + 1].exp());
+        let mut out = Vec::with_capacity(tests.len() * 2);
+        for d in tests {
+            let mut r = crate::ident::fit::test_residuals(&model, d);
+            let wt = 2.0 * std::f64::consts::PI * d.frequency_hz * tau;
+            // k j wt / (1 + j wt) = k (wt^2 + j wt) / (1 + wt^2)
+            let (mr, mi) = (kb * wt * wt / (1.0 + wt * wt), kb * wt / (1.0 + wt * wt));
+            let (xr, xi) = d.displacement_harmonics_m[0];
+            r[0] += (mr * xr - mi * xi) / d.scale_n;
+            r[1] += (mr * xi + mi * xr) / d.scale_n;
+            out.extend(r);
+        }
+        out
+    };
+    // Starts: the corner below, within and above the tested band, the branch's loss at the
+    // band's middle matched to the springpot's.
+    let (f_lo, f_hi) = (freqs[0], freqs[freqs.len() - 1]);
+    let f_mid = (f_lo * f_hi).sqrt();
+    let (c_a, alpha) = sp_model
+        .effects
+        .iter()
+        .find_map(|e| match *e {
+            Effect::FractionalDamping {
+                coefficient_ns_alpha_per_m,
+                alpha,
+            } => Some((coefficient_ns_alpha_per_m, alpha)),
+            _ => None,
+        })
+        .unwrap_or((0.0, 0.5));
+    let w_mid = 2.0 * std::f64::consts::PI * f_mid;
+    let loss_mid = (c_a * w_mid.powf(alpha) * (alpha * std::f64::consts::FRAC_PI_2).sin()).max(1.0);
+    let fit_rival = |tests: &[&CycleData]| {
+        let mut best: Option<crate::ident::fit::LmFit> = None;
+        for corner_hz in [0.5 * f_lo, f_mid, 2.0 * f_hi, 8.0 * f_hi] {
+            let tau = 1.0 / (2.0 * std::f64::consts::PI * corner_hz);
+            let wt = w_mid * tau;
+            let kb = loss_mid * (1.0 + wt * wt) / wt;
+            let mut s0 = sp.params[..ne].to_vec();
+            s0.extend_from_slice(&[kb.ln(), tau.ln()]);
+            let f = crate::ident::fit::levenberg_marquardt(
+                |theta: &[f64]| branch_on(tests, theta),
+                &s0,
+                max_iterations,
+            );
+            if best.as_ref().is_none_or(|b| f.sse < b.sse) {
+                best = Some(f);
+            }
+        }
+        best
+    };
+    let rival = fit_rival(&harmonic)?;
+    let on_ideal = fit_rival(&ideal)?;
+    let variance = sp.sse / sp.n_residuals.saturating_sub(n_params).max(1) as f64;
+    Some(MaxwellRival {
+        stiffness_n_per_m: rival.params[ne].exp(),
+        tau_s: rival.params[ne + 1].exp(),
+        springpot_advantage: (rival.sse - sp.sse) / variance.max(1e-300),
+        expected_advantage: on_ideal.sse / variance.max(1e-300),
+    })
+}
+
 /// A springpot is a law of every frequency: its loss angle is `alpha pi / 2` at each, so
 /// its order fitted on the lower test frequencies and on the upper ones must agree. When
 /// the two differ by more than `SPRINGPOT_ORDER_MATERIAL` and one order for both costs more
 /// than `SPRINGPOT_ORDER_COST` residual variances, the springpot imitates something with a
 /// time scale of its own (a discrete relaxation, a second Maxwell branch): it is not
-/// named. Returns why.
+/// named. Nor is it when that rival, fitted in its place, fits the harmonic tests better
+/// (by `SPRINGPOT_RIVAL_ADVANTAGE`): a relaxation whose corner lies above the tested band
+/// looks like a springpot of high order within it. Returns why.
 fn springpot_law_broken(
     template: &Template,
     fit: &crate::ident::fit::LmFit,
     data: &[CycleData],
     max_iterations: usize,
 ) -> Option<String> {
-    let b = springpot_orders_by_band(template, fit, data, max_iterations)?;
+    springpot_check(template, fit, data, max_iterations).0
+}
+
+/// `springpot_law_broken`'s verdict and, when the springpot stands but its discrete rival
+/// fits about as well, the note a named springpot carries (what these tests cannot tell).
+fn springpot_check(
+    template: &Template,
+    fit: &crate::ident::fit::LmFit,
+    data: &[CycleData],
+    max_iterations: usize,
+) -> (Option<String>, Option<String>) {
+    let Some(b) = springpot_orders_by_band(template, fit, data, max_iterations) else {
+        return (None, None);
+    };
     let [lo, hi] = b.alpha;
     let [(f0, f1), (f2, f3)] = b.bands;
     let cost = b.common_order_cost;
-    ((lo - hi).abs() > SPRINGPOT_ORDER_MATERIAL && cost > SPRINGPOT_ORDER_COST).then(|| {
-        format!(
+    if (lo - hi).abs() > SPRINGPOT_ORDER_MATERIAL && cost > SPRINGPOT_ORDER_COST {
+        return (Some(format!(
             "has no single order: alpha = {lo:.3} on the tests at {f0}-{f1} Hz, {hi:.3} on those at {f2}-{f3} Hz, and one order for both costs {cost:.1} residual variances (a likelihood ratio; 9 is 3 standard errors)"
+        )), None);
+    }
+    let Some(r) = springpot_maxwell_rival(template, fit, data, max_iterations) else {
+        return (None, None);
+    };
+    let corner_hz = 1.0 / (2.0 * std::f64::consts::PI * r.tau_s);
+    let branch = format!(
+        "a second Maxwell branch ({:.3e} N/m, {:.3} ms, corner {:.0} Hz) in its place",
+        r.stiffness_n_per_m,
+        r.tau_s * 1e3,
+        corner_hz
+    );
+    // The rival fits better: by more than 3 standard errors, or at all where a springpot
+    // would have shown a win of 2 standard errors (the design can tell them apart).
+    if r.springpot_advantage < -SPRINGPOT_RIVAL_ADVANTAGE
+        || (r.springpot_advantage < 0.0 && r.expected_advantage >= SPRINGPOT_RIVAL_POWER)
+    {
+        return (Some(format!(
+            "is a discrete relaxation rather (beyond the library): {branch} fits the harmonic tests better by {:.1} residual variances, where a springpot would have fitted them better by about {:.1}",
+            -r.springpot_advantage,
+            r.expected_advantage
+        )), None);
+    }
+    let note = (r.springpot_advantage < SPRINGPOT_RIVAL_ADVANTAGE).then(|| {
+        format!(
+            "not told from a discrete relaxation by these tests: {branch} fits the harmonic tests about as well ({} by {:.1} residual variances; 9 is 3 standard errors); tests from {:.0} to {:.0} Hz, around that corner, would tell them apart",
+            if r.springpot_advantage < 0.0 { "the branch better" } else { "the springpot better" },
+            r.springpot_advantage.abs(),
+            0.5 * corner_hz,
+            2.0 * corner_hz
         )
-    })
+    });
+    (None, note)
 }
+
+/// Residual variances beyond which one of a springpot and its discrete rival
+/// (`springpot_maxwell_rival`) fits the harmonic tests better: 3 standard errors. A rival
+/// better by more keeps the springpot from being named; within it either way, a named
+/// springpot says these tests do not tell the two apart.
+const SPRINGPOT_RIVAL_ADVANTAGE: f64 = 9.0;
+/// Advantage a springpot would show over its rival, were it the truth, from which the
+/// design counts as able to tell them apart (a 2-standard-error win): then a rival that
+/// fits better at all keeps the springpot from being named.
+const SPRINGPOT_RIVAL_POWER: f64 = 4.0;
 
 /// Likelihood ratio (residual variances) beyond which the two band orders disagree: 3
 /// standard errors of one degree of freedom.
