@@ -334,18 +334,24 @@ fn stability_warning(cfg: &HilConfig) -> Option<String> {
     if cfg.controller.command_mode != crate::hil::config::CommandMode::Law {
         return None;
     }
-    let lead_s = cfg
-        .compensation
-        .initial_delay_s
-        .min(crate::hil::check::starting_lead_cap_s(cfg));
+    let cap_s = crate::hil::check::starting_lead_cap_s(cfg);
+    let lead_s = cfg.compensation.initial_delay_s.min(cap_s);
     let lin = LinearLoop::new(cfg, actuator_response(cfg), lead_s, 1.0);
     if lin.margins().stable {
         return None;
     }
+    let whence = if cap_s.is_finite() {
+        format!(
+            "[compensation] initial_delay_us = {:.0} capped for an actuator twice as fast",
+            cfg.compensation.initial_delay_s * 1e6
+        )
+    } else {
+        "[compensation] initial_delay_us".to_string()
+    };
     let max = cfg.compensation.max_delay_s;
     Some(match lin.stable_leads(max) {
         Some((lo, hi)) => format!(
-            "the linearised loop is not stable with the starting lead of {:.0} us ([compensation] initial_delay_us, capped for an actuator twice as fast); it is with {:.0}-{:.0} us. The run relies on the adaptation and the guard, and ends in loop-unstable and a hold if they do not make up for it (fastemu hil --check)",
+            "the linearised loop is not stable with the starting lead of {:.0} us ({whence}); it is with {:.0}-{:.0} us. The run relies on the adaptation and the guard, and ends in loop-unstable and a hold if they do not make up for it (fastemu hil --check)",
             lead_s * 1e6,
             lo * 1e6,
             hi * 1e6
