@@ -1588,17 +1588,13 @@ pub struct BandOrders {
     pub common_order_cost: f64,
 }
 
-/// The springpot's order refitted on the lower and on the upper half of the test
-/// frequencies (harmonic tests; the element refitted with it, every other effect held at
-/// the fit on all tests; with an odd count of frequencies both halves hold the middle
-/// one, which makes the comparison conservative). None without a springpot or with fewer
-/// than four test frequencies.
-pub fn springpot_orders_by_band(
+/// The element and the springpot as the only free parameters: `template`'s other effects
+/// held at `fit`, the springpot last. Returns that template and its start (from `fit`).
+/// None without a springpot.
+fn springpot_alone(
     template: &Template,
     fit: &crate::ident::fit::LmFit,
-    data: &[CycleData],
-    max_iterations: usize,
-) -> Option<BandOrders> {
+) -> Option<(Template, Vec<f64>)> {
     let k = template
         .added
         .iter()
@@ -1618,9 +1614,25 @@ pub fn springpot_orders_by_band(
     springpot.clock_spans = template.clock_spans;
     springpot.drift_clock = template.drift_clock;
     springpot.added = vec![EffectKind::FractionalDamping];
-    let n_params = springpot.n_params();
-    let mut start: Vec<f64> = fit.params[..n_params - 2].to_vec();
+    let ne = springpot.n_params() - 2;
+    let mut start: Vec<f64> = fit.params[..ne].to_vec();
     start.extend_from_slice(&fit.params[offset..offset + 2]);
+    Some((springpot, start))
+}
+
+/// The springpot's order refitted on the lower and on the upper half of the test
+/// frequencies (harmonic tests; the element refitted with it, every other effect held at
+/// the fit on all tests; with an odd count of frequencies both halves hold the middle
+/// one, which makes the comparison conservative). None without a springpot or with fewer
+/// than four test frequencies.
+pub fn springpot_orders_by_band(
+    template: &Template,
+    fit: &crate::ident::fit::LmFit,
+    data: &[CycleData],
+    max_iterations: usize,
+) -> Option<BandOrders> {
+    let (springpot, start) = springpot_alone(template, fit)?;
+    let n_params = springpot.n_params();
     let freqs = harmonic_frequencies(data);
     if freqs.len() < 4 {
         return None;
@@ -1718,33 +1730,13 @@ pub fn springpot_maxwell_rival(
     data: &[CycleData],
     max_iterations: usize,
 ) -> Option<MaxwellRival> {
-    let k = template
-        .added
-        .iter()
-        .position(|k| *k == EffectKind::FractionalDamping)?;
-    let offset = template.n_params()
-        - template.added[k..]
-            .iter()
-            .map(|k| k.n_params())
-            .sum::<usize>();
     let freqs = harmonic_frequencies(data);
     if freqs.len() < 4 {
         return None;
     }
-    let mut fixed = template.model(&fit.params);
-    fixed
-        .effects
-        .retain(|e| e.name() != EffectKind::FractionalDamping.name());
-    let mut springpot = Template::new(fixed.clone(), template.reference_temperature_c);
-    springpot.fit_element = template.fit_element;
-    springpot.fit_chi = template.fit_chi;
-    springpot.clock_spans = template.clock_spans;
-    springpot.drift_clock = template.drift_clock;
-    springpot.added = vec![EffectKind::FractionalDamping];
+    let (springpot, start) = springpot_alone(template, fit)?;
     let n_params = springpot.n_params();
     let ne = n_params - 2;
-    let mut start: Vec<f64> = fit.params[..ne].to_vec();
-    start.extend_from_slice(&fit.params[offset..offset + 2]);
     let harmonic: Vec<&CycleData> = data.iter().filter(|d| !d.is_history()).collect();
     let sp = crate::ident::fit::fit_template(
         &springpot,
