@@ -1139,16 +1139,18 @@ pub fn diagnose(
                     qualifies: m.qualifies || moves_named.is_some(),
                     ..m
                 };
-                let (law_broken, springpot_note) = if kind == EffectKind::FractionalDamping
-                    && m.qualifies
-                    && out_of_range.is_none()
-                {
-                    springpot_check(&candidate, &cv.full_fit, data, options.max_iterations)
-                } else {
-                    (None, None)
+                let (law_broken, rival_note) = match kind {
+                    _ if !m.qualifies || out_of_range.is_some() => (None, None),
+                    EffectKind::FractionalDamping => {
+                        springpot_check(&candidate, &cv.full_fit, data, options.max_iterations)
+                    }
+                    EffectKind::ChannelDelay => {
+                        channel_delay_check(&candidate, &cv.full_fit, data, options.max_iterations)
+                    }
+                    _ => (None, None),
                 };
                 let law_note = match kind {
-                    EffectKind::FractionalDamping => springpot_note,
+                    EffectKind::FractionalDamping | EffectKind::ChannelDelay => rival_note,
                     EffectKind::SpecimenDrift => Some(drift_clock_note(
                         &drift_fits,
                         &candidate.clocks_like_order,
@@ -1588,36 +1590,33 @@ pub struct BandOrders {
     pub common_order_cost: f64,
 }
 
-/// The element and the springpot as the only free parameters: `template`'s other effects
-/// held at `fit`, the springpot last. Returns that template and its start (from `fit`).
-/// None without a springpot.
-fn springpot_alone(
+/// The element and `kind` as the only free parameters: `template`'s other effects held at
+/// `fit`, `kind` last. Returns that template and its start (from `fit`). None without
+/// `kind` in the template.
+fn effect_alone(
     template: &Template,
     fit: &crate::ident::fit::LmFit,
+    kind: EffectKind,
 ) -> Option<(Template, Vec<f64>)> {
-    let k = template
-        .added
-        .iter()
-        .position(|k| *k == EffectKind::FractionalDamping)?;
+    let k = template.added.iter().position(|k| *k == kind)?;
     let offset = template.n_params()
         - template.added[k..]
             .iter()
             .map(|k| k.n_params())
             .sum::<usize>();
     let mut fixed = template.model(&fit.params);
-    fixed
-        .effects
-        .retain(|e| e.name() != EffectKind::FractionalDamping.name());
-    let mut springpot = Template::new(fixed, template.reference_temperature_c);
-    springpot.fit_element = template.fit_element;
-    springpot.fit_chi = template.fit_chi;
-    springpot.clock_spans = template.clock_spans;
-    springpot.drift_clock = template.drift_clock;
-    springpot.added = vec![EffectKind::FractionalDamping];
-    let ne = springpot.n_params() - 2;
+    fixed.effects.retain(|e| e.name() != kind.name());
+    let mut alone = Template::new(fixed, template.reference_temperature_c);
+    alone.fit_element = template.fit_element;
+    alone.fit_chi = template.fit_chi;
+    alone.clock_spans = template.clock_spans;
+    alone.drift_clock = template.drift_clock;
+    alone.added = vec![kind];
+    let n_kind = kind.n_params();
+    let ne = alone.n_params() - n_kind;
     let mut start: Vec<f64> = fit.params[..ne].to_vec();
-    start.extend_from_slice(&fit.params[offset..offset + 2]);
-    Some((springpot, start))
+    start.extend_from_slice(&fit.params[offset..offset + n_kind]);
+    Some((alone, start))
 }
 
 /// The springpot's order refitted on the lower and on the upper half of the test
@@ -1631,7 +1630,7 @@ pub fn springpot_orders_by_band(
     data: &[CycleData],
     max_iterations: usize,
 ) -> Option<BandOrders> {
-    let (springpot, start) = springpot_alone(template, fit)?;
+    let (springpot, start) = effect_alone(template, fit, EffectKind::FractionalDamping)?;
     let n_params = springpot.n_params();
     let freqs = harmonic_frequencies(data);
     if freqs.len() < 4 {
@@ -1701,57 +1700,58 @@ pub fn springpot_orders_by_band(
     })
 }
 
-/// The discrete rival of a springpot: a second Maxwell branch (stiffness `k`, time
-/// constant `tau`) in parallel with the element, fitted in its place on the harmonic tests.
+/// The discrete rival of an effect that adds loss rising with frequency (a springpot, a
+/// force channel's lead): a second Maxwell branch (stiffness `k`, time constant `tau`) in
+/// parallel with the element, fitted in its place on the harmonic tests.
 #[derive(Debug, Clone, Copy)]
 pub struct MaxwellRival {
     pub stiffness_n_per_m: f64,
     pub tau_s: f64,
-    /// What the springpot's fit is better by: the rival's sum of squares minus the
-    /// springpot's, over the springpot's residual variance (negative: the rival fits
-    /// better). Both have two parameters beside the element, so this is a likelihood ratio
-    /// between non-nested laws: under 9 (3 standard errors) the data do not prefer the
-    /// springpot.
-    pub springpot_advantage: f64,
-    /// The same advantage on the fitted springpot's own noise-free predictions (the rival
+    /// What the effect's fit is better by: the rival's sum of squares minus the effect's,
+    /// over the effect's residual variance (negative: the rival fits better). A likelihood
+    /// ratio between non-nested laws (the rival has as many or one more parameter): under
+    /// 9 (3 standard errors) the data do not prefer the effect.
+    pub advantage: f64,
+    /// The same advantage on the fitted effect's own noise-free predictions (the rival
     /// fitted to them, over the same residual variance): what these tests would show were
-    /// the springpot the truth. Small: the design cannot tell the two apart.
+    /// the effect the truth. Small: the design cannot tell the two apart.
     pub expected_advantage: f64,
 }
 
-/// Fits the springpot's discrete rival (`MaxwellRival`): the template with the springpot
-/// taken out and a Maxwell branch's force `k j w tau / (1 + j w tau) X` added to each
-/// harmonic test's first harmonic, the element refitted with it, every other effect held
-/// at `fit`. Both laws are fitted on the harmonic tests only. None without a springpot or
-/// with fewer than four test frequencies.
-pub fn springpot_maxwell_rival(
+/// Fits `kind`'s discrete rival (`MaxwellRival`): the template with `kind` taken out and a
+/// Maxwell branch's force `k j w tau / (1 + j w tau) X` added to each harmonic test's
+/// first harmonic, the element refitted with it, every other effect held at `fit`. Both
+/// laws are fitted on the harmonic tests only. None without `kind` or with fewer than four
+/// test frequencies.
+pub fn maxwell_rival(
     template: &Template,
     fit: &crate::ident::fit::LmFit,
     data: &[CycleData],
+    kind: EffectKind,
     max_iterations: usize,
 ) -> Option<MaxwellRival> {
     let freqs = harmonic_frequencies(data);
     if freqs.len() < 4 {
         return None;
     }
-    let (springpot, start) = springpot_alone(template, fit)?;
-    let n_params = springpot.n_params();
-    let ne = n_params - 2;
+    let (alone, start) = effect_alone(template, fit, kind)?;
+    let n_params = alone.n_params();
+    let ne = n_params - kind.n_params();
     let harmonic: Vec<&CycleData> = data.iter().filter(|d| !d.is_history()).collect();
-    let sp = crate::ident::fit::fit_template(
-        &springpot,
+    let ef = crate::ident::fit::fit_template(
+        &alone,
         &harmonic,
         std::slice::from_ref(&start),
         max_iterations,
     );
-    let mut bare = springpot.clone();
+    let mut bare = alone.clone();
     bare.added.clear();
-    // The fitted springpot's own predictions, noise-free, as data.
-    let sp_model = springpot.model(&sp.params);
+    // The fitted effect's own predictions, noise-free, as data.
+    let ef_model = alone.model(&ef.params);
     let ideal: Vec<CycleData> = harmonic
         .iter()
         .map(|d| CycleData {
-            force_harmonics_n: crate::ident::fit::predict_cycle(&sp_model, d),
+            force_harmonics_n: crate::ident::fit::predict_cycle(&ef_model, d),
             ..(*d).clone()
         })
         .collect();
@@ -1773,29 +1773,38 @@ pub fn springpot_maxwell_rival(
         out
     };
     // Starts: the corner below, within and above the tested band, the branch's loss at the
-    // band's middle matched to the springpot's.
+    // band's middle matched to the effect's there (its first harmonic with and without it,
+    // per displacement).
     let (f_lo, f_hi) = (freqs[0], freqs[freqs.len() - 1]);
     let f_mid = (f_lo * f_hi).sqrt();
-    let (c_a, alpha) = sp_model
-        .effects
-        .iter()
-        .find_map(|e| match *e {
-            Effect::FractionalDamping {
-                coefficient_ns_alpha_per_m,
-                alpha,
-            } => Some((coefficient_ns_alpha_per_m, alpha)),
-            _ => None,
-        })
-        .unwrap_or((0.0, 0.5));
     let w_mid = 2.0 * std::f64::consts::PI * f_mid;
-    let loss_mid = (c_a * w_mid.powf(alpha) * (alpha * std::f64::consts::FRAC_PI_2).sin()).max(1.0);
+    let bare_model = bare.model(&ef.params[..ne]);
+    let loss_mid = harmonic
+        .iter()
+        .min_by(|a, b| {
+            (a.frequency_hz / f_mid)
+                .ln()
+                .abs()
+                .total_cmp(&(b.frequency_hz / f_mid).ln().abs())
+        })
+        .map_or(1.0, |d| {
+            let (with, without) = (
+                crate::ident::fit::predict_cycle(&ef_model, d)[0],
+                crate::ident::fit::predict_cycle(&bare_model, d)[0],
+            );
+            let (dr, di) = (with.0 - without.0, with.1 - without.1);
+            let (xr, xi) = d.displacement_harmonics_m[0];
+            // Im(dF / X)
+            ((di * xr - dr * xi) / (xr * xr + xi * xi)).abs()
+        })
+        .max(1.0);
     let fit_rival = |tests: &[&CycleData]| {
         let mut best: Option<crate::ident::fit::LmFit> = None;
         for corner_hz in [0.5 * f_lo, f_mid, 2.0 * f_hi, 8.0 * f_hi] {
             let tau = 1.0 / (2.0 * std::f64::consts::PI * corner_hz);
             let wt = w_mid * tau;
             let kb = loss_mid * (1.0 + wt * wt) / wt;
-            let mut s0 = sp.params[..ne].to_vec();
+            let mut s0 = ef.params[..ne].to_vec();
             s0.extend_from_slice(&[kb.ln(), tau.ln()]);
             let f = crate::ident::fit::levenberg_marquardt(
                 |theta: &[f64]| branch_on(tests, theta),
@@ -1810,11 +1819,11 @@ pub fn springpot_maxwell_rival(
     };
     let rival = fit_rival(&harmonic)?;
     let on_ideal = fit_rival(&ideal)?;
-    let variance = sp.sse / sp.n_residuals.saturating_sub(n_params).max(1) as f64;
+    let variance = ef.sse / ef.n_residuals.saturating_sub(n_params).max(1) as f64;
     Some(MaxwellRival {
         stiffness_n_per_m: rival.params[ne].exp(),
         tau_s: rival.params[ne + 1].exp(),
-        springpot_advantage: (rival.sse - sp.sse) / variance.max(1e-300),
+        advantage: (rival.sse - ef.sse) / variance.max(1e-300),
         expected_advantage: on_ideal.sse / variance.max(1e-300),
     })
 }
@@ -1825,7 +1834,7 @@ pub fn springpot_maxwell_rival(
 /// than `SPRINGPOT_ORDER_COST` residual variances, the springpot imitates something with a
 /// time scale of its own (a discrete relaxation, a second Maxwell branch): it is not
 /// named. Nor is it when that rival, fitted in its place, fits the harmonic tests better
-/// (by `SPRINGPOT_RIVAL_ADVANTAGE`): a relaxation whose corner lies above the tested band
+/// (by `RIVAL_ADVANTAGE`): a relaxation whose corner lies above the tested band
 /// looks like a springpot of high order within it. Returns why.
 fn springpot_law_broken(
     template: &Template,
@@ -1855,8 +1864,51 @@ fn springpot_check(
             "has no single order: alpha = {lo:.3} on the tests at {f0}-{f1} Hz, {hi:.3} on those at {f2}-{f3} Hz, and one order for both costs {cost:.1} residual variances (a likelihood ratio; 9 is 3 standard errors)"
         )), None);
     }
-    let Some(r) = springpot_maxwell_rival(template, fit, data, max_iterations) else {
+    rival_check(
+        template,
+        fit,
+        data,
+        EffectKind::FractionalDamping,
+        max_iterations,
+    )
+}
+
+/// A force channel's delay is named only if it beats its discrete rival: a lead of the
+/// force channel adds loss rising with frequency, as a second Maxwell branch (a relaxation
+/// beyond the library) does below its corner. `rival_check` for `channel-delay`.
+fn channel_delay_check(
+    template: &Template,
+    fit: &crate::ident::fit::LmFit,
+    data: &[CycleData],
+    max_iterations: usize,
+) -> (Option<String>, Option<String>) {
+    rival_check(
+        template,
+        fit,
+        data,
+        EffectKind::ChannelDelay,
+        max_iterations,
+    )
+}
+
+/// `kind` against its discrete rival (`maxwell_rival`): why it is not named when the rival
+/// fits better (by more than 3 standard errors, or at all where `kind` were it the truth
+/// would have shown a 2-standard-error win), else the note a named `kind` carries when the
+/// two fit about as well (what these tests cannot tell).
+fn rival_check(
+    template: &Template,
+    fit: &crate::ident::fit::LmFit,
+    data: &[CycleData],
+    kind: EffectKind,
+    max_iterations: usize,
+) -> (Option<String>, Option<String>) {
+    let Some(r) = maxwell_rival(template, fit, data, kind, max_iterations) else {
         return (None, None);
+    };
+    let what = match kind {
+        EffectKind::FractionalDamping => "a springpot",
+        EffectKind::ChannelDelay => "a channel delay",
+        _ => kind.name(),
     };
     let corner_hz = 1.0 / (2.0 * std::f64::consts::PI * r.tau_s);
     let branch = format!(
@@ -1865,22 +1917,19 @@ fn springpot_check(
         r.tau_s * 1e3,
         corner_hz
     );
-    // The rival fits better: by more than 3 standard errors, or at all where a springpot
-    // would have shown a win of 2 standard errors (the design can tell them apart).
-    if r.springpot_advantage < -SPRINGPOT_RIVAL_ADVANTAGE
-        || (r.springpot_advantage < 0.0 && r.expected_advantage >= SPRINGPOT_RIVAL_POWER)
+    if r.advantage < -RIVAL_ADVANTAGE || (r.advantage < 0.0 && r.expected_advantage >= RIVAL_POWER)
     {
         return (Some(format!(
-            "is a discrete relaxation rather (beyond the library): {branch} fits the harmonic tests better by {:.1} residual variances, where a springpot would have fitted them better by about {:.1}",
-            -r.springpot_advantage,
+            "is a discrete relaxation rather (beyond the library): {branch} fits the harmonic tests better by {:.1} residual variances, where {what} would have fitted them better by about {:.1}",
+            -r.advantage,
             r.expected_advantage
         )), None);
     }
-    let note = (r.springpot_advantage < SPRINGPOT_RIVAL_ADVANTAGE).then(|| {
+    let note = (r.advantage < RIVAL_ADVANTAGE).then(|| {
         format!(
             "not told from a discrete relaxation by these tests: {branch} fits the harmonic tests about as well ({} by {:.1} residual variances; 9 is 3 standard errors); tests from {:.0} to {:.0} Hz, around that corner, would tell them apart",
-            if r.springpot_advantage < 0.0 { "the branch better" } else { "the springpot better" },
-            r.springpot_advantage.abs(),
+            if r.advantage < 0.0 { "the branch better".to_string() } else { format!("{what} better") },
+            r.advantage.abs(),
             0.5 * corner_hz,
             2.0 * corner_hz
         )
@@ -1888,15 +1937,15 @@ fn springpot_check(
     (None, note)
 }
 
-/// Residual variances beyond which one of a springpot and its discrete rival
-/// (`springpot_maxwell_rival`) fits the harmonic tests better: 3 standard errors. A rival
-/// better by more keeps the springpot from being named; within it either way, a named
-/// springpot says these tests do not tell the two apart.
-const SPRINGPOT_RIVAL_ADVANTAGE: f64 = 9.0;
-/// Advantage a springpot would show over its rival, were it the truth, from which the
-/// design counts as able to tell them apart (a 2-standard-error win): then a rival that
-/// fits better at all keeps the springpot from being named.
-const SPRINGPOT_RIVAL_POWER: f64 = 4.0;
+/// Residual variances beyond which one of an effect and its discrete rival
+/// (`maxwell_rival`) fits the harmonic tests better: 3 standard errors. A rival better by
+/// more keeps the effect from being named; within it either way, a named effect says these
+/// tests do not tell the two apart.
+const RIVAL_ADVANTAGE: f64 = 9.0;
+/// Advantage an effect would show over its rival, were it the truth, from which the design
+/// counts as able to tell them apart (a 2-standard-error win): then a rival that fits
+/// better at all keeps the effect from being named.
+const RIVAL_POWER: f64 = 4.0;
 
 /// Likelihood ratio (residual variances) beyond which the two band orders disagree: 3
 /// standard errors of one degree of freedom.
