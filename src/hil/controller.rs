@@ -98,6 +98,8 @@ record_type! {
             guard_damping_ns_per_m: f64,
             /// the guard's observer: energy generated above its band corner, J
             guard_generated_j: f64,
+            /// 1 while the guard is armed (the safe start: full damping until the lead is learned)
+            guard_armed: u8,
             /// the effective delay identified now (lead + residual), s (NaN: not yet)
             identified_delay_s: f64,
             /// its standard error, s
@@ -401,6 +403,7 @@ impl ControllerCore {
             actuator_gain: compensation.gain,
             guard_damping_ns_per_m: compensation.added_damping_ns_per_m,
             guard_generated_j: status.guard.generated_j,
+            guard_armed: u8::from(status.guard.armed),
             identified_delay_s: status.identified_delay_s,
             identified_delay_sigma_s: status.identified_delay_sigma_s,
         };

@@ -141,15 +141,67 @@ fn a_lead_100_us_short_without_adaptation_or_guard_trips_loop_unstable_and_holds
         .any(|r| r.guard_damping_ns_per_m > 0.0));
 }
 
-/// A passive loop gets no guard damping: on the default run the guard never acts.
+/// A passive loop gets no guard damping beyond the safe start: on the default run the
+/// guard is armed from the first law command until the lead agrees with the identified
+/// delay (the shipped guess is right: within 0.5 s), then never acts again.
 #[test]
 fn the_guard_adds_nothing_to_a_passive_loop() {
     let cfg = default_hil_config().unwrap();
     let run = run_in_process(&cfg, &script(4.0));
-    assert!(run
+    let law: Vec<_> = run
         .controller
         .iter()
-        .all(|r| r.guard_damping_ns_per_m == 0.0));
+        .filter(|r| r.mode == command_mode::LAW)
+        .collect();
+    let start = law.iter().take_while(|r| r.guard_armed == 1).count();
+    assert!(start > 0, "the guard did not arm");
+    let end = law[start].t_s;
+    assert!(end < 0.5, "safe start until {end} s");
+    assert!(
+        law[start..]
+            .iter()
+            .all(|r| r.guard_armed == 0 && r.guard_damping_ns_per_m == 0.0),
+        "the guard acted after the safe start"
+    );
+}
+
+/// The safe start in front of an actuator slower than the guess: a guess of 0 before a
+/// 722 us actuator (lag-delay 450 + 150 us). The loop starts unstable at the resonance;
+/// before the safe start, the resonance rang up before the guard's observer saw energy
+/// (0.32 % displacement error, a 20.7 um transient: not clean). Armed from the first
+/// command until the lead is learned, the guard damps it from the start.
+#[test]
+fn a_guess_of_zero_before_a_slow_actuator_is_made_safe_from_the_start() {
+    let cfg = config_with_actuator(
+        "kind = \"lag-delay\"\ntransport_delay_us = 450.0\nlag_us = 150.0\nforce_max_n = 150000.0",
+        0.0,
+        true,
+        true,
+    );
+    let run = run_in_process(&cfg, &script(4.0));
+    assert!(faults(&run).is_empty(), "{:?}", faults(&run));
+    let law: Vec<_> = run
+        .controller
+        .iter()
+        .filter(|r| r.mode == command_mode::LAW)
+        .collect();
+    let start = law.iter().take_while(|r| r.guard_armed == 1).count();
+    assert!(
+        start > 0 && start < law.len(),
+        "safe start over {start} commands"
+    );
+    let truth = 0.5 / RATE + 450e-6 + 150e-6;
+    let end = law[start];
+    assert!(
+        (end.lead_s / truth - 1.0).abs() < 0.12,
+        "safe start ended at {} s with a lead of {} us",
+        end.t_s,
+        end.lead_s * 1e6
+    );
+    assert!(end.t_s < 1.5, "safe start until {} s", end.t_s);
+    assert!(law[start..].iter().all(|r| r.guard_armed == 0));
+    let error = displacement_error(&cfg, &run);
+    assert!(error < 1e-3, "displacement error {:.3} %", 100.0 * error);
 }
 
 /// Same configuration, same input: the compensation (estimate, guard) is bit-identical.
@@ -422,8 +474,9 @@ fn a_guess_twice_a_slow_actuators_delay_starts_capped_and_is_learned() {
         .iter()
         .find(|r| r.mode == command_mode::LAW)
         .expect("a law command");
+    // Inside the truth's stable leads (600-1320 us, `hil --check`), at most the guess.
     assert!(
-        first.lead_s > 722e-6 && first.lead_s < 1320e-6,
+        first.lead_s >= 600e-6 && first.lead_s < 1320e-6,
         "started at {} us",
         first.lead_s * 1e6
     );

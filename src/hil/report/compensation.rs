@@ -31,6 +31,10 @@ pub struct GuardReport {
     /// Time with damping added, s, and its share of the time in force control.
     pub active_s: f64,
     pub active_fraction: f64,
+    /// The safe start: time from the first law command until the guard was disarmed (the
+    /// lead agreed with the delay the estimator resolved), s; all of force control when it
+    /// never was (null: the guard never armed).
+    pub safe_start_s: Option<f64>,
     /// Energy the added damping dissipated (its force on the high-passed velocity), J.
     pub dissipated_j: f64,
     /// Largest damping added, N s/m.
@@ -98,6 +102,9 @@ pub struct CompensationAnalyser {
     last: Option<ControllerRecord>,
     force_control_s: f64,
     active_s: f64,
+    /// Time in force control with the guard armed, s, and whether it ever was.
+    armed_s: f64,
+    armed_seen: bool,
     max_damping: f64,
     max_generated: f64,
     identified: Option<(f64, f64)>,
@@ -129,6 +136,8 @@ impl CompensationAnalyser {
             active_s: 0.0,
             max_damping: 0.0,
             max_generated: 0.0,
+            armed_s: 0.0,
+            armed_seen: false,
             identified: None,
             trajectory: Vec::new(),
             stride_s: (duration_s / 400.0).max(dt_s),
@@ -159,8 +168,12 @@ impl CompensationAnalyser {
                 if prev.guard_damping_ns_per_m > 0.0 {
                     self.active_s += dt;
                 }
+                if prev.guard_armed != 0 {
+                    self.armed_s += dt;
+                }
             }
         }
+        self.armed_seen |= r.guard_armed != 0;
         self.max_damping = self.max_damping.max(r.guard_damping_ns_per_m);
         if r.guard_generated_j.is_finite() {
             self.max_generated = self.max_generated.max(r.guard_generated_j);
@@ -328,6 +341,7 @@ impl CompensationAnalyser {
                 } else {
                     0.0
                 },
+                safe_start_s: self.armed_seen.then_some(self.armed_s),
                 dissipated_j: self.dissipated_j,
                 max_damping_ns_per_m: self.max_damping,
                 max_generated_j: self.max_generated,
