@@ -446,11 +446,11 @@ fn render_report(
                 o.suggestion()
             );
         } else if let Some(b) = &c.law_broken {
-            let _ = writeln!(
-                r,
-                "- `{}` {b}: not named. A springpot has one order at every frequency; an order that changes with the band suggests a relaxation with a time scale of its own (a second Maxwell branch), which the library does not hold.",
-                c.kind.name()
-            );
+            let why = match c.kind {
+                crate::ident::fit::EffectKind::ChannelDelay => "A lead of the force channel adds loss rising with frequency, as a relaxation with a time scale of its own (a second Maxwell branch) does below its corner; where the branch fits better the delay stood in for it, and the library does not hold such a relaxation.",
+                _ => "A springpot has one order at every frequency and must beat a discrete relaxation in its place; an order that changes with the band, or a branch that fits better, suggests a relaxation with a time scale of its own (a second Maxwell branch), which the library does not hold.",
+            };
+            let _ = writeln!(r, "- `{}` {b}: not named. {why}", c.kind.name());
         }
     }
     if !unphysical.is_empty() && !named.is_empty() && d.verdict.unexplained.is_some() {
