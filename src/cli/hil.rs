@@ -385,6 +385,16 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
         cfg.scenario.preload_n,
         2.0 * std::f64::consts::PI * cfg.emulator.law_frequency_hz,
     );
+    let band_hz = lin.faithful_band_hz();
+    // The safe start: the run's first commands carry the guard's full damping.
+    let safe_start = (cfg.compensation.adapt && cfg.compensation.passivity_guard).then(|| {
+        let mut armed = lin.clone();
+        armed.guard_damping_ns_per_m = cfg.compensation.guard_max_damping_ns_per_m;
+        armed.is_stable(0.0, 1.0)
+    });
+    let best = lin.most_faithful_stable_lead(cfg.compensation.max_delay_s);
+    let [(delay_1_s, amplitude_1, _), (delay_20_s, amplitude_20, velocity_20)] =
+        [1.0, 20.0].map(|f| lin.actuator_at(f));
     if args.json {
         println!(
             "{}",
@@ -395,6 +405,12 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                 "initial_delay_us": cfg.compensation.initial_delay_s * 1e6,
                 "starting_lead_capped": cap_s.is_finite(),
                 "lead_order": cfg.compensation.lead_order,
+                "safe_start_stable": safe_start,
+                "predicted_faithful_band_hz": band_hz,
+                "most_faithful_stable_lead": best.map(|(l, b)| json!({"lead_us": l * 1e6, "faithful_band_hz": b})),
+                "actuator_phase_delay_us": {"1_hz": delay_1_s * 1e6, "20_hz": delay_20_s * 1e6},
+                "actuator_amplitude_ratio": {"1_hz": amplitude_1, "20_hz": amplitude_20},
+                "actuator_velocity_force_share_20_hz": velocity_20,
                 "actuator": describe_actuator(cfg),
                 "plot": plot.display().to_string(),
             }))?
@@ -461,6 +477,31 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
             "  no lead from 0 to {:.0} us makes the linearised loop stable: this actuator is too slow for the specimen's resonance on this element (SPEC 6.1); expect loop-unstable and a hold",
             cfg.compensation.max_delay_s * 1e6
         ),
+    }
+    if let Some(stable) = safe_start {
+        eprintln!(
+            "  safe start (the guard's {:.0} kN s/m above {:.0} Hz from the first command until the lead is learned): the linearised loop is {} with it at this lead",
+            cfg.compensation.guard_max_damping_ns_per_m * 1e-3,
+            cfg.compensation.guard_band_hz,
+            if stable { "stable" } else { "NOT stable" }
+        );
+    }
+    eprintln!(
+        "  predicted faithful band with this lead: {band_hz:.1} Hz (the rendered force within 1 % and 2 degrees of the element's from 1 Hz up; the run's report measures it on the bins the load excites)"
+    );
+    match best {
+        Some((lead, band)) if band < 20.0 => eprintln!(
+            "  WARNING: no stable lead renders 1-20 Hz within 1 % and 2 degrees (the most faithful, {:.0} us, up to {band:.1} Hz): from 1 to 20 Hz the actuator's phase delay runs from {:.0} to {:.0} us and its amplitude ratio from {amplitude_1:.3} to {amplitude_20:.3}, and its own force on the specimen's velocity is {:.1} % of the element's at 20 Hz; a lead and a gain do not make up for that (docs/compensation.md)",
+            lead * 1e6,
+            delay_1_s * 1e6,
+            delay_20_s * 1e6,
+            100.0 * velocity_20
+        ),
+        Some((lead, band)) => eprintln!(
+            "  most faithful stable lead: {:.0} us (predicted faithful band {band:.1} Hz)",
+            lead * 1e6
+        ),
+        None => {}
     }
     eprintln!("  plot: {}", plot.display());
     Ok(if m.stable {

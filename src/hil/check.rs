@@ -118,6 +118,12 @@ fn round_sig(x: f64) -> f64 {
     (x * scale).round() / scale
 }
 
+/// The report's faithful band: amplitude within 1 %, phase within 2 degrees, looked for
+/// from 1 Hz up to 200 Hz (`hil::report::compensation`).
+const FAITHFUL_AMPLITUDE: f64 = 0.01;
+const FAITHFUL_PHASE_DEG: f64 = 2.0;
+const FAITHFUL_TOP_HZ: f64 = 200.0;
+
 /// The linearised loop.
 #[derive(Debug, Clone)]
 pub struct LinearLoop {
@@ -336,6 +342,81 @@ impl LinearLoop {
         }
     }
 
+    /// The force the rig renders per element force at grid point `i`, as the report's
+    /// rendering measures it: the actuator's response to the law evaluated on the
+    /// displacement predicted over the lead (held over the period), divided by the gain,
+    /// plus its own force on the specimen's velocity (a servo-valve's residual flow, a
+    /// shaker's back-EMF) per element force.
+    fn rendering(&self, i: usize) -> Complex64 {
+        let w = self.omega[i];
+        self.actuator_u[i] * self.predicted(w).0 / self.gain
+            + Complex64::new(0.0, w) * self.actuator_v[i] / self.element[i]
+    }
+
+    /// The predicted faithful band: the highest frequency from 1 Hz up to which the
+    /// rendering stays within `FAITHFUL_AMPLITUDE` and `FAITHFUL_PHASE_DEG` (the report's
+    /// tolerances), looked for up to `FAITHFUL_TOP_HZ`; 0 when it is not faithful at 1 Hz.
+    pub fn faithful_band_hz(&self) -> f64 {
+        let mut band = 0.0;
+        for i in 0..self.omega.len() {
+            let f = self.omega[i] / (2.0 * PI);
+            if f < 1.0 - 1e-9 {
+                continue;
+            }
+            if f > FAITHFUL_TOP_HZ {
+                break;
+            }
+            let r = self.rendering(i);
+            if (r.norm() - 1.0).abs() > FAITHFUL_AMPLITUDE
+                || r.arg().to_degrees().abs() > FAITHFUL_PHASE_DEG
+            {
+                break;
+            }
+            band = f;
+        }
+        band
+    }
+
+    /// The actuator at `f_hz` (the grid point at or above it): its phase delay (s) and
+    /// amplitude ratio in answer to a command (no lead), and its own force on the
+    /// specimen's velocity per element force (magnitude).
+    pub fn actuator_at(&self, f_hz: f64) -> (f64, f64, f64) {
+        let w = 2.0 * PI * f_hz;
+        let i = self
+            .omega
+            .iter()
+            .position(|&x| x >= w - 1e-9)
+            .unwrap_or(self.omega.len() - 1);
+        let w = self.omega[i];
+        (
+            -self.actuator_u[i].arg() / w,
+            self.actuator_u[i].norm(),
+            (Complex64::new(0.0, w) * self.actuator_v[i] / self.element[i]).norm(),
+        )
+    }
+
+    /// Among the stable leads (10 us steps up to `max_lead_s`), the one with the widest
+    /// predicted faithful band (the middle of those that tie), and that band; `None` when
+    /// no lead is stable.
+    pub fn most_faithful_stable_lead(&self, max_lead_s: f64) -> Option<(f64, f64)> {
+        // (first lead, last lead, band) of the widest band so far.
+        let mut best: Option<(f64, f64, f64)> = None;
+        let mut probe = self.clone();
+        let n = (max_lead_s / 10e-6).round() as usize;
+        for i in 0..=n {
+            probe.lead_s = i as f64 * 10e-6;
+            if probe.is_stable(0.0, 1.0) {
+                let band = probe.faithful_band_hz();
+                best = match best {
+                    Some((first, _, b)) if band == b => Some((first, probe.lead_s, b)),
+                    Some((_, _, b)) if band < b => best,
+                    _ => Some((probe.lead_s, probe.lead_s, band)),
+                };
+            }
+        }
+        best.map(|(first, last, band)| (0.5 * (first + last), band))
+    }
+
     /// The leads (10 us steps up to `max_lead_s`) with which the loop is stable: the
     /// first and last of the stable range, or `None` when no lead makes it stable.
     pub fn stable_leads(&self, max_lead_s: f64) -> Option<(f64, f64)> {
@@ -493,5 +574,53 @@ mod tests {
         // half a period covers.
         let l = LinearLoop::new(&cfg, lag_delay(0.0, 0.0), 0.5 / 4096.0, 1.0);
         assert!(l.margins().stable);
+    }
+
+    /// The predicted faithful band against an independent figure: a pure 100 us delay with
+    /// no lead renders with the phase `w (tau + h / 2)` (the zero-order hold's half period),
+    /// which reaches 2 degrees at `2 / (360 (tau + h / 2))` = 25.0 Hz, its amplitude still
+    /// within 1e-3 there. The shipped loop is faithful far beyond the load band, and its
+    /// most faithful stable lead lies by its delay; a servo-hydraulic force loop, whose
+    /// phase delay grows from under 1 ms at 1 Hz to over 2.5 ms at 20 Hz, is faithful up
+    /// to 20 Hz at no stable lead.
+    #[test]
+    fn a_lead_renders_a_delay_faithfully_but_not_a_servo_hydraulic_force_loop() {
+        let cfg = default_hil_config().unwrap();
+        let tau = 100e-6;
+        let h = cfg.loop_.dt_s();
+        let bare = LinearLoop::new(&cfg, lag_delay(tau, 0.0), 0.0, 1.0);
+        let expected = 2.0 / (360.0 * (tau + 0.5 * h));
+        let band = bare.faithful_band_hz();
+        assert!(
+            band <= expected && band > expected - 0.3,
+            "{band} vs {expected}"
+        );
+
+        let shipped = LinearLoop::new(&cfg, actuator_response(&cfg), 252e-6, 1.0);
+        assert!(
+            shipped.faithful_band_hz() > 100.0,
+            "{}",
+            shipped.faithful_band_hz()
+        );
+        let (lead, band) = shipped
+            .most_faithful_stable_lead(cfg.compensation.max_delay_s)
+            .unwrap();
+        assert!(band >= shipped.faithful_band_hz());
+        assert!((200e-6..320e-6).contains(&lead), "{lead}");
+
+        let text = crate::hil::config::DEFAULT_CONFIG_TOML.replace(
+            "kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_us = 80.0\nforce_max_n = 150000.0",
+            "preset = \"fatigue-150kn\"",
+        );
+        let cfg = crate::hil::config::parse_hil_config(&text, "servo.toml", None).unwrap();
+        let servo = LinearLoop::new(&cfg, actuator_response(&cfg), 2800e-6, 1.0);
+        assert!(servo.is_stable(0.0, 1.0));
+        let (_, band) = servo
+            .most_faithful_stable_lead(cfg.compensation.max_delay_s)
+            .unwrap();
+        assert!(band < 20.0, "{band}");
+        let ((slow, _, _), (fast, gain_20, _)) = (servo.actuator_at(1.0), servo.actuator_at(20.0));
+        assert!(slow < 1e-3 && fast > 2.5e-3, "{slow} {fast}");
+        assert!(gain_20 > 1.05, "{gain_20}");
     }
 }

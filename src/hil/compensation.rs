@@ -321,7 +321,7 @@ impl PassivityGuard {
             damping: 0.0,
             last_z_hp_m: 0.0,
             dt_s,
-            armed: cfg.adapt,
+            armed: cfg.adapt && cfg.passivity_guard,
             activity: GuardActivity::default(),
         }
     }
@@ -682,12 +682,32 @@ impl Compensator {
         self.status.guard = guard;
     }
 
+    /// Ends the safe start once the estimate is precise (standard error within
+    /// `SAFE_START_AGREEMENT` of the delay, or 20 us) and the lead agrees with it as far as
+    /// the lead's bounds allow (within `SAFE_START_AGREEMENT`, 20 us or two standard
+    /// errors, the estimate clamped to `[0, max_delay]`: an estimate beyond them leaves
+    /// the lead at the bound, and waiting for more would keep the damping on all run).
+    #[inline]
+    fn end_safe_start(&mut self, e: DelayEstimate) {
+        if !(self.guard.armed() && e.delay_s.is_finite() && e.delay_sigma_s.is_finite()) {
+            return;
+        }
+        let target = e.delay_s.clamp(0.0, self.cfg.max_delay_s);
+        let tolerance = (SAFE_START_AGREEMENT * target).max(20e-6);
+        let precise = e.delay_sigma_s <= tolerance;
+        let agrees = (target - self.lead_s).abs() <= tolerance.max(2.0 * e.delay_sigma_s);
+        if precise && agrees {
+            self.guard.disarm();
+        }
+    }
+
     /// Moves the lead and gain towards the estimate: a first-order step of `dt /
     /// adapt_time` of the difference, each step bounded (no jump the loop could feel).
     /// The gain, which the preload alone determines, follows as soon as the regression
     /// does; the lead only when the data resolve the delay (its standard error under
-    /// 20 us, or under a quarter of the difference). The safe start ends once the lead is
-    /// within `SAFE_START_AGREEMENT` (or 20 us) of a resolved delay.
+    /// 20 us, or under a quarter of the difference). The safe start ends as
+    /// `end_safe_start` says (not while the identified gain is outside 0.5-2: such an
+    /// actuator keeps the damping).
     #[inline]
     fn adapt(&mut self, e: DelayEstimate) {
         self.status.identified_delay_s = e.delay_s;
@@ -701,13 +721,11 @@ impl Compensator {
         let gain_step = (k * (e.residual_gain - self.gain)).clamp(-max_gain_step, max_gain_step);
         self.gain = (self.gain + gain_step).clamp(0.5, 2.0);
         let difference = e.delay_s - self.lead_s;
+        self.end_safe_start(e);
         let resolved = e.delay_sigma_s.is_finite()
             && (e.delay_sigma_s < 20e-6 || e.delay_sigma_s < 0.25 * difference.abs());
         if !resolved || !e.delay_s.is_finite() {
             return;
-        }
-        if difference.abs() <= (SAFE_START_AGREEMENT * e.delay_s.abs()).max(20e-6) {
-            self.guard.disarm();
         }
         // At most 20 ms of lead per second (5 us per sample at 4096 Hz): a servo-hydraulic
         // actuator a few ms slower than the first guess is reached within the first second.
@@ -985,6 +1003,19 @@ mod tests {
         }
         let t = disarmed_at.expect("the guard was never disarmed");
         assert!(t > 0.1 && t < 1.5, "disarmed at {t} s");
+        // Disarmed, the guard still answers energy: the rendering 200 us late at the
+        // resonance (the specimen moving this time) gets damping again.
+        let k = 5.7e7;
+        let mut most: f64 = 0.0;
+        for i in 0..4096 {
+            let t = (4096 * 3 + i) as f64 * DT;
+            let z = 3e-4 + 5e-6 * (2.0 * PI * 155.0 * t).sin();
+            let late = 3e-4 + 5e-6 * (2.0 * PI * 155.0 * (t - 2e-4)).sin();
+            let comp = c.on_sample((4096 * 3 + i) as u64, z, k * z, k * late / comp.gain);
+            assert!(!c.status().guard.armed);
+            most = most.max(comp.added_damping_ns_per_m);
+        }
+        assert!(most > 0.5 * cfg.guard_max_damping_ns_per_m, "{most}");
 
         let mut c = Compensator::new(
             CompensationConfig {

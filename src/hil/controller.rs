@@ -403,7 +403,8 @@ impl ControllerCore {
             actuator_gain: compensation.gain,
             guard_damping_ns_per_m: compensation.added_damping_ns_per_m,
             guard_generated_j: status.guard.generated_j,
-            guard_armed: u8::from(status.guard.armed),
+            // As sent: only law commands carry the guard's damping.
+            guard_armed: u8::from(mode == command_mode::LAW && status.guard.armed),
             identified_delay_s: status.identified_delay_s,
             identified_delay_sigma_s: status.identified_delay_sigma_s,
         };

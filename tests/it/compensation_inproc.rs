@@ -155,7 +155,7 @@ fn the_guard_adds_nothing_to_a_passive_loop() {
         .collect();
     let start = law.iter().take_while(|r| r.guard_armed == 1).count();
     assert!(start > 0, "the guard did not arm");
-    let end = law[start].t_s;
+    let end = law.get(start).expect("the guard was never disarmed").t_s;
     assert!(end < 0.5, "safe start until {end} s");
     assert!(
         law[start..]
