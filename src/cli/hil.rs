@@ -885,6 +885,9 @@ fn summarise(
         if let Some(t) = &a.actuator_truth {
             eprintln!("hil: {}", t.describe());
         }
+        if cfg.controller.command_mode == crate::hil::config::CommandMode::Law {
+            eprintln!("hil: {}", a.compensation.describe());
+        }
         if let Some(e) = &a.element_thermal {
             eprintln!("hil: {}", e.describe());
         }

@@ -35,6 +35,10 @@ pub struct GuardReport {
     /// lead agreed with the delay the estimator resolved), s; all of force control when it
     /// never was (null: the guard never armed).
     pub safe_start_s: Option<f64>,
+    /// Whether the safe start ended (the last law command had the guard disarmed); null
+    /// when it never armed. False: the delay was never learned and the guard damped
+    /// above its corner all run.
+    pub safe_start_ended: Option<bool>,
     /// Energy the added damping dissipated (its force on the high-passed velocity), J.
     pub dissipated_j: f64,
     /// Largest damping added, N s/m.
@@ -95,6 +99,39 @@ pub struct CompensationReport {
     pub trajectory: Vec<EstimatePoint>,
 }
 
+impl CompensationReport {
+    /// One line for the console: the lead from start to end, what was identified, the
+    /// guard and the faithful band; a warning when the safe start never ended.
+    pub fn describe(&self) -> String {
+        let us = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.0} us"));
+        let mut line = format!(
+            "compensation: lead {} -> {:.0} us, identified {}{}, gain {:.3}, settled {}; guard: safe start {}, active {:.2} s, largest {:.1} kN s/m; faithful band {}",
+            us(self.starting_lead_us),
+            self.final_lead_us,
+            us(self.identified_delay_us),
+            self.identified_delay_sigma_us
+                .map_or(String::new(), |s| format!(" (+- {s:.1})")),
+            self.final_gain,
+            self.settled_at_s
+                .map_or("never".to_string(), |t| format!("at {t:.2} s")),
+            self.guard
+                .safe_start_s
+                .map_or("none".to_string(), |t| format!("{t:.2} s")),
+            self.guard.active_s,
+            self.guard.max_damping_ns_per_m * 1e-3,
+            self.faithful_band_hz
+                .map_or("not judged".to_string(), |f| format!("{f:.0} Hz")),
+        );
+        if self.guard.safe_start_ended == Some(false) {
+            line.push_str(&format!(
+                "; WARNING: the safe start never ended (the delay was never learned to within 10 %, or the gain lay outside 0.5-2): the guard damped above {:.0} Hz all run",
+                self.guard.band_hz.0
+            ));
+        }
+        line
+    }
+}
+
 /// Streaming analyser of the controller's and emulator's records.
 pub struct CompensationAnalyser {
     dt_s: f64,
@@ -105,6 +142,8 @@ pub struct CompensationAnalyser {
     /// Time in force control with the guard armed, s, and whether it ever was.
     armed_s: f64,
     armed_seen: bool,
+    /// The last law command's `guard_armed`.
+    armed_last: bool,
     max_damping: f64,
     max_generated: f64,
     identified: Option<(f64, f64)>,
@@ -138,6 +177,7 @@ impl CompensationAnalyser {
             max_generated: 0.0,
             armed_s: 0.0,
             armed_seen: false,
+            armed_last: false,
             identified: None,
             trajectory: Vec::new(),
             stride_s: (duration_s / 400.0).max(dt_s),
@@ -174,6 +214,7 @@ impl CompensationAnalyser {
             }
         }
         self.armed_seen |= r.guard_armed != 0;
+        self.armed_last = r.guard_armed != 0;
         self.max_damping = self.max_damping.max(r.guard_damping_ns_per_m);
         if r.guard_generated_j.is_finite() {
             self.max_generated = self.max_generated.max(r.guard_generated_j);
@@ -342,6 +383,7 @@ impl CompensationAnalyser {
                     0.0
                 },
                 safe_start_s: self.armed_seen.then_some(self.armed_s),
+                safe_start_ended: self.armed_seen.then_some(!self.armed_last),
                 dissipated_j: self.dissipated_j,
                 max_damping_ns_per_m: self.max_damping,
                 max_generated_j: self.max_generated,
@@ -423,4 +465,36 @@ pub fn draw(dir: &std::path::Path, r: &CompensationReport) -> anyhow::Result<()>
         1,
         &[estimate, gain_panel, guard_panel, rendering],
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The console line warns when the safe start never ended, and only then.
+    #[test]
+    fn the_console_line_warns_when_the_safe_start_never_ended() {
+        let mut r = CompensationReport {
+            starting_lead_us: Some(0.0),
+            final_lead_us: 710.0,
+            identified_delay_us: Some(712.0),
+            final_gain: 1.0,
+            ..CompensationReport::default()
+        };
+        r.guard.band_hz = (60.0, 400.0);
+        assert!(!r.describe().contains("WARNING"), "{}", r.describe());
+        r.guard.safe_start_s = Some(0.57);
+        r.guard.safe_start_ended = Some(true);
+        let line = r.describe();
+        assert!(
+            line.contains("safe start 0.57 s") && !line.contains("WARNING"),
+            "{line}"
+        );
+        r.guard.safe_start_ended = Some(false);
+        assert!(
+            r.describe().contains("the safe start never ended"),
+            "{}",
+            r.describe()
+        );
+    }
 }
