@@ -337,9 +337,23 @@ fn stability_warning(cfg: &HilConfig) -> Option<String> {
     let cap_s = crate::hil::check::starting_lead_cap_s(cfg);
     let lead_s = cfg.compensation.initial_delay_s.min(cap_s);
     let lin = LinearLoop::new(cfg, actuator_response(cfg), lead_s, 1.0);
-    if lin.margins().stable {
+    let safe_start = lin.safe_start_stable(cfg);
+    if lin.margins().stable && safe_start != Some(false) {
         return None;
     }
+    if lin.margins().stable {
+        return Some(format!(
+            "the linearised loop is stable with the starting lead of {:.0} us but not with the safe start's damping ({:.0} kN s/m above {:.0} Hz until the lead is learned; this actuator's lag there turns damping into energy): expect loop-unstable and a hold; with a lead you trust, adapt = false starts without it (fastemu hil --check)",
+            lead_s * 1e6,
+            cfg.compensation.guard_max_damping_ns_per_m * 1e-3,
+            cfg.compensation.guard_band_hz
+        ));
+    }
+    let held = match safe_start {
+        Some(true) => " The safe start's damping makes it stable while the lead is learned.",
+        Some(false) => " Nor is it with the safe start's damping.",
+        None => "",
+    };
     let whence = if cap_s.is_finite() {
         format!(
             "[compensation] initial_delay_us = {:.0} capped for an actuator twice as fast",
@@ -351,7 +365,7 @@ fn stability_warning(cfg: &HilConfig) -> Option<String> {
     let max = cfg.compensation.max_delay_s;
     Some(match lin.stable_leads(max) {
         Some((lo, hi)) => format!(
-            "the linearised loop is not stable with the starting lead of {:.0} us ({whence}); it is with {:.0}-{:.0} us. The run relies on the adaptation and the guard, and ends in loop-unstable and a hold if they do not make up for it (fastemu hil --check)",
+            "the linearised loop is not stable with the starting lead of {:.0} us ({whence}); it is with {:.0}-{:.0} us.{held} The run relies on the adaptation and the guard, and ends in loop-unstable and a hold if they do not make up for it (fastemu hil --check)",
             lead_s * 1e6,
             lo * 1e6,
             hi * 1e6
@@ -387,11 +401,9 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     );
     let band_hz = lin.faithful_band_hz();
     // The safe start: the run's first commands carry the guard's full damping.
-    let safe_start = (cfg.compensation.adapt && cfg.compensation.passivity_guard).then(|| {
-        let mut armed = lin.clone();
-        armed.guard_damping_ns_per_m = cfg.compensation.guard_max_damping_ns_per_m;
-        armed.is_stable(0.0, 1.0)
-    });
+    let safe_start = lin.safe_start_stable(cfg);
+    // As the run starts: with the safe start's damping when it arms.
+    let starts_stable = safe_start.unwrap_or(m.stable);
     let best = lin.most_faithful_stable_lead(cfg.compensation.max_delay_s);
     let [(delay_1_s, amplitude_1, _), (delay_20_s, amplitude_20, velocity_20)] =
         [1.0, 20.0].map(|f| lin.actuator_at(f));
@@ -406,6 +418,7 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                 "starting_lead_capped": cap_s.is_finite(),
                 "lead_order": cfg.compensation.lead_order,
                 "safe_start_stable": safe_start,
+                "starts_stable": starts_stable,
                 "predicted_faithful_band_hz": band_hz,
                 "most_faithful_stable_lead": best.map(|(l, b)| json!({"lead_us": l * 1e6, "faithful_band_hz": b})),
                 "actuator_phase_delay_us": {"1_hz": delay_1_s * 1e6, "20_hz": delay_20_s * 1e6},
@@ -480,23 +493,49 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     }
     if let Some(stable) = safe_start {
         eprintln!(
-            "  safe start (the guard's {:.0} kN s/m above {:.0} Hz from the first command until the lead is learned): the linearised loop is {} with it at this lead",
+            "  safe start (the guard's {:.0} kN s/m above {:.0} Hz from the first command until the lead is learned): the linearised loop is {} with it at this lead{}",
             cfg.compensation.guard_max_damping_ns_per_m * 1e-3,
             cfg.compensation.guard_band_hz,
-            if stable { "stable" } else { "NOT stable" }
+            if stable { "stable" } else { "NOT stable" },
+            match (stable, m.stable) {
+                (true, false) => ": it holds the loop while the lead is learned",
+                (false, true) => ": the actuator's lag there turns damping into energy; with a lead you trust, adapt = false starts without it",
+                _ => "",
+            }
         );
     }
     eprintln!(
         "  predicted faithful band with this lead: {band_hz:.1} Hz (the rendered force within 1 % and 2 degrees of the element's from 1 Hz up; the run's report measures it on the bins the load excites)"
     );
     match best {
-        Some((lead, band)) if band < 20.0 => eprintln!(
-            "  WARNING: no stable lead renders 1-20 Hz within 1 % and 2 degrees (the most faithful, {:.0} us, up to {band:.1} Hz): from 1 to 20 Hz the actuator's phase delay runs from {:.0} to {:.0} us and its amplitude ratio from {amplitude_1:.3} to {amplitude_20:.3}, and its own force on the specimen's velocity is {:.1} % of the element's at 20 Hz; a lead and a gain do not make up for that (docs/compensation.md)",
-            lead * 1e6,
-            delay_1_s * 1e6,
-            delay_20_s * 1e6,
-            100.0 * velocity_20
-        ),
+        Some((lead, band)) if band < 20.0 => {
+            // What a lead and a gain cannot make up for: a delay that changes over the
+            // band, an amplitude that does, the actuator's own force on the velocity.
+            let mut causes = Vec::new();
+            if (delay_20_s - delay_1_s).abs() > 0.1 * delay_1_s.abs().max(delay_20_s.abs()) {
+                causes.push(format!(
+                    "its phase delay runs from {:.0} us at 1 Hz to {:.0} us at 20 Hz",
+                    delay_1_s * 1e6,
+                    delay_20_s * 1e6
+                ));
+            }
+            if (amplitude_20 - amplitude_1).abs() > 0.01 {
+                causes.push(format!(
+                    "its amplitude ratio from {amplitude_1:.3} to {amplitude_20:.3}"
+                ));
+            }
+            if velocity_20 > 0.01 {
+                causes.push(format!(
+                    "its own force on the specimen's velocity (a servo-valve's residual flow, a shaker's back-EMF) is {:.1} % of the element's at 20 Hz",
+                    100.0 * velocity_20
+                ));
+            }
+            eprintln!(
+                "  WARNING: no stable lead renders 1-20 Hz within 1 % and 2 degrees (the most faithful, {:.0} us, up to {band:.1} Hz): {}; a lead and a gain do not make up for that. Whether the run is clean is judged on its displacement error ([safety] max_displacement_error); its report's faithful band says how far it was faithful (docs/compensation.md)",
+                lead * 1e6,
+                if causes.is_empty() { "the prediction's own error".to_string() } else { causes.join(", ") }
+            )
+        }
         Some((lead, band)) => eprintln!(
             "  most faithful stable lead: {:.0} us (predicted faithful band {band:.1} Hz)",
             lead * 1e6
@@ -504,7 +543,7 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
         None => {}
     }
     eprintln!("  plot: {}", plot.display());
-    Ok(if m.stable {
+    Ok(if starts_stable {
         ExitCode::SUCCESS
     } else {
         ExitCode::from(1)
@@ -959,7 +998,9 @@ mod tests {
     }
 
     /// The pre-run warning: none on the default configuration; the leads that would be
-    /// stable when the starting lead is far off; "no lead" for an actuator too slow.
+    /// stable when the starting lead is far off, and that the safe start holds it there;
+    /// a lead stable alone but not with the safe start's damping (a servo-hydraulic force
+    /// loop lags too much above 60 Hz); "no lead" for an actuator too slow.
     #[test]
     fn a_run_is_warned_when_its_linearised_loop_is_not_stable() {
         use crate::hil::config::{default_hil_config, parse_hil_config, DEFAULT_CONFIG_TOML};
@@ -971,9 +1012,28 @@ mod tests {
         far.compensation.initial_delay_s = 0.0;
         let w = super::stability_warning(&far).expect("a lead of 0 is unstable");
         assert!(
-            w.contains("starting lead of 0 us") && w.contains("it is with"),
+            w.contains("starting lead of 0 us")
+                && w.contains("it is with")
+                && w.contains("The safe start's damping makes it stable"),
             "{w}"
         );
+        let servo = DEFAULT_CONFIG_TOML
+            .replace(
+                "kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_us = 80.0\nforce_max_n = 150000.0",
+                "preset = \"fatigue-150kn\"",
+            )
+            .replace("initial_delay_us = 252.0", "initial_delay_us = 2790.0");
+        let servo = parse_hil_config(&servo, "servo.toml", None).unwrap();
+        let w = super::stability_warning(&servo).expect("the safe start is not stable there");
+        assert!(
+            w.contains(
+                "is stable with the starting lead of 2790 us but not with the safe start's damping"
+            ),
+            "{w}"
+        );
+        let mut trusted = servo.clone();
+        trusted.compensation.adapt = false;
+        assert_eq!(super::stability_warning(&trusted), None);
         let slow = DEFAULT_CONFIG_TOML
             .replace("transport_delay_us = 50.0", "transport_delay_us = 3000.0")
             .replace("lag_us = 80.0", "lag_us = 2000.0");

@@ -377,6 +377,17 @@ impl LinearLoop {
         band
     }
 
+    /// Whether the loop is stable as the run starts: with the safe start's damping when
+    /// `cfg`'s compensation arms it (`adapt` and `passivity_guard`), else as it is.
+    /// `None` without a safe start.
+    pub fn safe_start_stable(&self, cfg: &HilConfig) -> Option<bool> {
+        (cfg.compensation.adapt && cfg.compensation.passivity_guard).then(|| {
+            let mut armed = self.clone();
+            armed.guard_damping_ns_per_m = cfg.compensation.guard_max_damping_ns_per_m;
+            armed.is_stable(0.0, 1.0)
+        })
+    }
+
     /// The actuator at `f_hz` (the grid point at or above it): its phase delay (s) and
     /// amplitude ratio in answer to a command (no lead), and its own force on the
     /// specimen's velocity per element force (magnitude).
