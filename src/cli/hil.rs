@@ -915,9 +915,10 @@ fn summarise(
     }
     if let Some(a) = analysis {
         eprintln!(
-            "hil: {} steps, {deadline_misses} deadline misses ({:.1e}), {} stalls ridden through (longest {:.1} ms), largest transient {:.2} um of {:.1} um allowed ({:.2} um after a stall), displacement rel. RMS error {:.3} %, stable {}, end-to-end p50 {} us p99 {} us",
+            "hil: {} steps, {deadline_misses} emulator deadline misses ({:.1e}; the simulated rig's own timing: {} missed), {} stalls ridden through (longest {:.1} ms), largest transient {:.2} um of {:.1} um allowed ({:.2} um after a stall), displacement rel. RMS error {:.3} %, stable {}, end-to-end p50 {} us p99 {} us",
             a.steps,
             deadline_misses as f64 / a.steps.max(1) as f64,
+            summary["deadline_misses_rig"].as_u64().unwrap_or(0),
             a.stalls.count,
             a.stalls.longest_ms,
             a.largest_transient_m * 1e6,
