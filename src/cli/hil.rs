@@ -354,6 +354,12 @@ fn stability_warning(cfg: &HilConfig) -> Option<String> {
         Some(false) => " Nor is it with the safe start's damping.",
         None => "",
     };
+    let relies = match (cfg.compensation.adapt, cfg.compensation.passivity_guard) {
+        (false, false) => "With adapt and passivity_guard off nothing makes up for it: expect loop-unstable and a hold",
+        (true, false) => "The run relies on the adaptation, and ends in loop-unstable and a hold if it does not make up for it",
+        (false, true) => "The run relies on the guard, and ends in loop-unstable and a hold if it does not make up for it",
+        (true, true) => "The run relies on the adaptation and the guard, and ends in loop-unstable and a hold if they do not make up for it",
+    };
     let whence = if cap_s.is_finite() {
         format!(
             "[compensation] initial_delay_us = {:.0} capped for an actuator twice as fast",
@@ -365,7 +371,7 @@ fn stability_warning(cfg: &HilConfig) -> Option<String> {
     let max = cfg.compensation.max_delay_s;
     Some(match lin.stable_leads(max) {
         Some((lo, hi)) => format!(
-            "the linearised loop is not stable with the starting lead of {:.0} us ({whence}); it is with {:.0}-{:.0} us.{held} The run relies on the adaptation and the guard, and ends in loop-unstable and a hold if they do not make up for it (fastemu hil --check)",
+            "the linearised loop is not stable with the starting lead of {:.0} us ({whence}); it is with {:.0}-{:.0} us.{held} {relies} (fastemu hil --check)",
             lead_s * 1e6,
             lo * 1e6,
             hi * 1e6
@@ -1042,6 +1048,13 @@ mod tests {
         let mut trusted = servo.clone();
         trusted.compensation.adapt = false;
         assert_eq!(super::stability_warning(&trusted), None);
+        // A lead 100 us short with nothing to make up for it says so.
+        let mut bare = default_hil_config().unwrap();
+        bare.compensation.initial_delay_s = 152e-6;
+        bare.compensation.adapt = false;
+        bare.compensation.passivity_guard = false;
+        let w = super::stability_warning(&bare).expect("152 us is unstable");
+        assert!(w.contains("nothing makes up for it"), "{w}");
         let slow = DEFAULT_CONFIG_TOML
             .replace("transport_delay_us = 50.0", "transport_delay_us = 3000.0")
             .replace("lag_us = 80.0", "lag_us = 2000.0");

@@ -141,6 +141,18 @@ fn a_lead_100_us_short_without_adaptation_or_guard_trips_loop_unstable_and_holds
         .any(|r| r.guard_damping_ns_per_m > 0.0));
 }
 
+/// The run's law commands and how many of the first were sent with the guard armed (the
+/// safe start).
+fn safe_start(run: &InProcessRun) -> (Vec<&fastemu::hil::controller::ControllerRecord>, usize) {
+    let law: Vec<_> = run
+        .controller
+        .iter()
+        .filter(|r| r.mode == command_mode::LAW)
+        .collect();
+    let start = law.iter().take_while(|r| r.guard_armed == 1).count();
+    (law, start)
+}
+
 /// A passive loop gets no guard damping beyond the safe start: on the default run the
 /// guard is armed from the first law command until the lead agrees with the identified
 /// delay (the shipped guess is right: within 0.5 s), then never acts again.
@@ -148,12 +160,7 @@ fn a_lead_100_us_short_without_adaptation_or_guard_trips_loop_unstable_and_holds
 fn the_guard_adds_nothing_to_a_passive_loop() {
     let cfg = default_hil_config().unwrap();
     let run = run_in_process(&cfg, &script(4.0));
-    let law: Vec<_> = run
-        .controller
-        .iter()
-        .filter(|r| r.mode == command_mode::LAW)
-        .collect();
-    let start = law.iter().take_while(|r| r.guard_armed == 1).count();
+    let (law, start) = safe_start(&run);
     assert!(start > 0, "the guard did not arm");
     let end = law.get(start).expect("the guard was never disarmed").t_s;
     assert!(end < 0.5, "safe start until {end} s");
@@ -180,12 +187,7 @@ fn a_guess_of_zero_before_a_slow_actuator_is_made_safe_from_the_start() {
     );
     let run = run_in_process(&cfg, &script(4.0));
     assert!(faults(&run).is_empty(), "{:?}", faults(&run));
-    let law: Vec<_> = run
-        .controller
-        .iter()
-        .filter(|r| r.mode == command_mode::LAW)
-        .collect();
-    let start = law.iter().take_while(|r| r.guard_armed == 1).count();
+    let (law, start) = safe_start(&run);
     assert!(
         start > 0 && start < law.len(),
         "safe start over {start} commands"
