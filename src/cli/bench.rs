@@ -119,6 +119,13 @@ pub struct CompensationBenchArgs {
     /// Skip the fidelity table (timing only).
     #[arg(long)]
     pub timing_only: bool,
+    /// The fidelity table for the configured actuator alone (not every preset).
+    #[arg(long)]
+    pub only_config: bool,
+    /// Starting guesses to run, us (repeatable; default: 0, the configured guess and
+    /// twice it).
+    #[arg(long = "guess-us")]
+    pub guesses_us: Vec<f64>,
     /// Print one JSON object instead of the tables.
     #[arg(long)]
     pub json: bool,
@@ -393,8 +400,24 @@ fn run_compensation(args: CompensationBenchArgs) -> anyhow::Result<ExitCode> {
     let mut cells = Vec::new();
     if !args.timing_only {
         let initial = cfg.compensation.initial_delay_s;
-        for (name, variant) in crate::bench::compensation::actuator_variants(&cfg) {
-            for guess in [0.0, initial, 2.0 * initial] {
+        let guesses: Vec<f64> = if args.guesses_us.is_empty() {
+            vec![0.0, initial, 2.0 * initial]
+        } else {
+            args.guesses_us.iter().map(|g| g * 1e-6).collect()
+        };
+        for g in &guesses {
+            anyhow::ensure!(
+                g.is_finite() && *g >= 0.0,
+                "--guess-us must be a delay of 0 us or more, got {}",
+                g * 1e6
+            );
+        }
+        let mut variants = crate::bench::compensation::actuator_variants(&cfg);
+        if args.only_config {
+            variants.truncate(1);
+        }
+        for (name, variant) in variants {
+            for &guess in &guesses {
                 let mut c = variant.clone();
                 c.compensation.initial_delay_s = guess.min(c.compensation.max_delay_s);
                 eprintln!(

@@ -137,6 +137,8 @@ pub struct CompensationAnalyser {
     dt_s: f64,
     // Controller side.
     last: Option<ControllerRecord>,
+    /// The last law command (not a repeat): the lead and gain the run ended with.
+    last_law: Option<ControllerRecord>,
     force_control_s: f64,
     active_s: f64,
     /// Time in force control with the guard armed, s, and whether it ever was.
@@ -171,6 +173,7 @@ impl CompensationAnalyser {
         CompensationAnalyser {
             dt_s,
             last: None,
+            last_law: None,
             force_control_s: 0.0,
             active_s: 0.0,
             max_damping: 0.0,
@@ -232,6 +235,7 @@ impl CompensationAnalyser {
         }
         self.last_guard = Some((r.t_s, r.law_displacement_m));
         self.lead_points_push(r.t_s, r.lead_s);
+        self.last_law = Some(*r);
         if r.t_s >= self.next_point_s {
             self.next_point_s = r.t_s + self.stride_s;
             self.trajectory.push(EstimatePoint {
@@ -308,9 +312,10 @@ impl CompensationAnalyser {
 
     pub fn finish(self, cfg: &crate::hil::config::HilConfig) -> CompensationReport {
         let c = &cfg.compensation;
+        // The last law command's, also when the run ended in a hold (the hold's commands
+        // carry no compensation).
         let (final_lead, final_gain) = self
-            .last
-            .filter(|r| r.mode == command_mode::LAW)
+            .last_law
             .map_or((c.initial_delay_s, 1.0), |r| (r.lead_s, r.actuator_gain));
         let settled_at_s = {
             let tol = (0.05 * final_lead).max(10e-6);
@@ -496,5 +501,65 @@ mod tests {
             "{}",
             r.describe()
         );
+    }
+
+    fn command(t_s: f64, mode: u32, lead_s: f64) -> ControllerRecord {
+        ControllerRecord {
+            t_s,
+            command_seq: (t_s * 4096.0) as u64,
+            setpoint_seq: 0,
+            sample_seq: 0,
+            mode,
+            setpoint_force_n: f64::NAN,
+            predicted_force_n: 2e4,
+            command_force_n: 2e4,
+            law_displacement_m: 3.5e-4,
+            law_stiffness_n_per_m: 5.7e7,
+            law_damping_ns_per_m: 0.0,
+            law_force_rate_n_per_s: 0.0,
+            state: 1,
+            fault_code: 0,
+            limited: 0,
+            repeat: 0,
+            end_to_end_ns: 0,
+            measured_force_n: 2e4,
+            lead_s,
+            actuator_gain: 1.0,
+            guard_damping_ns_per_m: 0.0,
+            guard_generated_j: 0.0,
+            guard_armed: 0,
+            identified_delay_s: f64::NAN,
+            identified_delay_sigma_s: f64::NAN,
+        }
+    }
+
+    /// The final lead is the last law command's, also when the run ended in a hold (it
+    /// read the configured guess then: "lead 2800 us -> 2800 us" for a run whose lead had
+    /// walked down to 1545 us before `loop-unstable`).
+    #[test]
+    fn the_final_lead_is_the_last_law_commands_when_a_hold_ends_the_run() {
+        let mut cfg = crate::hil::config::default_hil_config().expect("embedded config");
+        cfg.compensation.initial_delay_s = 2800e-6;
+        let mut a = CompensationAnalyser::new(1.0 / 4096.0, 1.0);
+        let mut t = 0.0;
+        for k in 0..400 {
+            let lead = 2800e-6 - 3e-6 * k as f64;
+            a.controller(&command(t, command_mode::LAW, lead));
+            t += 1.0 / 4096.0;
+        }
+        for _ in 0..50 {
+            a.controller(&command(t, command_mode::HOLD, 2800e-6));
+            t += 1.0 / 4096.0;
+        }
+        let r = a.finish(&cfg);
+        assert!(
+            (r.final_lead_us - 1603.0).abs() < 1e-6,
+            "{}",
+            r.final_lead_us
+        );
+        // Only law commands: the same.
+        let mut b = CompensationAnalyser::new(1.0 / 4096.0, 1.0);
+        b.controller(&command(0.0, command_mode::LAW, 900e-6));
+        assert!((b.finish(&cfg).final_lead_us - 900.0).abs() < 1e-6);
     }
 }
