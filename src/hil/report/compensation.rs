@@ -124,7 +124,7 @@ impl CompensationReport {
         );
         if self.guard.safe_start_ended == Some(false) {
             line.push_str(&format!(
-                "; WARNING: the safe start never ended (the delay was never learned to within 10 %, or the gain lay outside 0.5-2): the guard damped above {:.0} Hz all run",
+                "; WARNING: the safe start never ended (the delay was never learned to within 10 %, or the gain lay outside 0.5-2): the guard damped above {:.0} Hz for as long as the law was rendered",
                 self.guard.band_hz.0
             ));
         }
