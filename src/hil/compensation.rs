@@ -117,6 +117,10 @@ pub struct DelayEstimator {
     /// Samples to skip after a restart while the filters settle.
     warmup_left: u32,
     warmup: u32,
+    /// Samples per independent residual: the residuals are the load band's, low-passed
+    /// at `band_hz` and sampled far above it, so neighbours are not independent and the
+    /// textbook variance, which counts each sample, is `1 / (2 band dt)` times too small.
+    correlation: f64,
     /// Weighted sums: xx, xd, dd, xy, dy, yy, the weight, then xc, dc, cc, cy (`c` the
     /// force's curvature, `d^2F/dt^2`).
     s: [f64; 11],
@@ -135,6 +139,7 @@ impl DelayEstimator {
             // Four time constants of the 4th-order low-pass.
             warmup_left: 0,
             warmup: (4.0 / (band_hz * dt_s)).ceil() as u32,
+            correlation: (0.5 / (band_hz * dt_s)).max(1.0),
             s: [0.0; 11],
         }
     }
@@ -228,7 +233,7 @@ impl DelayEstimator {
         // Residual sum of squares and the standard error of b (and so of -b/a).
         let rss = (s[5] - a * s[3] - b * s[4]).max(0.0);
         let dof = (s[6] - 2.0).max(1.0);
-        let var_b = rss / dof * s[0] / det;
+        let var_b = rss / dof * s[0] / det * self.correlation;
         Some(DelayEstimate {
             delay_s: -b / a,
             delay_sigma_s: var_b.sqrt() / a.abs(),
@@ -268,7 +273,7 @@ impl DelayEstimator {
         }
         let rss = (yy - a * xy - b * dy - e * cy).max(0.0);
         let dof = (w - 3.0).max(1.0);
-        let var_b = rss / dof * c11 / det;
+        let var_b = rss / dof * c11 / det * self.correlation;
         Some(DelayEstimate {
             delay_s: -b / a,
             delay_sigma_s: var_b.sqrt() / a.abs(),
@@ -538,16 +543,19 @@ impl ContactGain {
 /// The lead agrees with a resolved delay within this fraction: the safe start ends.
 const SAFE_START_AGREEMENT: f64 = 0.1;
 
-/// Longest gap (in samples) whose bridged sample the estimator counts as evidence: one
-/// missing sample (the emulator took two in one cycle, which a loaded machine does every
-/// few cycles) bridges a straight line the estimator's 30 Hz filters hardly see. A longer
-/// gap (a stall) is bridged for the guard, but the estimator learns nothing from it nor
-/// from its filters' settling after it (`DelayEstimator::blind`): in a near-static
-/// stretch the straight lines through noisy ends read as a delay of several ms with a
-/// standard error small enough to be followed (emulator stalls of 1-8 periods every
+/// Longest gap (in samples) whose bridged samples the estimator counts as evidence: up to
+/// three missing samples (the emulator took two to four in one cycle, which a loaded
+/// machine does every few cycles) bridge a straight line the estimator's 30 Hz filters
+/// hardly see. A longer gap (a stall) is bridged for the guard, but the estimator learns
+/// nothing from it nor from its filters' settling after it (`DelayEstimator::blind`): in a
+/// near-static stretch the straight lines through noisy ends read as a delay of several ms
+/// with a standard error small enough to be followed (emulator stalls of 1-8 periods every
 /// 4-16 ms, in process: the lead walked from 252 to 1980 us and the loop diverged into
 /// `displacement-out-of-range`; a UDP-link run in CI on a loaded machine did the same).
-const MAX_COUNTED_GAP: u64 = 2;
+/// Counting every gap up to 2 kept the lead still but, on a machine stalling that often,
+/// let no estimate through at all; with the standard error counted honestly
+/// (`DelayEstimator::correlation`) gaps up to 4 keep the lead within 25 % there.
+const MAX_COUNTED_GAP: u64 = 4;
 
 /// Longest run of samples without a setpoint that the compensator bridges.
 const MAX_BRIDGED_GAP: u64 = 8;
@@ -640,7 +648,7 @@ impl Compensator {
     ) -> Compensation {
         // A few samples without a setpoint (the emulator took two in one cycle, or stalled
         // briefly) are bridged by linear interpolation, as the emulator bridges missing
-        // samples, and the estimator counts them only for one missing sample
+        // samples, and the estimator counts them only for up to three missing samples
         // (`MAX_COUNTED_GAP`); a longer gap, or a sample out of order, restarts the
         // estimator and the guard's observer.
         let gap = match self.last_sample_seq {
