@@ -149,13 +149,6 @@ impl DelayEstimator {
         self.primed = false;
     }
 
-    /// The next `samples` samples and the filters' settling after them are not evidence:
-    /// they go through the filters but not into the sums, and give no estimate (bridged
-    /// samples after a stall: `Compensator::on_sample`).
-    pub fn blind(&mut self, samples: u32) {
-        self.warmup_left = self.warmup_left.max(self.warmup.saturating_add(samples));
-    }
-
     /// One consecutive rig sample; `None` until the regression is determined.
     #[inline]
     pub fn update(
@@ -543,20 +536,6 @@ impl ContactGain {
 /// The lead agrees with a resolved delay within this fraction: the safe start ends.
 const SAFE_START_AGREEMENT: f64 = 0.1;
 
-/// Longest gap (in samples) whose bridged samples the estimator counts as evidence: up to
-/// three missing samples (the emulator took two to four in one cycle, which a loaded
-/// machine does every few cycles) bridge a straight line the estimator's 30 Hz filters
-/// hardly see. A longer gap (a stall) is bridged for the guard, but the estimator learns
-/// nothing from it nor from its filters' settling after it (`DelayEstimator::blind`): in a
-/// near-static stretch the straight lines through noisy ends read as a delay of several ms
-/// with a standard error small enough to be followed (emulator stalls of 1-8 periods every
-/// 4-16 ms, in process: the lead walked from 252 to 1980 us and the loop diverged into
-/// `displacement-out-of-range`; a UDP-link run in CI on a loaded machine did the same).
-/// Counting every gap up to 2 kept the lead still but, on a machine stalling that often,
-/// let no estimate through at all; with the standard error counted honestly
-/// (`DelayEstimator::correlation`) gaps up to 4 keep the lead within 25 % there.
-const MAX_COUNTED_GAP: u64 = 4;
-
 /// Longest run of samples without a setpoint that the compensator bridges.
 const MAX_BRIDGED_GAP: u64 = 8;
 
@@ -648,9 +627,12 @@ impl Compensator {
     ) -> Compensation {
         // A few samples without a setpoint (the emulator took two in one cycle, or stalled
         // briefly) are bridged by linear interpolation, as the emulator bridges missing
-        // samples, and the estimator counts them only for up to three missing samples
-        // (`MAX_COUNTED_GAP`); a longer gap, or a sample out of order, restarts the
-        // estimator and the guard's observer.
+        // samples; a longer gap, or a sample out of order, restarts the estimator and the
+        // guard's observer. (The straight lines of a bridge through noisy ends read, in a
+        // near-static stretch, as a delay of several ms: the estimator's standard error,
+        // counted honestly (`DelayEstimator::correlation`), keeps the lead from following
+        // them; emulator stalls of 1-8 periods every 4-16 ms walked it from 252 to 1980 us
+        // and into `displacement-out-of-range` before.)
         let gap = match self.last_sample_seq {
             Some(last) if sample_seq > last => sample_seq - last,
             _ => u64::MAX,
@@ -661,9 +643,6 @@ impl Compensator {
             self.guard.restart();
             self.feed(now);
         } else {
-            if gap > MAX_COUNTED_GAP {
-                self.estimator.blind(gap as u32);
-            }
             let (z0, e0, m0) = self.last_values;
             for j in 1..=gap {
                 let w = j as f64 / gap as f64;
