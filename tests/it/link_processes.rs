@@ -479,9 +479,12 @@ fn killing_the_link_leaves_the_far_rig_holding() {
     unsafe { libc::kill(link as i32, libc::SIGKILL) };
     let (code, json) = hil.finish(Duration::from_secs(60));
     assert_eq!(code, 2, "{json}");
+    // The link's death is named, whichever came first in the list: on a loaded machine the
+    // rig's own staleness (50 ms) was once reported before the orchestrator reaped the link.
     let f = faults(&json);
     assert!(
-        f[0].starts_with("link: ") && f[0].contains("signal 9"),
+        f.iter()
+            .any(|x| x.starts_with("link: ") && x.contains("signal 9")),
         "{f:?}"
     );
     let safety = json["safety"]["faults"].as_array().unwrap();
