@@ -23,6 +23,9 @@ const MIN_COHERENCE: f64 = 0.98;
 /// Faithful: amplitude within 1 %, phase within 2 degrees.
 const AMPLITUDE_TOL: f64 = 0.01;
 const PHASE_TOL_DEG: f64 = 2.0;
+/// The top of the load band a run must render faithfully (SPEC 6.1: 1-20 Hz), Hz; a
+/// faithful band below it is warned about on the console.
+pub const LOAD_BAND_TOP_HZ: f64 = 20.0;
 
 /// The guard's activity over the run.
 #[derive(Debug, Clone, Serialize, Default)]
@@ -119,9 +122,27 @@ impl CompensationReport {
                 .map_or("none".to_string(), |t| format!("{t:.2} s")),
             self.guard.active_s,
             self.guard.max_damping_ns_per_m * 1e-3,
-            self.faithful_band_hz
-                .map_or("not judged".to_string(), |f| format!("{f:.0} Hz")),
+            match (self.faithful_band_hz, &self.faithful_band_limited_by) {
+                (Some(f), _) => format!("{f:.0} Hz"),
+                (None, Some(_)) => "none".to_string(),
+                (None, None) => "not judged".to_string(),
+            },
         );
+        let limited = self
+            .faithful_band_limited_by
+            .as_ref()
+            .map_or(String::new(), |l| format!(", limited at {l}"));
+        let warning = "; WARNING: the rendered force is not faithful over the load band";
+        let band = format!("1-{LOAD_BAND_TOP_HZ:.0} Hz within 1 % and 2 degrees");
+        match (self.faithful_band_hz, &self.faithful_band_limited_by) {
+            (Some(b), _) if b < LOAD_BAND_TOP_HZ => line.push_str(&format!(
+                "{warning} ({band}) but only up to {b:.0} Hz{limited}"
+            )),
+            (None, Some(_)) => line.push_str(&format!(
+                "{warning} ({band}), not even at its lowest excited bin{limited}"
+            )),
+            _ => {}
+        }
         if self.guard.safe_start_ended == Some(false) {
             line.push_str(&format!(
                 "; WARNING: the safe start never ended (the delay was never learned to within 10 %, or the gain lay outside 0.5-2): the guard damped above {:.0} Hz for as long as the law was rendered",
@@ -500,6 +521,43 @@ mod tests {
             r.describe().contains("the safe start never ended"),
             "{}",
             r.describe()
+        );
+    }
+
+    /// The console line warns when the faithful band ends inside the load band, names the
+    /// bin that limits it, and says nothing of the band when it reaches past 20 Hz.
+    #[test]
+    fn the_console_line_warns_when_the_load_band_is_not_rendered_faithfully() {
+        let mut r = CompensationReport {
+            faithful_band_hz: Some(194.0),
+            ..CompensationReport::default()
+        };
+        assert!(!r.describe().contains("WARNING"), "{}", r.describe());
+        r.faithful_band_hz = Some(20.0);
+        assert!(!r.describe().contains("WARNING"), "{}", r.describe());
+        r.faithful_band_hz = Some(9.0);
+        r.faithful_band_limited_by = Some("10 Hz: amplitude -1.20 %, phase -0.40 deg".into());
+        let line = r.describe();
+        assert!(
+            line.contains("WARNING: the rendered force is not faithful over the load band")
+                && line.contains("only up to 9 Hz, limited at 10 Hz: amplitude -1.20 %"),
+            "{line}"
+        );
+        // Not faithful at the first excited bin: no band at all.
+        r.faithful_band_hz = None;
+        r.faithful_band_limited_by = Some("1 Hz: amplitude -3.00 %, phase -1.10 deg".into());
+        let line = r.describe();
+        assert!(
+            line.contains("faithful band none")
+                && line.contains("not even at its lowest excited bin, limited at 1 Hz"),
+            "{line}"
+        );
+        // Not judged (no bin excited enough) is not a warning: nothing was seen.
+        r.faithful_band_limited_by = None;
+        let line = r.describe();
+        assert!(
+            line.contains("faithful band not judged") && !line.contains("WARNING"),
+            "{line}"
         );
     }
 
