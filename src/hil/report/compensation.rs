@@ -100,6 +100,9 @@ pub struct CompensationReport {
     pub rendering: Vec<RenderingPoint>,
     /// The estimate's trajectory (decimated to at most 400 points).
     pub trajectory: Vec<EstimatePoint>,
+    /// Whether the law was left for a hold (a fault's, or an operator's hold never resumed)
+    /// rather than rendered to the run's end: the law's time was then cut short.
+    pub law_ended_in_hold: bool,
 }
 
 impl CompensationReport {
@@ -143,7 +146,12 @@ impl CompensationReport {
             )),
             _ => {}
         }
-        if self.guard.safe_start_ended == Some(false) {
+        if self.guard.safe_start_ended == Some(false) && self.law_ended_in_hold {
+            line.push_str(&format!(
+                "; the safe start had not ended when the law gave way to a hold, after {:.2} s",
+                self.guard.safe_start_s.unwrap_or(0.0)
+            ));
+        } else if self.guard.safe_start_ended == Some(false) {
             line.push_str(&format!(
                 "; WARNING: the safe start never ended (the delay was never learned to within 10 %, or the gain lay outside 0.5-2): the guard damped above {:.0} Hz for as long as the law was rendered",
                 self.guard.band_hz.0
@@ -419,6 +427,10 @@ impl CompensationAnalyser {
             faithful_band_limited_by: limited_by,
             rendering,
             trajectory: self.trajectory,
+            law_ended_in_hold: self.last_law.is_some()
+                && self.last.is_some_and(|l| {
+                    l.mode == command_mode::HOLD || l.mode == command_mode::HOLD_UNLOAD
+                }),
         }
     }
 }
@@ -522,6 +534,16 @@ mod tests {
             "{}",
             r.describe()
         );
+        // A law cut short by a hold: said so, not warned as a delay never learned.
+        r.law_ended_in_hold = true;
+        r.guard.safe_start_s = Some(0.12);
+        let line = r.describe();
+        assert!(
+            line.contains(
+                "the safe start had not ended when the law gave way to a hold, after 0.12 s"
+            ) && !line.contains("WARNING"),
+            "{line}"
+        );
     }
 
     /// The console line warns when the faithful band ends inside the load band, names the
@@ -615,9 +637,12 @@ mod tests {
             "{}",
             r.final_lead_us
         );
-        // Only law commands: the same.
+        assert!(r.law_ended_in_hold);
+        // Only law commands: the same, and no hold.
         let mut b = CompensationAnalyser::new(1.0 / 4096.0, 1.0);
         b.controller(&command(0.0, command_mode::LAW, 900e-6));
-        assert!((b.finish(&cfg).final_lead_us - 900.0).abs() < 1e-6);
+        let r = b.finish(&cfg);
+        assert!((r.final_lead_us - 900.0).abs() < 1e-6);
+        assert!(!r.law_ended_in_hold);
     }
 }
