@@ -371,16 +371,33 @@ fn stability_warning(cfg: &HilConfig) -> Option<String> {
     let max = cfg.compensation.max_delay_s;
     Some(match lin.stable_leads(max) {
         Some((lo, hi)) => format!(
-            "the linearised loop is not stable with the starting lead of {:.0} us ({whence}); it is with {:.0}-{:.0} us.{held} {relies} (fastemu hil --check)",
+            "the linearised loop is not stable with the starting lead of {:.0} us ({whence}); it is with {:.0}-{:.0} us.{held} {relies}{} (fastemu hil --check)",
             lead_s * 1e6,
             lo * 1e6,
-            hi * 1e6
+            hi * 1e6,
+            dispersive_hint(&lin, cfg.compensation.adapt)
         ),
         None => format!(
             "no lead from 0 to {:.0} us makes the linearised loop stable: this actuator is too slow for the specimen's resonance on this element (SPEC 6.1, docs/compensation.md); expect loop-unstable and a hold (fastemu hil --check)",
             max * 1e6
         ),
     })
+}
+
+/// For an actuator whose phase delay grows with frequency (a servo-hydraulic force loop):
+/// the adaptation learns the load band's delay, which for such actuators lies below the
+/// stable leads, so a lead the user trusts is kept only with `adapt = false`; empty when
+/// the adaptation is off or the delay is nearly the same over the band.
+fn dispersive_hint(lin: &crate::hil::check::LinearLoop, adapt: bool) -> String {
+    let (at_2, at_40) = (lin.actuator_at(2.0).0, lin.actuator_at(40.0).0);
+    if !adapt || !(at_40 > 1.5 * at_2 && at_2 > 0.0) {
+        return String::new();
+    }
+    format!(
+        ". This actuator's phase delay runs from {:.0} us at 2 Hz to {:.0} us at 40 Hz: the adaptation learns the load band's delay and walks such leads out of the stable range (docs/compensation.md, \"What does not work yet\"); with a lead you trust inside it, adapt = false keeps it there, though no lead makes up for a delay that varies with frequency (expect a run that is not clean)",
+        at_2 * 1e6,
+        at_40 * 1e6
+    )
 }
 
 /// `hil --check`: the linearised loop's margins, printed, as JSON with `--json`, and its
@@ -1014,7 +1031,8 @@ mod tests {
     /// The pre-run warning: none on the default configuration; the leads that would be
     /// stable when the starting lead is far off, and that the safe start holds it there;
     /// a lead stable alone but not with the safe start's damping (a servo-hydraulic force
-    /// loop lags too much above 60 Hz); "no lead" for an actuator too slow.
+    /// loop lags too much above 60 Hz), and why the adaptation does not keep such a loop's
+    /// lead; "no lead" for an actuator too slow.
     #[test]
     fn a_run_is_warned_when_its_linearised_loop_is_not_stable() {
         use crate::hil::config::{default_hil_config, parse_hil_config, DEFAULT_CONFIG_TOML};
@@ -1028,7 +1046,23 @@ mod tests {
         assert!(
             w.contains("starting lead of 0 us")
                 && w.contains("it is with")
-                && w.contains("The safe start's damping makes it stable"),
+                && w.contains("The safe start's damping makes it stable")
+                && !w.contains("phase delay runs from"),
+            "{w}"
+        );
+        // A servo-hydraulic force loop from the shipped guess: the stable leads, and why
+        // the adaptation will not keep a lead there (its delay grows with frequency).
+        let servo_guess = DEFAULT_CONFIG_TOML.replace(
+            "kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_us = 80.0\nforce_max_n = 150000.0",
+            "preset = \"fatigue-150kn\"",
+        );
+        let servo_guess = parse_hil_config(&servo_guess, "servo.toml", None).unwrap();
+        let w = super::stability_warning(&servo_guess).expect("252 us is unstable there");
+        assert!(
+            w.contains("starting lead of 252 us")
+                && w.contains("it is with 2220-3360 us")
+                && w.contains("phase delay runs from 745 us at 2 Hz to 3399 us at 40 Hz")
+                && w.contains("adapt = false keeps it there"),
             "{w}"
         );
         let servo = DEFAULT_CONFIG_TOML
