@@ -390,7 +390,8 @@ fn stability_warning(cfg: &HilConfig) -> Option<String> {
 /// the adaptation is off or the delay is nearly the same over the band.
 fn dispersive_hint(lin: &crate::hil::check::LinearLoop, adapt: bool) -> String {
     let (at_2, at_40) = (lin.actuator_at(2.0).0, lin.actuator_at(40.0).0);
-    if !adapt || !(at_40 > 1.5 * at_2 && at_2 > 0.0) {
+    let dispersive = at_2 > 0.0 && at_40 > 1.5 * at_2;
+    if !adapt || !dispersive {
         return String::new();
     }
     format!(
