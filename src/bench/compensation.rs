@@ -60,6 +60,8 @@ pub struct FidelityCell {
     pub final_lead_us: f64,
     pub settled_at_s: Option<f64>,
     pub faithful_band_hz: Option<f64>,
+    /// The band judged after the safe start only (`None`: the guard never armed).
+    pub faithful_band_after_safe_start_hz: Option<f64>,
     pub guard_active_s: f64,
     pub guard_max_damping_ns_per_m: f64,
 }
@@ -172,7 +174,13 @@ pub fn fidelity_cell(cfg: &HilConfig, actuator: &str, duration_s: f64) -> Fideli
     for r in &run.emulator {
         analyser.emulator(r);
     }
-    let c = analyser.finish(cfg);
+    let mut c = analyser.finish(cfg);
+    if let Some(mut settled) = crate::hil::report::compensation::SettledRendering::after(&c) {
+        for r in &run.emulator {
+            settled.emulator(r);
+        }
+        settled.finish(cfg.loop_.dt_s(), &mut c);
+    }
     FidelityCell {
         actuator: actuator.to_string(),
         initial_delay_us: cfg.compensation.initial_delay_s * 1e6,
@@ -186,6 +194,7 @@ pub fn fidelity_cell(cfg: &HilConfig, actuator: &str, duration_s: f64) -> Fideli
         final_lead_us: c.final_lead_us,
         settled_at_s: c.settled_at_s,
         faithful_band_hz: c.faithful_band_hz,
+        faithful_band_after_safe_start_hz: c.faithful_band_after_safe_start_hz,
         guard_active_s: c.guard.active_s,
         guard_max_damping_ns_per_m: c.guard.max_damping_ns_per_m,
     }
@@ -194,13 +203,13 @@ pub fn fidelity_cell(cfg: &HilConfig, actuator: &str, duration_s: f64) -> Fideli
 /// The fidelity table as text.
 pub fn fidelity_table(cells: &[FidelityCell]) -> String {
     let mut s = String::from(
-        "| actuator | initial delay, us | fault | displacement error, % | identified delay, us | settled at, s | faithful band, Hz | guard active, s | guard max, kN s/m |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
+        "| actuator | initial delay, us | fault | displacement error, % | identified delay, us | settled at, s | faithful band, Hz | after the safe start, Hz | guard active, s | guard max, kN s/m |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
     );
     let opt =
         |v: Option<f64>, digits: usize| v.map_or("-".to_string(), |x| format!("{x:.digits$}"));
     for c in cells {
         s.push_str(&format!(
-            "| {} | {:.0} | {} | {:.3} | {} | {} | {} | {:.2} | {:.1} |\n",
+            "| {} | {:.0} | {} | {:.3} | {} | {} | {} | {} | {:.2} | {:.1} |\n",
             c.actuator,
             c.initial_delay_us,
             c.fault.as_deref().unwrap_or("none"),
@@ -208,6 +217,7 @@ pub fn fidelity_table(cells: &[FidelityCell]) -> String {
             opt(c.identified_delay_us, 0),
             opt(c.settled_at_s, 2),
             opt(c.faithful_band_hz, 0),
+            opt(c.faithful_band_after_safe_start_hz, 0),
             c.guard_active_s,
             c.guard_max_damping_ns_per_m * 1e-3,
         ));

@@ -171,18 +171,50 @@ impl RecordSet {
                 }
             }
         })?;
-        if bad > 0 {
-            return Err(err(
-                &self.files[0],
-                format!(
-                    "{bad} messages on {} shorter than its schema {} ({} bytes): written by another version?",
-                    R::TOPIC,
-                    R::SCHEMA_NAME,
-                    R::SIZE
-                ),
-            ));
-        }
+        self.refuse_short::<R>(bad)?;
         Ok(stats)
+    }
+
+    /// `for_each` for two record types in one pass over the files (each type's records in
+    /// their own order; the two streams are not merged by time).
+    pub fn for_each_of_two<A: Record, B: Record>(
+        &self,
+        mut fa: impl FnMut(u64, A),
+        mut fb: impl FnMut(u64, B),
+    ) -> Result<ReadStats, RecordsError> {
+        let (mut bad_a, mut bad_b) = (0u64, 0u64);
+        let stats = self.visit(|topic, t, data| {
+            if topic == A::TOPIC {
+                match A::decode(data) {
+                    Some(r) => fa(t, r),
+                    None => bad_a += 1,
+                }
+            } else if topic == B::TOPIC {
+                match B::decode(data) {
+                    Some(r) => fb(t, r),
+                    None => bad_b += 1,
+                }
+            }
+        })?;
+        self.refuse_short::<A>(bad_a)?;
+        self.refuse_short::<B>(bad_b)?;
+        Ok(stats)
+    }
+
+    /// The error for `bad` messages of type `R` that did not decode (none: `Ok`).
+    fn refuse_short<R: Record>(&self, bad: u64) -> Result<(), RecordsError> {
+        if bad == 0 {
+            return Ok(());
+        }
+        Err(err(
+            &self.files[0],
+            format!(
+                "{bad} messages on {} shorter than its schema {} ({} bytes): written by another version?",
+                R::TOPIC,
+                R::SCHEMA_NAME,
+                R::SIZE
+            ),
+        ))
     }
 
     /// Every record of type `R` (offline convenience for short runs and tests).

@@ -42,6 +42,9 @@ pub struct GuardReport {
     /// when it never armed. False: the delay was never learned and the guard damped
     /// above its corner all run.
     pub safe_start_ended: Option<bool>,
+    /// When it ended: the first law command with the guard disarmed, s (null: it never
+    /// armed, or never ended).
+    pub safe_start_ended_at_s: Option<f64>,
     /// Energy the added damping dissipated (its force on the high-passed velocity), J.
     pub dissipated_j: f64,
     /// Largest damping added, N s/m.
@@ -96,6 +99,11 @@ pub struct CompensationReport {
     pub faithful_band_hz: Option<f64>,
     /// The first excited bin beyond it and why it is not faithful.
     pub faithful_band_limited_by: Option<String>,
+    /// The same judged only on the force-control time after the safe start (the lead
+    /// learned, the start's damping gone): what the loop renders once it has learned the
+    /// actuator; null when the guard never armed, or no whole 1 s segment came after it.
+    pub faithful_band_after_safe_start_hz: Option<f64>,
+    pub faithful_band_after_safe_start_limited_by: Option<String>,
     /// Rendering by frequency (excited bins up to 200 Hz).
     pub rendering: Vec<RenderingPoint>,
     /// The estimate's trajectory (decimated to at most 400 points).
@@ -125,12 +133,19 @@ impl CompensationReport {
                 .map_or("none".to_string(), |t| format!("{t:.2} s")),
             self.guard.active_s,
             self.guard.max_damping_ns_per_m * 1e-3,
-            match (self.faithful_band_hz, &self.faithful_band_limited_by) {
-                (Some(f), _) => format!("{f:.0} Hz"),
-                (None, Some(_)) => "none".to_string(),
-                (None, None) => "not judged".to_string(),
-            },
+            band_text(self.faithful_band_hz, &self.faithful_band_limited_by),
         );
+        if self.faithful_band_after_safe_start_hz.is_some()
+            || self.faithful_band_after_safe_start_limited_by.is_some()
+        {
+            line.push_str(&format!(
+                " ({} after the safe start)",
+                band_text(
+                    self.faithful_band_after_safe_start_hz,
+                    &self.faithful_band_after_safe_start_limited_by
+                )
+            ));
+        }
         let limited = self
             .faithful_band_limited_by
             .as_ref()
@@ -161,6 +176,16 @@ impl CompensationReport {
     }
 }
 
+/// A faithful band for the console: its top, "none" when the first excited bin already
+/// fails, "not judged" when no bin was excited enough.
+fn band_text(band_hz: Option<f64>, limited_by: &Option<String>) -> String {
+    match (band_hz, limited_by) {
+        (Some(f), _) => format!("{f:.0} Hz"),
+        (None, Some(_)) => "none".to_string(),
+        (None, None) => "not judged".to_string(),
+    }
+}
+
 /// Streaming analyser of the controller's and emulator's records.
 pub struct CompensationAnalyser {
     dt_s: f64,
@@ -183,14 +208,11 @@ pub struct CompensationAnalyser {
     next_point_s: f64,
     /// (t, lead) at each change of the lead (for when it settled).
     lead_points: Vec<(f64, f64)>,
-    // Emulator side: Welch segment being filled and the sums.
-    seg_x: Vec<f64>,
-    seg_y: Vec<f64>,
+    // Emulator side: the rendering over the whole run, and after the safe start.
     last_seq: Option<u64>,
-    sxx: Vec<f64>,
-    syy: Vec<f64>,
-    sxy: Vec<Complex64>,
-    segments: u64,
+    whole: Welch,
+    /// The first law command with the guard disarmed after it was armed, s.
+    disarmed_at_s: Option<f64>,
     dissipated_j: f64,
     last_guard: Option<(f64, f64)>,
 }
@@ -198,7 +220,6 @@ pub struct CompensationAnalyser {
 impl CompensationAnalyser {
     /// `duration_s`: the run's expected length (for the trajectory's decimation).
     pub fn new(dt_s: f64, duration_s: f64) -> CompensationAnalyser {
-        let bins = SEGMENT / 2 + 1;
         CompensationAnalyser {
             dt_s,
             last: None,
@@ -215,13 +236,9 @@ impl CompensationAnalyser {
             stride_s: (duration_s / 400.0).max(dt_s),
             next_point_s: 0.0,
             lead_points: Vec::new(),
-            seg_x: Vec::with_capacity(SEGMENT),
-            seg_y: Vec::with_capacity(SEGMENT),
             last_seq: None,
-            sxx: vec![0.0; bins],
-            syy: vec![0.0; bins],
-            sxy: vec![Complex64::new(0.0, 0.0); bins],
-            segments: 0,
+            whole: Welch::new(),
+            disarmed_at_s: None,
             dissipated_j: 0.0,
             last_guard: None,
         }
@@ -246,6 +263,9 @@ impl CompensationAnalyser {
             }
         }
         self.armed_seen |= r.guard_armed != 0;
+        if self.armed_seen && r.guard_armed == 0 && self.disarmed_at_s.is_none() {
+            self.disarmed_at_s = Some(r.t_s);
+        }
         self.armed_last = r.guard_armed != 0;
         self.max_damping = self.max_damping.max(r.guard_damping_ns_per_m);
         if r.guard_generated_j.is_finite() {
@@ -297,46 +317,12 @@ impl CompensationAnalyser {
         let consecutive = self.last_seq.is_some_and(|s| r.sample_seq == s + 1);
         self.last_seq = Some(r.sample_seq);
         if !usable || !consecutive {
-            self.seg_x.clear();
-            self.seg_y.clear();
+            self.whole.break_segment();
             if !usable {
                 return;
             }
         }
-        self.seg_x.push(r.force_n);
-        self.seg_y.push(r.rig_force_n);
-        if self.seg_x.len() == SEGMENT {
-            self.add_segment();
-            // 50 % overlap.
-            self.seg_x.drain(..SEGMENT / 2);
-            self.seg_y.drain(..SEGMENT / 2);
-        }
-    }
-
-    fn add_segment(&mut self) {
-        let mut planner = RealFftPlanner::<f64>::new();
-        let fft = planner.plan_fft_forward(SEGMENT);
-        let hann =
-            |i: usize| 0.5 - 0.5 * (2.0 * std::f64::consts::PI * i as f64 / SEGMENT as f64).cos();
-        let mean_x = self.seg_x.iter().sum::<f64>() / SEGMENT as f64;
-        let mean_y = self.seg_y.iter().sum::<f64>() / SEGMENT as f64;
-        let mut bx: Vec<f64> = (0..SEGMENT)
-            .map(|i| (self.seg_x[i] - mean_x) * hann(i))
-            .collect();
-        let mut by: Vec<f64> = (0..SEGMENT)
-            .map(|i| (self.seg_y[i] - mean_y) * hann(i))
-            .collect();
-        let mut fx = fft.make_output_vec();
-        let mut fy = fft.make_output_vec();
-        if fft.process(&mut bx, &mut fx).is_err() || fft.process(&mut by, &mut fy).is_err() {
-            return;
-        }
-        for k in 0..fx.len() {
-            self.sxx[k] += fx[k].norm_sqr();
-            self.syy[k] += fy[k].norm_sqr();
-            self.sxy[k] += fx[k].conj() * fy[k];
-        }
-        self.segments += 1;
+        self.whole.push(r.force_n, r.rig_force_n);
     }
 
     pub fn finish(self, cfg: &crate::hil::config::HilConfig) -> CompensationReport {
@@ -359,46 +345,7 @@ impl CompensationAnalyser {
             settled
         };
         // Rendering by frequency and the faithful band.
-        let df = 1.0 / (SEGMENT as f64 * self.dt_s);
-        let mut rendering = Vec::new();
-        let mut faithful = None;
-        let mut limited_by = None;
-        if self.segments > 0 {
-            let top = (BAND_TOP_HZ / df) as usize;
-            let mut broken = false;
-            for k in 1..=top.min(self.sxx.len() - 1) {
-                if self.sxx[k] <= 0.0 || self.syy[k] <= 0.0 {
-                    continue;
-                }
-                let coherence = self.sxy[k].norm_sqr() / (self.sxx[k] * self.syy[k]);
-                if coherence < MIN_COHERENCE {
-                    continue;
-                }
-                let h = self.sxy[k] / self.sxx[k];
-                let p = RenderingPoint {
-                    frequency_hz: k as f64 * df,
-                    amplitude_ratio: h.norm(),
-                    phase_deg: h.arg().to_degrees(),
-                    coherence,
-                };
-                rendering.push(p);
-                if broken {
-                    continue;
-                }
-                let amp_err = (p.amplitude_ratio - 1.0).abs();
-                if amp_err <= AMPLITUDE_TOL && p.phase_deg.abs() <= PHASE_TOL_DEG {
-                    faithful = Some(p.frequency_hz);
-                } else {
-                    broken = true;
-                    limited_by = Some(format!(
-                        "{:.0} Hz: amplitude {:+.2} %, phase {:+.2} deg",
-                        p.frequency_hz,
-                        (p.amplitude_ratio - 1.0) * 100.0,
-                        p.phase_deg
-                    ));
-                }
-            }
-        }
+        let (rendering, faithful, limited_by) = self.whole.faithful_band(self.dt_s);
         CompensationReport {
             adapt: c.adapt,
             initial_delay_us: c.initial_delay_s * 1e6,
@@ -418,6 +365,7 @@ impl CompensationAnalyser {
                 },
                 safe_start_s: self.armed_seen.then_some(self.armed_s),
                 safe_start_ended: self.armed_seen.then_some(!self.armed_last),
+                safe_start_ended_at_s: self.disarmed_at_s.filter(|_| !self.armed_last),
                 dissipated_j: self.dissipated_j,
                 max_damping_ns_per_m: self.max_damping,
                 max_generated_j: self.max_generated,
@@ -425,6 +373,8 @@ impl CompensationAnalyser {
             },
             faithful_band_hz: faithful,
             faithful_band_limited_by: limited_by,
+            faithful_band_after_safe_start_hz: None,
+            faithful_band_after_safe_start_limited_by: None,
             rendering,
             trajectory: self.trajectory,
             law_ended_in_hold: self.last_law.is_some()
@@ -503,6 +453,169 @@ pub fn draw(dir: &std::path::Path, r: &CompensationReport) -> anyhow::Result<()>
         1,
         &[estimate, gain_panel, guard_panel, rendering],
     )
+}
+
+/// The rendering judged after the safe start only: a second pass over the emulator's
+/// records (the records' files are not in time order across processes, so the instant the
+/// safe start ended must be known before the samples are judged).
+pub struct SettledRendering {
+    from_s: f64,
+    last_seq: Option<u64>,
+    welch: Welch,
+}
+
+impl SettledRendering {
+    /// For a run whose safe start ended (`guard.safe_start_ended_at_s`); `None` otherwise.
+    pub fn after(report: &CompensationReport) -> Option<SettledRendering> {
+        report
+            .guard
+            .safe_start_ended_at_s
+            .map(|from_s| SettledRendering {
+                from_s,
+                last_seq: None,
+                welch: Welch::new(),
+            })
+    }
+
+    /// One emulator record (any order relative to other streams; its own in time order).
+    pub fn emulator(&mut self, r: &EmulatorRecord) {
+        let usable = r.t_s >= self.from_s
+            && r.interpolated == 0
+            && r.rig_state == rig_state::RUNNING
+            && r.rig_force_n.is_finite()
+            && r.force_n.is_finite();
+        let consecutive = self.last_seq.is_some_and(|s| r.sample_seq == s + 1);
+        self.last_seq = Some(r.sample_seq);
+        if !usable || !consecutive {
+            self.welch.break_segment();
+            if !usable {
+                return;
+            }
+        }
+        self.welch.push(r.force_n, r.rig_force_n);
+    }
+
+    /// Sets the report's band after the safe start (left null without a whole segment).
+    pub fn finish(self, dt_s: f64, report: &mut CompensationReport) {
+        if self.welch.segments > 0 {
+            let (_, band, limited_by) = self.welch.faithful_band(dt_s);
+            report.faithful_band_after_safe_start_hz = band;
+            report.faithful_band_after_safe_start_limited_by = limited_by;
+        }
+    }
+}
+
+/// Welch sums of the element's force (x) and the measured force (y): 1 s Hann segments,
+/// 50 % overlap, restarted at every break in the samples.
+struct Welch {
+    seg_x: Vec<f64>,
+    seg_y: Vec<f64>,
+    sxx: Vec<f64>,
+    syy: Vec<f64>,
+    sxy: Vec<Complex64>,
+    segments: u64,
+}
+
+impl Welch {
+    fn new() -> Welch {
+        let bins = SEGMENT / 2 + 1;
+        Welch {
+            seg_x: Vec::with_capacity(SEGMENT),
+            seg_y: Vec::with_capacity(SEGMENT),
+            sxx: vec![0.0; bins],
+            syy: vec![0.0; bins],
+            sxy: vec![Complex64::new(0.0, 0.0); bins],
+            segments: 0,
+        }
+    }
+
+    fn break_segment(&mut self) {
+        self.seg_x.clear();
+        self.seg_y.clear();
+    }
+
+    fn push(&mut self, x: f64, y: f64) {
+        self.seg_x.push(x);
+        self.seg_y.push(y);
+        if self.seg_x.len() == SEGMENT {
+            self.add_segment();
+            // 50 % overlap.
+            self.seg_x.drain(..SEGMENT / 2);
+            self.seg_y.drain(..SEGMENT / 2);
+        }
+    }
+
+    fn add_segment(&mut self) {
+        let mut planner = RealFftPlanner::<f64>::new();
+        let fft = planner.plan_fft_forward(SEGMENT);
+        let hann =
+            |i: usize| 0.5 - 0.5 * (2.0 * std::f64::consts::PI * i as f64 / SEGMENT as f64).cos();
+        let mean_x = self.seg_x.iter().sum::<f64>() / SEGMENT as f64;
+        let mean_y = self.seg_y.iter().sum::<f64>() / SEGMENT as f64;
+        let mut bx: Vec<f64> = (0..SEGMENT)
+            .map(|i| (self.seg_x[i] - mean_x) * hann(i))
+            .collect();
+        let mut by: Vec<f64> = (0..SEGMENT)
+            .map(|i| (self.seg_y[i] - mean_y) * hann(i))
+            .collect();
+        let mut fx = fft.make_output_vec();
+        let mut fy = fft.make_output_vec();
+        if fft.process(&mut bx, &mut fx).is_err() || fft.process(&mut by, &mut fy).is_err() {
+            return;
+        }
+        for k in 0..fx.len() {
+            self.sxx[k] += fx[k].norm_sqr();
+            self.syy[k] += fy[k].norm_sqr();
+            self.sxy[k] += fx[k].conj() * fy[k];
+        }
+        self.segments += 1;
+    }
+
+    /// Rendering by frequency (excited bins up to `BAND_TOP_HZ`), the faithful band and the
+    /// first excited bin beyond it.
+    fn faithful_band(&self, dt_s: f64) -> (Vec<RenderingPoint>, Option<f64>, Option<String>) {
+        let df = 1.0 / (SEGMENT as f64 * dt_s);
+        let mut rendering = Vec::new();
+        let mut faithful = None;
+        let mut limited_by = None;
+        if self.segments > 0 {
+            let top = (BAND_TOP_HZ / df) as usize;
+            let mut broken = false;
+            for k in 1..=top.min(self.sxx.len() - 1) {
+                if self.sxx[k] <= 0.0 || self.syy[k] <= 0.0 {
+                    continue;
+                }
+                let coherence = self.sxy[k].norm_sqr() / (self.sxx[k] * self.syy[k]);
+                if coherence < MIN_COHERENCE {
+                    continue;
+                }
+                let h = self.sxy[k] / self.sxx[k];
+                let p = RenderingPoint {
+                    frequency_hz: k as f64 * df,
+                    amplitude_ratio: h.norm(),
+                    phase_deg: h.arg().to_degrees(),
+                    coherence,
+                };
+                rendering.push(p);
+                if broken {
+                    continue;
+                }
+                let amp_err = (p.amplitude_ratio - 1.0).abs();
+                if amp_err <= AMPLITUDE_TOL && p.phase_deg.abs() <= PHASE_TOL_DEG {
+                    faithful = Some(p.frequency_hz);
+                } else {
+                    broken = true;
+                    limited_by = Some(format!(
+                        "{:.0} Hz: amplitude {:+.2} %, phase {:+.2} deg",
+                        p.frequency_hz,
+                        (p.amplitude_ratio - 1.0) * 100.0,
+                        p.phase_deg
+                    ));
+                }
+            }
+        }
+        (rendering, faithful, limited_by)
+    }
 }
 
 #[cfg(test)]
@@ -611,6 +724,105 @@ mod tests {
             identified_delay_s: f64::NAN,
             identified_delay_sigma_s: f64::NAN,
         }
+    }
+
+    fn emulator_sample(seq: u64, force_n: f64, rig_force_n: f64) -> EmulatorRecord {
+        EmulatorRecord {
+            t_s: seq as f64 / 4096.0,
+            step_idx: seq,
+            cycle_idx: seq,
+            sample_seq: seq,
+            interpolated: 0,
+            model_flags: 0,
+            wake_late_ns: 0,
+            z_used_m: 0.0,
+            force_n,
+            law_stiffness_n_per_m: 5.7e7,
+            law_damping_ns_per_m: 0.0,
+            law_force_rate_n_per_s: 0.0,
+            rig_force_n,
+            rig_state: rig_state::RUNNING,
+            rig_fault_code: 0,
+            generated_energy_j: 0.0,
+            oscillation_m: 0.0,
+            element_temperature_rise_k: 0.0,
+        }
+    }
+
+    /// The faithful band after the safe start is judged on the samples after it alone: a
+    /// run that rendered 3 % short while the guard was armed (its first 3 s) and exactly
+    /// after has no faithful band over the whole run and one up to the highest excited
+    /// bin after the safe start (61 Hz, with the Hann window's neighbour 62 Hz); a run whose
+    /// guard never armed has none after it.
+    #[test]
+    fn the_band_after_the_safe_start_leaves_the_learning_out() {
+        let cfg = crate::hil::config::default_hil_config().expect("embedded config");
+        let dt = 1.0 / 4096.0;
+        let run = |armed_until_s: Option<f64>| {
+            let mut a = CompensationAnalyser::new(dt, 8.0);
+            let mut noise = 1u64;
+            let (mut commands, mut samples) = (Vec::new(), Vec::new());
+            for k in 0..(8 * 4096u64) {
+                let t = k as f64 * dt;
+                let armed = armed_until_s.is_some_and(|u| t < u);
+                let mut c = command(t, command_mode::LAW, 252e-6);
+                c.guard_armed = u8::from(armed);
+                commands.push(c);
+                // Element force: 2, 7, 23 and 61 Hz.
+                let f = [2.0, 7.0, 23.0, 61.0]
+                    .iter()
+                    .map(|&h| 1e4 * (2.0 * std::f64::consts::PI * h * t).sin())
+                    .sum::<f64>();
+                // The load cell's noise, 10 N (a fixed sequence), so that bins the load
+                // does not excite are incoherent.
+                noise = noise
+                    .wrapping_mul(6_364_136_223_846_793_005)
+                    .wrapping_add(1_442_695_040_888_963_407);
+                let e = 20.0 * ((noise >> 11) as f64 / (1u64 << 53) as f64 - 0.5);
+                let measured = if armed { 0.97 * f } else { f } + e;
+                samples.push(emulator_sample(k, f, measured));
+            }
+            // The emulator's records before the controller's, as a merged file may
+            // hold them: the band after the safe start must not depend on that order.
+            for e in &samples {
+                a.emulator(e);
+            }
+            for c in &commands {
+                a.controller(c);
+            }
+            let mut r = a.finish(&cfg);
+            if let Some(mut settled) = SettledRendering::after(&r) {
+                for e in &samples {
+                    settled.emulator(e);
+                }
+                settled.finish(dt, &mut r);
+            }
+            r
+        };
+        let r = run(Some(3.0));
+        // Over the whole run the 3 % short stretch breaks the band at its first bin.
+        assert!(
+            r.faithful_band_hz.is_none_or(|b| b < 2.5),
+            "{:?}",
+            r.faithful_band_hz
+        );
+        assert!(r.faithful_band_limited_by.is_some());
+        // The highest excited bin: 61 Hz and the Hann window's neighbour, 62 Hz.
+        assert_eq!(r.guard.safe_start_ended_at_s, Some(3.0));
+        assert_eq!(r.faithful_band_after_safe_start_hz, Some(62.0));
+        assert!(
+            r.describe().contains("(62 Hz after the safe start)"),
+            "{}",
+            r.describe()
+        );
+        let never = run(None);
+        assert_eq!(never.faithful_band_hz, Some(62.0));
+        assert_eq!(never.faithful_band_after_safe_start_hz, None);
+        assert!(
+            !never.describe().contains("after the safe start"),
+            "{}",
+            never.describe()
+        );
     }
 
     /// The final lead is the last law command's, also when the run ended in a hold (it

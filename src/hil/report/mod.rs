@@ -286,6 +286,7 @@ fn read_rig_stream(
     set: &RecordSet,
     cfg: &HilConfig,
     side: &SideStreams,
+    mut settled: Option<&mut compensation::SettledRendering>,
 ) -> anyhow::Result<RigPass> {
     let rate = cfg.loop_.rate_hz;
     let dt = cfg.loop_.dt_s();
@@ -387,9 +388,22 @@ fn read_rig_stream(
         }
     };
     if side.rig_records > 0 {
-        set.for_each::<RigRecord>(|_, r| on_rig_record(&r))?;
+        // The rig's records, and the emulator's for the rendering after the safe start.
+        set.for_each_of_two::<RigRecord, EmulatorRecord>(
+            |_, r| on_rig_record(&r),
+            |_, e| {
+                if let Some(s) = settled.as_deref_mut() {
+                    s.emulator(&e);
+                }
+            },
+        )?;
     } else {
-        set.for_each::<EmulatorRecord>(|_, e| on_rig_record(&rig_record_from_sample(&e)))?;
+        set.for_each::<EmulatorRecord>(|_, e| {
+            if let Some(s) = settled.as_deref_mut() {
+                s.emulator(&e);
+            }
+            on_rig_record(&rig_record_from_sample(&e))
+        })?;
     }
     for out in high_pass.finish() {
         on_hp(out, &mut hp_steps, &mut residual, &mut stalls);
@@ -439,12 +453,13 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
     let set = RecordSet::open(dir)?;
     let side = read_side_streams(&set, cfg)?;
     let mut side = side;
-    let compensation_report = std::mem::replace(
+    let mut compensation_report = std::mem::replace(
         &mut side.compensation,
         compensation::CompensationAnalyser::new(cfg.loop_.dt_s(), 0.0),
     )
     .finish(cfg);
     compensation::draw(dir, &compensation_report)?;
+    let mut settled = compensation::SettledRendering::after(&compensation_report);
     let element_thermal = match side
         .element
         .take()
@@ -456,7 +471,10 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
         }
         None => None,
     };
-    let rig = read_rig_stream(&set, cfg, &side)?;
+    let rig = read_rig_stream(&set, cfg, &side, settled.as_mut())?;
+    if let Some(s) = settled {
+        s.finish(cfg.loop_.dt_s(), &mut compensation_report);
+    }
     anyhow::ensure!(
         rig.rig_steps > 16,
         "the rig's record has only {} rows",
