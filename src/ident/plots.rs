@@ -141,6 +141,7 @@ pub fn plot_equivalents(
                         force_harmonics_n: [(0.0, 0.0); N_HARMONICS],
                         scale_n: 1.0,
                         noise_relative: 0.0,
+                        noise_smoothed: 0.0,
                         duration_s: 1.0 / freq,
                         weight: 1.0,
                         order: 0.0,

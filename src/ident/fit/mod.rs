@@ -51,6 +51,11 @@ pub struct CycleData {
     pub scale_n: f64,
     /// Estimated noise variance of the fundamental residual relative to `|F_1|^2`.
     pub noise_relative: f64,
+    /// The same from the campaign's smoothed noise level (`assign_noise_weights`): one
+    /// test's own estimate rests on two DFT bins and scatters like an exponential
+    /// variable, so statistics that divide by a single test's noise use this; equal to
+    /// `noise_relative` until assigned, and for history tests.
+    pub noise_smoothed: f64,
     /// Duration of the analysed whole cycles, s.
     pub duration_s: f64,
     /// Precision weight of the test in held-out gaps, `1 / max(nu~_i, median nu~ / 2)`
@@ -131,6 +136,7 @@ impl CycleData {
             force_harmonics_n: [(0.0, 0.0); N_HARMONICS],
             scale_n: history.force_scale_n,
             noise_relative: history.noise_relative,
+            noise_smoothed: history.noise_relative,
             duration_s: history.duration_s,
             weight: 1.0,
             order,
@@ -345,6 +351,7 @@ fn harmonic_units(campaign: &Campaign) -> Vec<CycleData> {
                 force_harmonics_n: cycle.force_harmonics_n,
                 scale_n,
                 noise_relative: cycle.fundamental_noise_variance_n2 / (scale_n * scale_n),
+                noise_smoothed: cycle.fundamental_noise_variance_n2 / (scale_n * scale_n),
                 duration_s: cycle.n_cycles as f64 / cycle.frequency_hz,
                 weight: 1.0,
                 order: index as f64,
@@ -429,8 +436,9 @@ pub fn assign_noise_weights(data: &mut [CycleData]) {
     }
     let raw: Vec<f64> = smoothed.iter().map(|s| 1.0 / s.max(0.5 * median)).collect();
     let mean = raw.iter().sum::<f64>() / raw.len() as f64;
-    for (d, w) in data.iter_mut().zip(raw) {
+    for ((d, w), s) in data.iter_mut().zip(raw).zip(&smoothed) {
         d.weight = w / mean;
+        d.noise_smoothed = *s;
     }
 }
 
