@@ -427,8 +427,11 @@ fn render_report(
     } else if d.verdict.unexplained.is_none() {
         let _ = writeln!(
             r,
-            "- Unexplained residual: none (the held-out gap after the named effects is at the noise floor: {:.1}x)",
-            d.gap_after / d.noise_floor.max(1e-300)
+            "- Unexplained residual: {}",
+            residual_within_rules(
+                d.gap_after / d.noise_floor.max(1e-300),
+                d.verdict.harmonic_z
+            )
         );
     }
     let unphysical: Vec<&super::CandidateResult> = d
@@ -1129,4 +1132,42 @@ fn out_of_range_json(o: &crate::ident::fit::OutOfRange) -> serde_json::Value {
         "param": o.param, "value": o.value, "range": [o.range.0, o.range.1],
         "text": o.to_string(), "suggests": o.suggestion(),
     })
+}
+
+/// Why no residual is reported when neither the noise nor materiality explains it away:
+/// within noise, or beyond noise by the harmonic tests' Wilcoxon z but under the ratio to
+/// the noise floor from which the workflow reports one (`verdict::MIN_RATIO`).
+fn residual_within_rules(ratio: f64, harmonic_z: f64) -> String {
+    use super::verdict::{MIN_RATIO, MIN_Z};
+    if harmonic_z > MIN_Z && ratio < MIN_RATIO {
+        format!(
+            "none reported: the held-out gap after the named effects is {ratio:.1}x the noise floor, beyond noise by the harmonic tests' Wilcoxon z ({harmonic_z:.1} > {MIN_Z}), but under the {MIN_RATIO:.0}x the noise floor from which this workflow reports a residual"
+        )
+    } else {
+        format!(
+            "none (the held-out gap after the named effects is {ratio:.1}x the noise floor, within noise: Wilcoxon z {harmonic_z:.1})"
+        )
+    }
+}
+
+#[cfg(test)]
+mod residual_wording_tests {
+    /// A gap 1.6x the floor with z 3.6 is said to be beyond noise and held back by the
+    /// 2x rule, not "at the noise floor"; a gap within noise is said to be within noise.
+    #[test]
+    fn a_residual_beyond_noise_under_the_ratio_rule_says_so() {
+        let held = super::residual_within_rules(1.6, 3.58);
+        assert!(
+            held.contains("1.6x the noise floor, beyond noise")
+                && held.contains("Wilcoxon z (3.6 > 2.33)")
+                && held.contains("under the 2x"),
+            "{held}"
+        );
+        let within = super::residual_within_rules(0.9, 0.4);
+        assert!(
+            within.contains("0.9x the noise floor, within noise"),
+            "{within}"
+        );
+        assert!(!within.contains("beyond"), "{within}");
+    }
 }
