@@ -411,7 +411,7 @@ fn render_report(
         } else if d.verdict.unexplained.is_some() {
             "none: no library effect explains the gap within its physical range (see the unexplained residual above)".to_string()
         } else {
-            "none (nothing beats the calibrated baseline beyond noise, and the residual is at the noise floor)".to_string()
+            "none (no library effect beats the calibrated baseline beyond noise; the residual: below)".to_string()
         }
     );
     for why in &d.replaced {
