@@ -939,6 +939,64 @@ fn a_small_moving_mass_that_moves_a_named_resonance_is_named_with_it() {
     );
 }
 
+/// A stiff load train with a heavy participating mass (180 Hz, 3 %, 60 kg: an independent
+/// check's case): within 1-20 Hz it is, to second order in f / f_n, a force lag of
+/// 2 zeta / omega_n (53 us) and a mass of 60 kg less K / omega_n^2. Named as the mode with
+/// its mass, or as that lag and mass with the doubt said on the second of the pair (the
+/// mode family the pair stands for, containing the truth); never the pair in silence.
+#[test]
+fn a_heavy_load_train_is_named_or_its_lag_and_mass_say_they_may_be_one() {
+    let truth = Truth {
+        load_path_resonance: Some((180.0, 0.03)),
+        mass_kg: 60.0,
+        ..Truth::paper_like()
+    };
+    let d = diagnose_case(
+        "heavy-load-train",
+        &truth,
+        &standard_design(),
+        &Passage::rising(3),
+        &Noise::typical(),
+        34,
+    );
+    let named = names(&d);
+    if named.contains(&"load-train-resonance") {
+        let fn_hz = final_param(&d, EffectKind::LoadTrainResonance, "natural_frequency_hz");
+        assert!((fn_hz - 180.0).abs() < 18.0, "natural frequency {fn_hz}");
+        return;
+    }
+    assert_named_set(&d, &["channel-delay", "moving-mass"]);
+    let note = d
+        .rounds
+        .iter()
+        .flatten()
+        .filter(|c| c.qualifies)
+        .filter_map(|c| c.law_note.clone())
+        .find(|n| n.contains("not told from a load-train resonance"))
+        .unwrap_or_else(|| {
+            let qualified: Vec<_> = d
+                .rounds
+                .iter()
+                .flatten()
+                .filter(|c| c.qualifies)
+                .map(|c| (c.round, c.kind.name(), c.law_note.clone()))
+                .collect();
+            panic!(
+                "the pair named without the doubt: {named:?}, lag {} s, mass {} kg; {qualified:?}",
+                final_param(&d, EffectKind::ChannelDelay, "force_lag_s"),
+                final_param(&d, EffectKind::MovingMass, "mass_kg")
+            )
+        });
+    // The family: f_n from zeta / (pi tau) over zeta 0.001-0.3, above 3x the highest test
+    // frequency; it must hold the truth's 180 Hz.
+    let lag = final_param(&d, EffectKind::ChannelDelay, "force_lag_s");
+    let f_at_3pct = 0.03 / (std::f64::consts::PI * lag);
+    assert!(
+        (140.0..230.0).contains(&f_at_3pct),
+        "the lag {lag} s puts a 3 % mode at {f_at_3pct} Hz: {note}"
+    );
+}
+
 /// A springpot has one order at every frequency. At a noise floor of about 1e-4 (the
 /// issue's blind campaigns), a second, discrete Maxwell branch (outside the library) fits
 /// as a springpot of order near 1 on the low test frequencies and 0.7 on the high ones,

@@ -1157,7 +1157,8 @@ pub fn diagnose(
                     _ => (None, None),
                 };
                 let law_note = match kind {
-                    EffectKind::FractionalDamping | EffectKind::ChannelDelay => rival_note,
+                    EffectKind::FractionalDamping => rival_note,
+                    EffectKind::ChannelDelay => rival_note,
                     EffectKind::SpecimenDrift => Some(drift_clock_note(
                         &drift_fits,
                         &candidate.clocks_like_order,
@@ -1405,6 +1406,23 @@ pub fn diagnose(
         }
     }
     let final_model = current_template.model_with_errors(&current_cv.full_fit);
+    // A named force lag beside a named moving mass may be one load-train resonance above
+    // the band: said on the later-named of the two (however the pair came to be named).
+    if let Some(note) = resonance_pair_note(&final_model, data) {
+        if let Some(c) = rounds
+            .iter_mut()
+            .flatten()
+            .filter(|c| {
+                c.qualifies && matches!(c.kind, EffectKind::ChannelDelay | EffectKind::MovingMass)
+            })
+            .max_by_key(|c| c.round)
+        {
+            c.law_note = Some(match c.law_note.take() {
+                Some(n) => format!("{n}; {note}"),
+                None => note,
+            });
+        }
+    }
     let gap_after = excess_gap(&current_cv.held_out_error, data);
     let mut verdict = verdict(
         &final_model,
@@ -1984,6 +2002,61 @@ fn rival_check(
         )
     });
     (None, note)
+}
+
+/// What a named force lag `tau` beside a named moving mass `m` cannot rule out: within
+/// the tests' band (far below the mode, to second order in `f / f_n`) a load-train
+/// resonance `1 / (1 - r^2 + 2 i zeta r)` renders the force `2 zeta / omega_n` late and
+/// larger by `K (omega / omega_n)^2`, as a negative mass `-K / omega_n^2` would; so the
+/// pair is also a resonance with `zeta = tau omega_n / 2` and a participating mass
+/// `m + K / omega_n^2` (`K` the element's median dynamic stiffness over the harmonic
+/// tests). The note gives the modes within the library's ranges above 3x the highest test
+/// frequency, and one example at zeta 0.03. None when no such mode exists.
+fn resonance_pair_note(model: &AugmentedModel, data: &[CycleData]) -> Option<String> {
+    use crate::ident::fit::{LOAD_TRAIN_DAMPING_RANGE, LOAD_TRAIN_FREQUENCY_RANGE_HZ};
+    let tau = model.effects.iter().find_map(|e| match *e {
+        Effect::ChannelDelay { force_lag_s } if force_lag_s > 0.0 => Some(force_lag_s),
+        _ => None,
+    })?;
+    let mass = model.effects.iter().find_map(|e| match *e {
+        Effect::MovingMass { mass_kg } if mass_kg > 0.0 => Some(mass_kg),
+        _ => None,
+    })?;
+    let harmonic: Vec<&CycleData> = data.iter().filter(|d| !d.is_history()).collect();
+    let f_max = harmonic.iter().map(|d| d.frequency_hz).fold(0.0, f64::max);
+    let mut stiffness: Vec<f64> = harmonic
+        .iter()
+        .map(|d| {
+            let k =
+                crate::ident::campaign::cdiv(d.force_harmonics_n[0], d.displacement_harmonics_m[0]);
+            k.0.hypot(k.1)
+        })
+        .filter(|k| k.is_finite() && *k > 0.0)
+        .collect();
+    stiffness.sort_by(f64::total_cmp);
+    let k = *stiffness.get(stiffness.len() / 2)?;
+    // f_n = zeta / (pi tau) over the damping range, kept above 3 f_max and in range.
+    let f_of = |zeta: f64| zeta / (std::f64::consts::PI * tau);
+    let lo = f_of(LOAD_TRAIN_DAMPING_RANGE.0)
+        .max(3.0 * f_max)
+        .max(LOAD_TRAIN_FREQUENCY_RANGE_HZ.0);
+    let hi = f_of(LOAD_TRAIN_DAMPING_RANGE.1).min(LOAD_TRAIN_FREQUENCY_RANGE_HZ.1);
+    if lo >= hi || lo.is_nan() || hi.is_nan() {
+        return None;
+    }
+    let participating = |f_n: f64| mass + k / (2.0 * std::f64::consts::PI * f_n).powi(2);
+    let example = f_of(0.03).clamp(lo, hi);
+    Some(format!(
+        "with the force lag of {:.3} ms named beside it, not told from a load-train resonance above the tests' band by these tests: a mode at {lo:.0}-{hi:.0} Hz (damping ratio {:.3}-{:.2}, 2 zeta / omega_n = the lag) with a participating mass of {:.1}-{:.1} kg (this mass plus K / omega_n^2, K = {:.3e} N/m the element's median dynamic stiffness) gives the same force within them to second order in f / f_n (e.g. {example:.0} Hz, zeta {:.3}, {:.1} kg); content near such a mode (history tests whose passages reach it, or tests at 50-150 Hz) tells them apart",
+        tau * 1e3,
+        (lo * std::f64::consts::PI * tau).max(LOAD_TRAIN_DAMPING_RANGE.0),
+        (hi * std::f64::consts::PI * tau).min(LOAD_TRAIN_DAMPING_RANGE.1),
+        participating(hi),
+        participating(lo),
+        k,
+        example * std::f64::consts::PI * tau,
+        participating(example),
+    ))
 }
 
 /// Residual variances beyond which one of an effect and its discrete rival
