@@ -208,8 +208,7 @@ pub struct CompensationAnalyser {
     next_point_s: f64,
     /// (t, lead) at each change of the lead (for when it settled).
     lead_points: Vec<(f64, f64)>,
-    // Emulator side: the rendering over the whole run, and after the safe start.
-    last_seq: Option<u64>,
+    // Emulator side: the rendering over the whole run (after the safe start: `SettledRendering`).
     whole: Welch,
     /// The first law command with the guard disarmed after it was armed, s.
     disarmed_at_s: Option<f64>,
@@ -236,7 +235,6 @@ impl CompensationAnalyser {
             stride_s: (duration_s / 400.0).max(dt_s),
             next_point_s: 0.0,
             lead_points: Vec::new(),
-            last_seq: None,
             whole: Welch::new(),
             disarmed_at_s: None,
             dissipated_j: 0.0,
@@ -310,19 +308,7 @@ impl CompensationAnalyser {
 
     /// One emulator record: a sample of the element's force and the rig's measured force.
     pub fn emulator(&mut self, r: &EmulatorRecord) {
-        let usable = r.interpolated == 0
-            && r.rig_state == rig_state::RUNNING
-            && r.rig_force_n.is_finite()
-            && r.force_n.is_finite();
-        let consecutive = self.last_seq.is_some_and(|s| r.sample_seq == s + 1);
-        self.last_seq = Some(r.sample_seq);
-        if !usable || !consecutive {
-            self.whole.break_segment();
-            if !usable {
-                return;
-            }
-        }
-        self.whole.push(r.force_n, r.rig_force_n);
+        self.whole.sample(r, true);
     }
 
     pub fn finish(self, cfg: &crate::hil::config::HilConfig) -> CompensationReport {
@@ -460,7 +446,6 @@ pub fn draw(dir: &std::path::Path, r: &CompensationReport) -> anyhow::Result<()>
 /// safe start ended must be known before the samples are judged).
 pub struct SettledRendering {
     from_s: f64,
-    last_seq: Option<u64>,
     welch: Welch,
 }
 
@@ -472,27 +457,13 @@ impl SettledRendering {
             .safe_start_ended_at_s
             .map(|from_s| SettledRendering {
                 from_s,
-                last_seq: None,
                 welch: Welch::new(),
             })
     }
 
     /// One emulator record (any order relative to other streams; its own in time order).
     pub fn emulator(&mut self, r: &EmulatorRecord) {
-        let usable = r.t_s >= self.from_s
-            && r.interpolated == 0
-            && r.rig_state == rig_state::RUNNING
-            && r.rig_force_n.is_finite()
-            && r.force_n.is_finite();
-        let consecutive = self.last_seq.is_some_and(|s| r.sample_seq == s + 1);
-        self.last_seq = Some(r.sample_seq);
-        if !usable || !consecutive {
-            self.welch.break_segment();
-            if !usable {
-                return;
-            }
-        }
-        self.welch.push(r.force_n, r.rig_force_n);
+        self.welch.sample(r, r.t_s >= self.from_s);
     }
 
     /// Sets the report's band after the safe start (left null without a whole segment).
@@ -508,6 +479,8 @@ impl SettledRendering {
 /// Welch sums of the element's force (x) and the measured force (y): 1 s Hann segments,
 /// 50 % overlap, restarted at every break in the samples.
 struct Welch {
+    /// Sequence of the last sample offered (a gap breaks the segment).
+    last_seq: Option<u64>,
     seg_x: Vec<f64>,
     seg_y: Vec<f64>,
     sxx: Vec<f64>,
@@ -520,6 +493,7 @@ impl Welch {
     fn new() -> Welch {
         let bins = SEGMENT / 2 + 1;
         Welch {
+            last_seq: None,
             seg_x: Vec::with_capacity(SEGMENT),
             seg_y: Vec::with_capacity(SEGMENT),
             sxx: vec![0.0; bins],
@@ -527,6 +501,26 @@ impl Welch {
             sxy: vec![Complex64::new(0.0, 0.0); bins],
             segments: 0,
         }
+    }
+
+    /// One emulator record: its element and measured force join the segment when `wanted`
+    /// and usable (measured, not interpolated, while the rig runs, right after the previous
+    /// sample); anything else breaks the segment.
+    fn sample(&mut self, r: &EmulatorRecord, wanted: bool) {
+        let usable = wanted
+            && r.interpolated == 0
+            && r.rig_state == rig_state::RUNNING
+            && r.rig_force_n.is_finite()
+            && r.force_n.is_finite();
+        let consecutive = self.last_seq.is_some_and(|s| r.sample_seq == s + 1);
+        self.last_seq = Some(r.sample_seq);
+        if !usable || !consecutive {
+            self.break_segment();
+            if !usable {
+                return;
+            }
+        }
+        self.push(r.force_n, r.rig_force_n);
     }
 
     fn break_segment(&mut self) {
