@@ -691,6 +691,50 @@ fn a_load_cell_nonlinearity_is_not_passed_off_as_explained() {
     assert!(d.verdict.unexplained.is_some(), "named {:?}", names(&d));
 }
 
+/// A cubic spring whose coefficient drifts over the campaign (stiffening turning into
+/// softening: beyond the library) is partly described by several library effects: an
+/// independent check saw `cyclic-softening` named at a 2.1x gap shrink beside a residual
+/// 2.2x the noise floor. Whatever describes only part of it is not named: the residual is
+/// reported unexplained with nothing named, and the take-back says why.
+#[test]
+fn a_drifting_cubic_spring_is_reported_unexplained_not_named_after_a_stand_in() {
+    let truth = Truth {
+        cubic_spring: Some((1.5e12, 4e-4, -2.0)),
+        rest_s: Some(10.0),
+        ..Truth::paper_like()
+    };
+    let mut taken_back = 0;
+    for seed in [61, 62] {
+        let d = diagnose_case(
+            "cubic-drift",
+            &truth,
+            &standard_design(),
+            &Passage::rising(3),
+            &Noise::typical(),
+            seed,
+        );
+        let stand_ins: Vec<&str> = d
+            .rounds
+            .iter()
+            .flatten()
+            .filter(|c| c.stand_in.is_some())
+            .map(|c| c.kind.name())
+            .collect();
+        eprintln!(
+            "[cubic-drift {seed}] named {:?}, stand-ins {stand_ins:?}, gap {:.3e} -> {:.3e}, unexplained {}",
+            names(&d),
+            d.gap_before,
+            d.gap_after,
+            d.verdict.unexplained.is_some()
+        );
+        assert!(names(&d).is_empty(), "seed {seed}: named {:?}", names(&d));
+        assert!(d.verdict.unexplained.is_some(), "seed {seed}");
+        taken_back += stand_ins.len();
+    }
+    // The rule acted: without it a stand-in would have been named.
+    assert!(taken_back > 0, "no stand-in was taken back");
+}
+
 /// Every effect of the final model inside what physics allows (checked here from the
 /// physics, not with the library's own ranges): no negative mass, stiffness, slip force
 /// or damping; exponents in (0, 1]; a delay of at most a few ms; relaxation that speeds
@@ -1149,12 +1193,15 @@ fn a_weak_discrete_relaxation_is_told_from_a_springpot_by_its_rival() {
 /// (beyond the library) does below its corner: at typical noise a 2 MN/m, 2 ms branch was
 /// named `channel-delay` on two seeds of three, with nothing said. The delay now meets the
 /// branch fitted in its place: refused where the branch fits better (a 6 MN/m branch),
-/// else named with the note that these tests do not tell the two apart (2 MN/m). A true
-/// channel lead (preload-dependent, as the element's modulus is) is named without either.
+/// else named with the note that these tests do not tell the two apart (2 MN/m), or taken
+/// back as a stand-in where it was the only effect named and shrank the gap less than 3x
+/// (since 2026-11-27; one 2 MN/m seed). A true channel lead (preload-dependent, as the
+/// element's modulus is) is named without any of these.
 #[test]
 fn a_channel_lead_a_discrete_relaxation_imitates_is_refused_or_named_with_the_doubt() {
     let mut refused = 0;
     let mut noted = 0;
+    let mut taken_back = 0;
     for (k, seed) in [(2e6, 201), (2e6, 204), (6e6, 108)] {
         let truth = Truth {
             second_maxwell: Some((k, 2e-3)),
@@ -1187,9 +1234,12 @@ fn a_channel_lead_a_discrete_relaxation_imitates_is_refused_or_named_with_the_do
                 "seed {seed}: {why}"
             );
             refused += 1;
+        } else if let Some(why) = &delay.stand_in {
+            assert!(why.contains("do not establish"), "seed {seed}: {why}");
+            taken_back += 1;
         }
     }
-    assert_eq!((noted, refused), (2, 1));
+    assert_eq!((noted + taken_back, refused), (2, 1));
 
     let lead = Truth {
         force_lag_s: -0.5e-3,

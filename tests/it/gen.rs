@@ -94,6 +94,10 @@ pub struct Truth {
     /// `1 - d (1 - exp(-(M - F) / F_s))`, `M` the largest force so far in the campaign
     /// (the library's law is a tanh and acts on the element's force alone).
     pub mullins: Option<(f64, f64)>,
+    /// Out of the library: a cubic spring about a fixed displacement, coefficient N/m^3,
+    /// displacement m and its drift over the campaign: `c (1 + drift u) (z - z_c)^3`, `u`
+    /// from 0 at the first test to 1 at the last (harmonic tests only).
+    pub cubic_spring: Option<(f64, f64, f64)>,
 }
 
 impl Truth {
@@ -119,6 +123,7 @@ impl Truth {
             self_heating: None,
             rest_s: None,
             mullins: None,
+            cubic_spring: None,
         }
     }
 
@@ -462,7 +467,10 @@ pub fn simulate_test(
             f +=
                 a1 * (b1.0 * p1.cos() - b1.1 * p1.sin()) + a2 * (b2.0 * p2.cos() - b2.1 * p2.sin());
         }
-        f + truth.mass_kg * acc_of(t)
+        let cubic = truth
+            .cubic_spring
+            .map_or(0.0, |(c, z_c, _)| c * (z_of(t) - z_c).powi(3));
+        f + truth.mass_kg * acc_of(t) + cubic
     };
     // Load path and load cell (out-of-library truths) act on the whole fine record.
     let measured =
@@ -657,7 +665,11 @@ pub fn write_campaign_full(
     // A specimen that changes over the campaign: its moduli at test `index`.
     let truth_at = |index: usize| -> Truth {
         let fraction = index as f64 / (n_tests.max(2) - 1) as f64;
-        truth.scaled(1.0 - truth.softening_over_campaign * fraction)
+        let mut at = truth.scaled(1.0 - truth.softening_over_campaign * fraction);
+        at.cubic_spring = truth
+            .cubic_spring
+            .map(|(c, z_c, drift)| (c * (1.0 + drift * fraction), z_c, 0.0));
+        at
     };
     let mut rng = Rng::new(seed);
     let mut toml = format!("sample_length_m = {:?}\n", truth.length_m);

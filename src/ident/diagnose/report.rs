@@ -73,6 +73,7 @@ pub fn json_summary(d: &Diagnosis, model_path: &std::path::Path) -> serde_json::
                 "would_qualify_but_for_range": r.would_qualify && r.out_of_range.is_some(),
                 "out_of_range": r.out_of_range.map(|o| out_of_range_json(&o)),
                 "law_broken": r.law_broken,
+                "stand_in": r.stand_in,
                 "law_note": r.law_note,
             })
         })
@@ -456,6 +457,11 @@ fn render_report(
             let _ = writeln!(r, "- `{}` {b}: not named. {why}", c.kind.name());
         }
     }
+    for c in d.rounds.iter().flatten() {
+        if let Some(why) = &c.stand_in {
+            let _ = writeln!(r, "- `{}` {why}: not named.", c.kind.name());
+        }
+    }
     if !unphysical.is_empty() && !named.is_empty() && d.verdict.unexplained.is_some() {
         let _ = writeln!(
             r,
@@ -572,6 +578,7 @@ fn render_report(
             c.folds_improved,
             d.folds.iter().max().map_or(0, |m| m + 1),
             match (c.qualifies, c.out_of_range, &c.law_broken) {
+                _ if c.stand_in.is_some() => "no: a stand-in (below)".to_string(),
                 (_, Some(o), _) => format!("no: {o}"),
                 (_, None, Some(b)) => format!("no: {b}"),
                 (true, None, None) if c.history_evidence => "yes (history tests)".to_string(),
