@@ -89,11 +89,36 @@ impl Drop for Hil {
     }
 }
 
-pub(super) fn scratch_dir(name: &str) -> PathBuf {
+/// A test's scratch directory: removed when the test ends, kept when it fails (its
+/// records are the post-mortem).
+pub(super) struct Scratch(PathBuf);
+
+impl std::ops::Deref for Scratch {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for Scratch {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+}
+
+pub(super) fn scratch_dir(name: &str) -> Scratch {
     let dir = std::env::temp_dir().join(format!("fastemu-it-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    dir
+    Scratch(dir)
 }
 
 /// The default configuration with the first axle at `AXLE_S`, plus `extra` TOML.
@@ -468,7 +493,7 @@ fn signal_at_axle(
     needle: &str,
     signal: i32,
     stop_ms: u64,
-) -> (i32, serde_json::Value, PathBuf) {
+) -> (i32, serde_json::Value, PathBuf, Scratch) {
     let dir = scratch_dir(name);
     let report = dir.join("report");
     let mut hil = spawn_hil(&write_config(&dir, &[], ""), &report, 3.0);
@@ -488,7 +513,7 @@ fn signal_at_axle(
             .collect::<Vec<_>>()
             .join("\n")
     );
-    (code, json, report)
+    (code, json, report, dir)
 }
 
 #[test]
@@ -506,7 +531,7 @@ fn sigkill_of_the_emulator_or_controller_at_the_first_axle_ends_in_a_hold() {
             "bench_rig: commands-stale",
         ),
     ] {
-        let (code, json, report) =
+        let (code, json, report, _dir) =
             signal_at_axle(&format!("kill-{name}"), needle, libc::SIGKILL, 0);
         assert_eq!(code, 2, "{name}: {json}");
         let f = faults(&json);
@@ -531,7 +556,8 @@ fn sigkill_of_the_emulator_or_controller_at_the_first_axle_ends_in_a_hold() {
 #[test]
 fn sigkill_of_the_rig_stops_the_run_naming_it() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let (code, json, report) = signal_at_axle("kill-rig", "bench_rig --config", libc::SIGKILL, 0);
+    let (code, json, report, _dir) =
+        signal_at_axle("kill-rig", "bench_rig --config", libc::SIGKILL, 0);
     assert_eq!(code, 2);
     let f = faults(&json);
     assert!(
@@ -552,7 +578,7 @@ fn sigstop_of_300_ms_is_a_fault_with_a_hold_and_of_5_ms_is_ridden_through() {
         ("emulator", " emulator --config"),
         ("controller", " controller --config"),
     ] {
-        let (code, json, report) =
+        let (code, json, report, _dir) =
             signal_at_axle(&format!("stop-{name}"), needle, libc::SIGSTOP, 300);
         assert_eq!(code, 2, "{name}: {json}");
         let f = faults(&json);
@@ -565,7 +591,7 @@ fn sigstop_of_300_ms_is_a_fault_with_a_hold_and_of_5_ms_is_ridden_through() {
         assert_hold_in_records(&report, AXLE_S, &format!("SIGSTOP {name}"));
         assert_nothing_left(&json);
     }
-    let (code, json, _) = signal_at_axle("stop-5ms", " emulator --config", libc::SIGSTOP, 5);
+    let (code, json, _, _dir) = signal_at_axle("stop-5ms", " emulator --config", libc::SIGSTOP, 5);
     assert_eq!(code, 0, "a 5 ms stall is ridden through: {json}");
     let transient = json["largest_transient_um"].as_f64().unwrap();
     assert!(transient < 20.0, "largest transient {transient} um");

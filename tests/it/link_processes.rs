@@ -30,7 +30,7 @@ use fastemu::rt::CycleStats;
 
 use super::hil_processes::{
     assert_hold_in_records, assert_nothing_left, faults, scratch_dir, spawn_hil_with, the_child,
-    write_config, Hil, AXLE_S, FASTEMU, SERIAL,
+    write_config, Hil, Scratch, AXLE_S, FASTEMU, SERIAL,
 };
 
 const EXAMPLE_RIG: &str = env!("CARGO_BIN_EXE_example_rig");
@@ -377,7 +377,7 @@ fn port_in(stderr: &str, what: &str) -> Option<SocketAddr> {
 
 /// `hil --rig-link udp` for 3 s of the default scenario (first axle at `AXLE_S`):
 /// (scratch directory, report directory, the running `hil`).
-fn spawn_udp_run(name: &str) -> (std::path::PathBuf, std::path::PathBuf, Hil) {
+fn spawn_udp_run(name: &str) -> (Scratch, std::path::PathBuf, Hil) {
     let dir = scratch_dir(name);
     let report = dir.join("report");
     let hil = spawn_hil_with(
