@@ -1429,7 +1429,18 @@ pub fn diagnose(
     let final_model = current_template.model_with_errors(&current_cv.full_fit);
     // A named force lag beside a named moving mass may be one load-train resonance above
     // the band: said on the later-named of the two (however the pair came to be named).
-    if let Some(note) = resonance_pair_note(&final_model, data) {
+    let refit = resonance_in_pair_place(
+        &current_template,
+        &current_cv,
+        &Scoring {
+            data,
+            folds: &folds,
+            n_folds,
+            options,
+        },
+        progress,
+    );
+    if let Some(note) = resonance_pair_note(&final_model, data, refit.as_ref()) {
         if let Some(c) = rounds
             .iter_mut()
             .flatten()
@@ -2098,8 +2109,12 @@ fn rival_check(
 /// `m + K / omega_n^2` (`K` the element's median dynamic stiffness over the harmonic
 /// tests). The note gives the modes within the library's ranges above 3x the highest test
 /// frequency, and one example at zeta 0.03. None when no such mode exists.
-fn resonance_pair_note(model: &AugmentedModel, data: &[CycleData]) -> Option<String> {
-    use crate::ident::fit::{LOAD_TRAIN_DAMPING_RANGE, LOAD_TRAIN_FREQUENCY_RANGE_HZ};
+fn resonance_pair_note(
+    model: &AugmentedModel,
+    data: &[CycleData],
+    refit: Option<&CandidateResult>,
+) -> Option<String> {
+    use crate::ident::fit::LOAD_TRAIN_DAMPING_RANGE;
     let tau = model.effects.iter().find_map(|e| match *e {
         Effect::ChannelDelay { force_lag_s } if force_lag_s > 0.0 => Some(force_lag_s),
         _ => None,
@@ -2108,32 +2123,35 @@ fn resonance_pair_note(model: &AugmentedModel, data: &[CycleData]) -> Option<Str
         Effect::MovingMass { mass_kg } if mass_kg > 0.0 => Some(mass_kg),
         _ => None,
     })?;
-    let harmonic: Vec<&CycleData> = data.iter().filter(|d| !d.is_history()).collect();
-    let f_max = harmonic.iter().map(|d| d.frequency_hz).fold(0.0, f64::max);
-    let mut stiffness: Vec<f64> = harmonic
-        .iter()
-        .map(|d| {
-            let k =
-                crate::ident::campaign::cdiv(d.force_harmonics_n[0], d.displacement_harmonics_m[0]);
-            k.0.hypot(k.1)
-        })
-        .filter(|k| k.is_finite() && *k > 0.0)
-        .collect();
-    stiffness.sort_by(f64::total_cmp);
-    let k = *stiffness.get(stiffness.len() / 2)?;
-    // f_n = zeta / (pi tau) over the damping range, kept above 3 f_max and in range.
+    let k = median_dynamic_stiffness(data)?;
+    let (lo, hi) = pair_mode_family(tau, data)?;
     let f_of = |zeta: f64| zeta / (std::f64::consts::PI * tau);
-    let lo = f_of(LOAD_TRAIN_DAMPING_RANGE.0)
-        .max(3.0 * f_max)
-        .max(LOAD_TRAIN_FREQUENCY_RANGE_HZ.0);
-    let hi = f_of(LOAD_TRAIN_DAMPING_RANGE.1).min(LOAD_TRAIN_FREQUENCY_RANGE_HZ.1);
-    if lo >= hi || lo.is_nan() || hi.is_nan() {
-        return None;
-    }
     let participating = |f_n: f64| mass + k / (2.0 * std::f64::consts::PI * f_n).powi(2);
     let example = f_of(0.03).clamp(lo, hi);
+    let refitted = refit.map_or(String::new(), |r| {
+        let p = effect_params(&r.model, EffectKind::LoadTrainResonance);
+        let m = effect_params(&r.model, EffectKind::MovingMass);
+        let get = |v: &[(&str, f64)], name: &str| {
+            v.iter().find(|(n, _)| *n == name).map_or(f64::NAN, |x| x.1)
+        };
+        let verdict = if r.qualifies {
+            "fits them better by the naming rule: the data point at the mode"
+        } else if r.out_of_range.is_some() {
+            "fits only outside the mode's range"
+        } else {
+            "fits them no better (one parameter more): these tests cannot tell the two apart"
+        };
+        format!(
+            "; refitted in the pair's place, a mode at {:.0} Hz, zeta {:.3}, with {:.1} kg {verdict} (held-out gap ratio to the pair {:.3}, z {:.2})",
+            get(&p, "natural_frequency_hz"),
+            get(&p, "damping_ratio"),
+            get(&m, "mass_kg"),
+            r.gap_ratio,
+            r.wilcoxon_z
+        )
+    });
     Some(format!(
-        "with the force lag of {:.3} ms named beside it, not told from a load-train resonance above the tests' band by these tests: a mode at {lo:.0}-{hi:.0} Hz (damping ratio {:.3}-{:.2}, 2 zeta / omega_n = the lag) with a participating mass of {:.1}-{:.1} kg (this mass plus K / omega_n^2, K = {:.3e} N/m the element's median dynamic stiffness) gives the same force within them to second order in f / f_n (e.g. {example:.0} Hz, zeta {:.3}, {:.1} kg); content near such a mode (history tests whose passages reach it, or tests at 50-150 Hz) tells them apart",
+        "with the force lag of {:.3} ms named beside it, not told from a load-train resonance above the tests' band by these tests: a mode at {lo:.0}-{hi:.0} Hz (damping ratio {:.3}-{:.2}, 2 zeta / omega_n = the lag) with a participating mass of {:.1}-{:.1} kg (this mass plus K / omega_n^2, K = {:.3e} N/m the element's median dynamic stiffness) gives the same force within them to second order in f / f_n (e.g. {example:.0} Hz, zeta {:.3}, {:.1} kg); content near such a mode (history tests whose passages reach it, or tests at 50-150 Hz) tells them apart{refitted}",
         tau * 1e3,
         (lo * std::f64::consts::PI * tau).max(LOAD_TRAIN_DAMPING_RANGE.0),
         (hi * std::f64::consts::PI * tau).min(LOAD_TRAIN_DAMPING_RANGE.1),
@@ -2143,6 +2161,156 @@ fn resonance_pair_note(model: &AugmentedModel, data: &[CycleData]) -> Option<Str
         example * std::f64::consts::PI * tau,
         participating(example),
     ))
+}
+
+/// The element's median dynamic stiffness over the harmonic tests, N/m.
+fn median_dynamic_stiffness(data: &[CycleData]) -> Option<f64> {
+    let mut stiffness: Vec<f64> = data
+        .iter()
+        .filter(|d| !d.is_history())
+        .map(|d| {
+            let k =
+                crate::ident::campaign::cdiv(d.force_harmonics_n[0], d.displacement_harmonics_m[0]);
+            k.0.hypot(k.1)
+        })
+        .filter(|k| k.is_finite() && *k > 0.0)
+        .collect();
+    stiffness.sort_by(f64::total_cmp);
+    stiffness.get(stiffness.len() / 2).copied()
+}
+
+/// The natural frequencies (Hz, low and high) of the load-train modes a force lag `tau`
+/// stands for within the tests' band: `f_n = zeta / (pi tau)` over the library's damping
+/// range, above 3x the highest harmonic test frequency and within the frequency range.
+fn pair_mode_family(tau: f64, data: &[CycleData]) -> Option<(f64, f64)> {
+    use crate::ident::fit::{LOAD_TRAIN_DAMPING_RANGE, LOAD_TRAIN_FREQUENCY_RANGE_HZ};
+    let f_max = data
+        .iter()
+        .filter(|d| !d.is_history())
+        .map(|d| d.frequency_hz)
+        .fold(0.0, f64::max);
+    let f_of = |zeta: f64| zeta / (std::f64::consts::PI * tau);
+    let lo = f_of(LOAD_TRAIN_DAMPING_RANGE.0)
+        .max(3.0 * f_max)
+        .max(LOAD_TRAIN_FREQUENCY_RANGE_HZ.0);
+    let hi = f_of(LOAD_TRAIN_DAMPING_RANGE.1).min(LOAD_TRAIN_FREQUENCY_RANGE_HZ.1);
+    (lo < hi).then_some((lo, hi))
+}
+
+/// A named force lag beside a named moving mass refitted as what they may be together
+/// (`resonance_pair_note`): a load-train resonance in the lag's place, the mass kept as
+/// the mode's participating mass, started at two members of the family the pair stands
+/// for. The two descriptions agree within the band to second order in `f / f_n`; they
+/// differ where the element's stiffness varies (a mode's apparent mass `-K / omega_n^2`
+/// follows the preload's stiffness, a moving mass does not) and in content near the mode.
+/// Returns the resonance's result (its comparison against the pair, one parameter more),
+/// `qualifies` when it passes the naming rule against the pair within every range.
+fn resonance_in_pair_place(
+    template: &Template,
+    cv: &CrossValidation,
+    scoring: &Scoring<'_>,
+    progress: &mut dyn FnMut(&str),
+) -> Option<CandidateResult> {
+    use crate::ident::fit::{damping_theta, LOAD_TRAIN_DAMPING_RANGE};
+    let data = scoring.data;
+    let options = scoring.options;
+    let delay_at = template
+        .added
+        .iter()
+        .position(|k| *k == EffectKind::ChannelDelay)?;
+    template
+        .added
+        .iter()
+        .position(|k| *k == EffectKind::MovingMass)?;
+    let model = template.model(&cv.full_fit.params);
+    let tau = model.effects.iter().find_map(|e| match *e {
+        Effect::ChannelDelay { force_lag_s } if force_lag_s > 0.0 => Some(force_lag_s),
+        _ => None,
+    })?;
+    let mass = model.effects.iter().find_map(|e| match *e {
+        Effect::MovingMass { mass_kg } if mass_kg > 0.0 => Some(mass_kg),
+        _ => None,
+    })?;
+    let k = median_dynamic_stiffness(data)?;
+    let (lo, hi) = pair_mode_family(tau, data)?;
+    let mut base = template.clone();
+    base.added.remove(delay_at);
+    base.added.push(EffectKind::LoadTrainResonance);
+    let mass_at = base
+        .added
+        .iter()
+        .position(|k| *k == EffectKind::MovingMass)?;
+    let mut theta = cv.full_fit.params.clone();
+    theta.remove(template.effect_param_offset(delay_at));
+    let mass_offset = base.effect_param_offset(mass_at);
+    let templates: Vec<Template> = [0.25, 0.6]
+        .iter()
+        .map(|&x| {
+            let f_n = lo * (hi / lo).powf(x);
+            let zeta = (std::f64::consts::PI * f_n * tau)
+                .clamp(LOAD_TRAIN_DAMPING_RANGE.0, LOAD_TRAIN_DAMPING_RANGE.1);
+            let mut start = theta.clone();
+            start[mass_offset] = (mass + k / (2.0 * std::f64::consts::PI * f_n).powi(2)) / 10.0;
+            start.extend([f_n.ln(), damping_theta(zeta)]);
+            let mut t = base.clone();
+            t.start_prefix = Some(start);
+            t
+        })
+        .collect();
+    let fitted = run_parallel(&templates, options.n_threads, |t| {
+        cross_validate(
+            t,
+            data,
+            scoring.folds,
+            scoring.n_folds,
+            options.max_iterations,
+            options.n_threads,
+        )
+    });
+    let (t, fit) = templates
+        .into_iter()
+        .zip(fitted)
+        .min_by(|a, b| a.1.full_fit.sse.total_cmp(&b.1.full_fit.sse))?;
+    let reference = Reference {
+        errors: &cv.held_out_error,
+        gap: excess_gap(&cv.held_out_error, data),
+        raw: raw_gap(&cv.held_out_error, data),
+    };
+    let raw = raw_gap(&fit.held_out_error, data);
+    let m = scoring.compare(&fit.held_out_error, raw, 1, &reference);
+    let model = t.model_with_errors(&fit.full_fit);
+    let out_of_range = out_of_range(&model, &[EffectKind::LoadTrainResonance]);
+    progress(&format!(
+        "the force lag and moving mass refitted as a load-train resonance with its mass: held-out gap {:.4e} against the pair's {:.4e}, ratio {:.3}, z {:.2}, folds {}/{}{}{}",
+        excess_gap(&fit.held_out_error, data),
+        reference.gap,
+        m.gap_ratio,
+        m.z,
+        m.folds_improved,
+        scoring.n_folds,
+        out_of_range.map_or(String::new(), |o| format!(" {o}")),
+        if m.qualifies { " qualifies" } else { "" }
+    ));
+    Some(CandidateResult {
+        kind: EffectKind::LoadTrainResonance,
+        round: 0,
+        raw_gap: raw,
+        cv: fit,
+        gap_ratio: m.gap_ratio,
+        raw_ratio: m.raw_ratio,
+        score: m.score,
+        wilcoxon_z: m.z,
+        folds_improved: m.folds_improved,
+        history_evidence: m.history_evidence,
+        qualifies: m.qualifies && out_of_range.is_none(),
+        would_qualify: m.qualifies,
+        out_of_range,
+        law_broken: None,
+        model,
+        template: t,
+        law_note: None,
+        stand_in: None,
+    })
 }
 
 /// Residual variances beyond which one of an effect and its discrete rival

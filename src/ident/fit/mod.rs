@@ -898,7 +898,8 @@ fn damping_ratio(theta: f64) -> f64 {
     LOAD_TRAIN_DAMPING_RANGE.1 * logistic(theta)
 }
 
-fn damping_theta(ratio: f64) -> f64 {
+/// The transformed parameter of a load-train damping ratio (a fit's start).
+pub fn damping_theta(ratio: f64) -> f64 {
     logit(ratio / LOAD_TRAIN_DAMPING_RANGE.1)
 }
 
@@ -1191,6 +1192,15 @@ impl Template {
 
     pub fn n_params(&self) -> usize {
         self.n_element_params() + self.added.iter().map(|k| k.n_params()).sum::<usize>()
+    }
+
+    /// Index in the transformed parameters of the first parameter of `added[index]`.
+    pub fn effect_param_offset(&self, index: usize) -> usize {
+        self.n_element_params()
+            + self.added[..index.min(self.added.len())]
+                .iter()
+                .map(|k| k.n_params())
+                .sum::<usize>()
     }
 
     /// Names of the fitted (transformed) parameters.
