@@ -1803,18 +1803,15 @@ fn drift_clock_note(
         ));
     }
     if !like_order.is_empty() {
+        // Named, not "that clock": beside "prefer it to X" a pronoun read as X.
+        let names = like_order
+            .iter()
+            .map(|c| c.name())
+            .collect::<Vec<_>>()
+            .join(" and ");
         note.push_str(&format!(
-            "; {} proportional to test order in this campaign, so the data cannot tell {} from it",
-            like_order
-                .iter()
-                .map(|c| c.name())
-                .collect::<Vec<_>>()
-                .join(" and "),
-            if like_order.len() == 1 {
-                "that clock"
-            } else {
-                "those clocks"
-            }
+            "; {names} {} proportional to test order in this campaign, so the data cannot tell {names} from test-order",
+            if like_order.len() == 1 { "is" } else { "are" }
         ));
     }
     let has_time = data.iter().any(|d| d.time.clocks[1] > 0.0);
