@@ -777,6 +777,10 @@ impl OutOfRange {
     }
 }
 
+/// A fitted value this far from 1 (or this close to 0) is a map's numerical limit, not a
+/// value: every effect's range lies well inside it.
+const RUNAWAY_MAGNITUDE: f64 = 1e20;
+
 impl std::fmt::Display for OutOfRange {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let bound = if self.value < self.range.0 {
@@ -784,6 +788,21 @@ impl std::fmt::Display for OutOfRange {
         } else {
             format!("<= {}", self.range.1)
         };
+        // A log- or logistic-mapped parameter run off to its map's numerical limit
+        // (e^50 = 5.18e21, e^-50): no finite value fits; its number is no result.
+        let magnitude = self.value.abs();
+        if magnitude >= RUNAWAY_MAGNITUDE
+            || (magnitude > 0.0 && magnitude <= 1.0 / RUNAWAY_MAGNITUDE)
+        {
+            return write!(
+                f,
+                "fits only with {} running off to {} (the fit stopped at its numerical limit, {:.1e}), outside its range ({bound} {})",
+                self.param,
+                if magnitude >= 1.0 { "infinity" } else { "zero" },
+                self.value,
+                self.unit
+            );
+        }
         write!(
             f,
             "fits only with {} = {:.4e}, outside its range ({bound} {})",
@@ -1737,6 +1756,37 @@ mod tests {
     use super::{CrossValidation, EffectKind, LmFit, ParamInterval, Template};
     use crate::model::effects::AugmentedModel;
     use crate::model::params::{ElementModel, ZenerParams};
+
+    #[test]
+    fn a_fit_run_off_to_its_numerical_limit_is_said_so_not_quoted() {
+        use super::{OutOfRange, LOAD_TRAIN_DAMPING_RANGE, LOAD_TRAIN_FREQUENCY_RANGE_HZ};
+        let runaway = OutOfRange {
+            kind: EffectKind::LoadTrainResonance,
+            param: "natural_frequency_hz",
+            value: 50f64.exp(),
+            range: LOAD_TRAIN_FREQUENCY_RANGE_HZ,
+            unit: "Hz",
+        };
+        let text = runaway.to_string();
+        assert!(text.contains("running off to infinity"), "{text}");
+        assert!(!text.contains("5.1847e21"), "{text}");
+        let to_zero = OutOfRange {
+            param: "damping_ratio",
+            value: 3.4e-285,
+            range: LOAD_TRAIN_DAMPING_RANGE,
+            unit: "",
+            ..runaway
+        };
+        assert!(to_zero.to_string().contains("running off to zero"));
+        let finite = OutOfRange {
+            value: 7000.0,
+            ..runaway
+        };
+        assert_eq!(
+            finite.to_string(),
+            "fits only with natural_frequency_hz = 7.0000e3, outside its range (<= 5000 Hz)"
+        );
+    }
 
     /// A springpot whose order sits on its clamp (0.999: the logistic coordinate far out)
     /// is reported on its bound, with no interval and not determined; its coefficient gets
