@@ -839,6 +839,9 @@ pub fn model_notes(d: &Diagnosis, data: &[CycleData]) -> Vec<String> {
                     1.0 / heat_transfer_w_per_k
                 ));
             }
+            Effect::CyclicSoftening { max_force_n, .. } => notes.push(format!(
+                "cyclic-softening: max_force_n = {max_force_n} is a state, not a fitted parameter: the largest virgin force the element carried before the model starts (0: the virgin specimen); it rises as the element is loaded beyond it."
+            )),
             Effect::LoadTrainResonance {
                 natural_frequency_hz,
                 ..
@@ -1082,7 +1085,11 @@ fn run_advice(
 fn params_text(model: &AugmentedModel, kind: EffectKind) -> String {
     effect_params(model, kind)
         .iter()
-        .map(|(k, v)| format!("{k} = {v:.4e}"))
+        .map(|(k, v)| match *k {
+            // States the model starts from, not fitted (a lab read a 0 as a fit).
+            "max_force_n" | "temperature_rise_k" => format!("{k} = {v:.4e} (state)"),
+            _ => format!("{k} = {v:.4e}"),
+        })
         .collect::<Vec<_>>()
         .join(", ")
 }
