@@ -440,14 +440,7 @@ pub(super) fn resonance_pair_note(
     refit: Option<&CandidateResult>,
 ) -> Option<String> {
     use crate::ident::fit::LOAD_TRAIN_DAMPING_RANGE;
-    let tau = model.effects.iter().find_map(|e| match *e {
-        Effect::ChannelDelay { force_lag_s } if force_lag_s > 0.0 => Some(force_lag_s),
-        _ => None,
-    })?;
-    let mass = model.effects.iter().find_map(|e| match *e {
-        Effect::MovingMass { mass_kg } if mass_kg > 0.0 => Some(mass_kg),
-        _ => None,
-    })?;
+    let (tau, mass) = lag_and_mass(model)?;
     let k = median_dynamic_stiffness(data)?;
     let (lo, hi) = pair_mode_family(tau, data)?;
     let f_of = |zeta: f64| zeta / (std::f64::consts::PI * tau);
@@ -486,6 +479,20 @@ pub(super) fn resonance_pair_note(
         example * std::f64::consts::PI * tau,
         participating(example),
     ))
+}
+
+/// A positive force lag (s) and a positive moving mass (kg) among `model`'s effects, both
+/// or none: the pair a load-train mode above the band looks like.
+fn lag_and_mass(model: &AugmentedModel) -> Option<(f64, f64)> {
+    let tau = model.effects.iter().find_map(|e| match *e {
+        Effect::ChannelDelay { force_lag_s } if force_lag_s > 0.0 => Some(force_lag_s),
+        _ => None,
+    })?;
+    let mass = model.effects.iter().find_map(|e| match *e {
+        Effect::MovingMass { mass_kg } if mass_kg > 0.0 => Some(mass_kg),
+        _ => None,
+    })?;
+    Some((tau, mass))
 }
 
 /// The element's median dynamic stiffness over the harmonic tests, N/m.
@@ -543,19 +550,8 @@ pub(super) fn resonance_in_pair_place(
         .added
         .iter()
         .position(|k| *k == EffectKind::ChannelDelay)?;
-    template
-        .added
-        .iter()
-        .position(|k| *k == EffectKind::MovingMass)?;
     let model = template.model(&cv.full_fit.params);
-    let tau = model.effects.iter().find_map(|e| match *e {
-        Effect::ChannelDelay { force_lag_s } if force_lag_s > 0.0 => Some(force_lag_s),
-        _ => None,
-    })?;
-    let mass = model.effects.iter().find_map(|e| match *e {
-        Effect::MovingMass { mass_kg } if mass_kg > 0.0 => Some(mass_kg),
-        _ => None,
-    })?;
+    let (tau, mass) = lag_and_mass(&model)?;
     let k = median_dynamic_stiffness(data)?;
     let (lo, hi) = pair_mode_family(tau, data)?;
     let mut base = template.clone();
