@@ -811,6 +811,17 @@ impl SpringpotBank {
     }
 }
 
+/// A linear state jumps to its periodic solution only when a period takes at least this
+/// much off it (`1 - decay^period`); slower ones keep their state.
+const MIN_PERIODIC_DECAY: f64 = 1e-6;
+
+/// A stepper's linear states at one instant (`ModelStepper::linear_state`).
+#[derive(Debug, Clone, Copy)]
+pub struct LinearState {
+    maxwell_n: f64,
+    bank_n: [f64; SPRINGPOT_BRANCHES],
+}
+
 #[derive(Debug, Clone, Copy)]
 struct BankState {
     rates_per_s: [f64; SPRINGPOT_BRANCHES],
@@ -1375,6 +1386,40 @@ impl ModelStepper {
         }
         stepper.force_n = f0;
         stepper
+    }
+
+    /// The states that are linear in themselves under a given input (the consistent form's
+    /// Maxwell branch, the springpot's branches): what `jump_to_periodic` needs from one
+    /// period earlier. `None` when the element has no such state to jump (paper form,
+    /// Kelvin-Voigt) or the temperature moves (self-heating not frozen: the decays change).
+    pub fn linear_state(&self) -> Option<LinearState> {
+        if self.self_heating.is_some_and(|h| h.dynamic) {
+            return None;
+        }
+        Some(LinearState {
+            maxwell_n: self.base.maxwell_force_n()?,
+            bank_n: self.bank.map_or([0.0; SPRINGPOT_BRANCHES], |b| b.force_n),
+        })
+    }
+
+    /// After one period of `period_steps` steps of a periodic input begun at `start`
+    /// (`linear_state`), puts the linear states on their periodic solution (each maps
+    /// `f -> decay^period_steps f + c` over a period). The nonlinear states (friction,
+    /// the Mullins maximum) are left to settle over further periods; the force output
+    /// changes only from the next step on.
+    pub fn jump_to_periodic(&mut self, start: &LinearState, period_steps: usize) {
+        self.base
+            .jump_maxwell_to_periodic(start.maxwell_n, period_steps, MIN_PERIODIC_DECAY);
+        if let Some(bank) = &mut self.bank {
+            for j in 0..SPRINGPOT_BRANCHES {
+                let d = bank.decay[j].powi(period_steps as i32);
+                // A branch too slow to move over a period keeps its state: `1 - d` would
+                // amplify the rounding of its increment.
+                if d < 1.0 - MIN_PERIODIC_DECAY {
+                    bank.force_n[j] = (bank.force_n[j] - d * start.bank_n[j]) / (1.0 - d);
+                }
+            }
+        }
     }
 
     /// Holds the self-heating rise at the model's `temperature_rise_k` (offline, where a

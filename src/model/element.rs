@@ -127,6 +127,31 @@ impl ForceStepper {
         };
     }
 
+    /// The consistent form's Maxwell-branch force (its only state not a function of the
+    /// displacement), `None` for the other forms.
+    pub fn maxwell_force_n(&self) -> Option<f64> {
+        match self.state {
+            State::Consistent { fm_n, .. } => Some(fm_n),
+            _ => None,
+        }
+    }
+
+    /// Puts the consistent form's Maxwell branch on its periodic state, given its force
+    /// `start_n` one period of `period_steps` steps ago: over a period of a periodic input
+    /// the branch maps `fm -> D fm + c` with `D = decay^period_steps` (it is linear in
+    /// `fm` with a constant step), so its fixed point is `(fm_now - D start_n) / (1 - D)`.
+    /// No-op for the other forms (the paper form's force is not linear in its state), and
+    /// when a period takes less than `min_decay` off the branch (`1 - D` would amplify the
+    /// rounding of its increment).
+    pub fn jump_maxwell_to_periodic(&mut self, start_n: f64, period_steps: usize, min_decay: f64) {
+        let d = self.decay.powi(period_steps as i32);
+        if let State::Consistent { fm_n, .. } = &mut self.state {
+            if d < 1.0 - min_decay {
+                *fm_n = (*fm_n - d * start_n) / (1.0 - d);
+            }
+        }
+    }
+
     /// Replaces the element's parameters mid-run (self-heating: the same element at another
     /// temperature) without a force jump from re-parameterisation: the elastic force is
     /// re-evaluated at the current displacement and the Maxwell branch's force scaled with
