@@ -874,6 +874,7 @@ fn summarise(
         "safety": value(analysis.map(|a| serde_json::to_value(&a.safety).unwrap_or_default())),
         "stalls": value(analysis.map(|a| json!({
             "count": a.stalls.count,
+            "ended_in_hold": a.stalls.ended_in_hold,
             "longest_ms": a.stalls.longest_ms,
             "largest_transient_um": a.stalls.largest_transient_m * 1e6,
             "episodes": a.stalls.episodes.iter().map(|e| json!({
@@ -938,13 +939,26 @@ fn summarise(
         println!("{}", serde_json::to_string(&compact)?);
     }
     if let Some(a) = analysis {
+        // An external rig reports no timing of its own (its misses are its own business).
+        let rig_timing = match rig_setup {
+            RigSetup::External { .. } | RigSetup::ExternalUdp { .. } => {
+                "the rig is external: its own timing is not known".to_string()
+            }
+            _ => format!(
+                "the simulated rig's own timing: {} missed",
+                summary["deadline_misses_rig"].as_u64().unwrap_or(0)
+            ),
+        };
         eprintln!(
-            "hil: {} steps, {deadline_misses} emulator deadline misses ({:.1e}; the simulated rig's own timing: {} missed), {} stalls ridden through (longest {:.1} ms), largest transient {:.2} um of {:.1} um allowed ({:.2} um after a stall), displacement rel. RMS error {:.3} %, stable {}, end-to-end p50 {} us p99 {} us",
+            "hil: {} steps, {deadline_misses} emulator deadline misses ({:.1e}; {rig_timing}), {} stalls ridden through (longest {:.1} ms){}, largest transient {:.2} um of {:.1} um allowed ({:.2} um after a stall), displacement rel. RMS error {:.3} %, stable {}, end-to-end p50 {} us p99 {} us",
             a.steps,
             deadline_misses as f64 / a.steps.max(1) as f64,
-            summary["deadline_misses_rig"].as_u64().unwrap_or(0),
             a.stalls.count,
             a.stalls.longest_ms,
+            match a.stalls.ended_in_hold {
+                0 => String::new(),
+                n => format!(" and {n} the hold ended"),
+            },
             a.largest_transient_m * 1e6,
             cfg.safety.max_transient_m * 1e6,
             a.stalls.largest_transient_m * 1e6,

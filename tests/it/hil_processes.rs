@@ -588,6 +588,13 @@ fn sigstop_of_300_ms_is_a_fault_with_a_hold_and_of_5_ms_is_ridden_through() {
             "bench_rig: commands-stale"
         };
         assert!(f.iter().any(|x| x.starts_with(expected)), "{name}: {f:?}");
+        // The 300 ms gap ended in the hold: not a stall ridden through.
+        assert!(
+            json["stalls"]["ended_in_hold"].as_u64().unwrap() >= 1
+                && json["stalls"]["longest_ms"].as_f64().unwrap() < 250.0,
+            "{name}: {}",
+            json["stalls"]
+        );
         assert_hold_in_records(&report, AXLE_S, &format!("SIGSTOP {name}"));
         assert_nothing_left(&json);
     }

@@ -53,6 +53,18 @@ fn a_synthetic_campaign_is_diagnosed_and_its_truth_kept_apart() {
     assert!(json["unexplained"].is_null(), "{json}");
     assert_eq!(json["history_tests"].as_array().unwrap().len(), 3);
     assert!(dir.path.join("diagnosis/histories.png").is_file());
+    // The report's opening lines (before its first section) say what was named, whether
+    // a residual remains and whether the specimen changed, as the README promises.
+    let report = std::fs::read_to_string(dir.path.join("diagnosis/report.md")).unwrap();
+    let opening = report.split("\n## ").next().unwrap();
+    assert_eq!(json["specimen_changed"], serde_json::json!(false), "{json}");
+    for line in [
+        "- **Named effects: moving-mass**",
+        "- Unexplained residual: ",
+        "- Specimen: no change beyond noise during the campaign",
+    ] {
+        assert!(opening.contains(line), "{line}\n{opening}");
+    }
 }
 
 #[test]

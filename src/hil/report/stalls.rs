@@ -25,7 +25,12 @@ pub struct StallReport {
 
 #[derive(Debug, Clone, Serialize, Default, PartialEq)]
 pub struct Stalls {
+    /// Stalls ridden through: the law came back before any hold.
     pub count: u64,
+    /// Stalls the run did not ride through: still going when the law gave way to a hold
+    /// (a fault's, usually the stall's own), or when the records end. Not in `count`,
+    /// `longest_ms` or `episodes`; the fault's hold is in the report's safety part.
+    pub ended_in_hold: u64,
     pub longest_ms: f64,
     pub largest_transient_m: f64,
     /// The episodes with the largest transients (at most 20).
@@ -148,13 +153,21 @@ impl StallTracker {
 
     pub fn finish(mut self, sources: &[(&str, &[Gap])]) -> Stalls {
         let dt = self.dt_s;
+        let mut ended_in_hold = 0;
         for e in std::mem::take(&mut self.episodes) {
-            self.close(e, dt, sources);
+            if e.open {
+                // The law ages end at the hold (or the records do): never ridden through.
+                self.count -= 1;
+                ended_in_hold += 1;
+            } else {
+                self.close(e, dt, sources);
+            }
         }
         self.trim();
         self.finished.sort_by(|a, b| a.at_s.total_cmp(&b.at_s));
         Stalls {
             count: self.count,
+            ended_in_hold,
             longest_ms: self.longest_periods as f64 * dt * 1e3,
             largest_transient_m: self.largest,
             episodes: self.finished,
@@ -187,5 +200,28 @@ mod tests {
         assert!((s.longest_ms - 19.0 / 4.096).abs() < 1e-9, "{s:?}");
         assert_eq!(s.largest_transient_m, 7e-6);
         assert_eq!(s.episodes[0].source, "emulator");
+        assert_eq!(s.ended_in_hold, 0);
+    }
+
+    /// A stall still going when the law ages end (the hold came during it: a kill's
+    /// gap that tripped `setpoints-stale`) is not counted as ridden through, nor in the
+    /// longest; the one before it is.
+    #[test]
+    fn a_stall_the_hold_ended_is_not_ridden_through() {
+        let mut t = StallTracker::new(4096.0);
+        let sources: Vec<(&str, &[Gap])> = Vec::new();
+        for step in 0..6000u64 {
+            let age = match step {
+                1000..=1019 => step - 1000,
+                5800.. => step - 5800,
+                _ => 1,
+            };
+            t.push_law_age(step, age);
+            t.push_high_passed(step, 1e-7, &sources);
+        }
+        let s = t.finish(&sources);
+        assert_eq!((s.count, s.ended_in_hold), (1, 1), "{s:?}");
+        assert!((s.longest_ms - 19.0 / 4.096).abs() < 1e-9, "{s:?}");
+        assert_eq!(s.episodes.len(), 1);
     }
 }

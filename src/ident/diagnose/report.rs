@@ -435,6 +435,22 @@ fn render_report(
             )
         );
     }
+    // Whether the specimen changed, in the opening lines whatever the answer (a change
+    // is the bold headline above).
+    if !d.verdict.specimen_changed() {
+        let _ = writeln!(
+            r,
+            "- Specimen: {}",
+            match &d.verdict.trend {
+                Some(t) => format!(
+                    "no change beyond noise during the campaign (in-phase residual {:+.3} % from the first to the last test, t = {:.2}; below: test order and repeated tests)",
+                    100.0 * t.change,
+                    t.t
+                ),
+                None => "too few tests to judge a change with test order".to_string(),
+            }
+        );
+    }
     let unphysical: Vec<&super::CandidateResult> = d
         .rounds
         .iter()
