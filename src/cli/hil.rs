@@ -950,14 +950,18 @@ fn summarise(
             ),
         };
         eprintln!(
-            "hil: {} steps, {deadline_misses} emulator deadline misses ({:.1e}; {rig_timing}), {} stalls ridden through (longest {:.1} ms){}, largest transient {:.2} um of {:.1} um allowed ({:.2} um after a stall), displacement rel. RMS error {:.3} %, stable {}, end-to-end p50 {} us p99 {} us",
+            "hil: {} steps, {deadline_misses} emulator deadline misses ({:.1e}; {rig_timing}), {} stalls ridden through (longest {:.1} ms{}), largest transient {:.2} um of {:.1} um allowed ({:.2} um after a stall), displacement rel. RMS error {:.3} %, stable {}, end-to-end p50 {} us p99 {} us",
             a.steps,
             deadline_misses as f64 / a.steps.max(1) as f64,
             a.stalls.count,
             a.stalls.longest_ms,
+            // Every run's law ends in a hold (the programme's end too): said only when a
+            // fault's hold ended a stall.
             match a.stalls.ended_in_hold {
-                0 => String::new(),
-                n => format!(" and {n} the hold ended"),
+                n if n > 0 && summary["faults"].as_array().is_some_and(|f| !f.is_empty()) => {
+                    format!("; {n} more ended in the fault's hold")
+                }
+                _ => String::new(),
             },
             a.largest_transient_m * 1e6,
             cfg.safety.max_transient_m * 1e6,

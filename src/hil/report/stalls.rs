@@ -28,7 +28,8 @@ pub struct Stalls {
     /// Stalls ridden through: the law came back before any hold.
     pub count: u64,
     /// Stalls the run did not ride through: still going when the law gave way to a hold
-    /// (a fault's, usually the stall's own), or when the records end. Not in `count`,
+    /// (a fault's, usually the stall's own, or the programme's end), or when the records
+    /// end. Not in `count`,
     /// `longest_ms` or `episodes`; the fault's hold is in the report's safety part.
     pub ended_in_hold: u64,
     pub longest_ms: f64,
