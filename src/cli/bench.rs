@@ -417,6 +417,11 @@ fn run_compensation(args: CompensationBenchArgs) -> anyhow::Result<ExitCode> {
             variants.truncate(1);
         }
         for (name, variant) in variants {
+            // As `hil` refuses it: an actuator that cannot carry the load cannot hold.
+            if let Some(why) = crate::hil::check::actuator_cannot_hold(&variant) {
+                eprintln!("bench compensation: {name} skipped: {why}");
+                continue;
+            }
             for &guess in &guesses {
                 let mut c = variant.clone();
                 c.compensation.initial_delay_s = guess.min(c.compensation.max_delay_s);

@@ -429,6 +429,8 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     // As the run starts: with the safe start's damping when it arms.
     let starts_stable = safe_start.unwrap_or(m.stable);
     let best = lin.most_faithful_stable_lead(cfg.compensation.max_delay_s);
+    // The actuator must carry the programme's peak load, or a fault's hold cannot hold.
+    let cannot_hold = crate::hil::check::actuator_cannot_hold(cfg);
     let [(delay_1_s, amplitude_1, _), (delay_20_s, amplitude_20, velocity_20)] =
         [1.0, 20.0].map(|f| lin.actuator_at(f));
     if args.json {
@@ -443,6 +445,7 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                 "lead_order": cfg.compensation.lead_order,
                 "safe_start_stable": safe_start,
                 "starts_stable": starts_stable,
+                "actuator_cannot_hold": cannot_hold,
                 "predicted_faithful_band_hz": band_hz,
                 "most_faithful_stable_lead": best.map(|(l, b)| json!({"lead_us": l * 1e6, "faithful_band_hz": b})),
                 "actuator_phase_delay_us": {"1_hz": delay_1_s * 1e6, "20_hz": delay_20_s * 1e6},
@@ -467,14 +470,8 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
         "  actuator: {} (the simulated rig's [rig.actuator]; a rig of its own is unknown to fastemu, which learns it with adapt = true)",
         describe_actuator(cfg)
     );
-    // The actuator must carry the preload and the load programme's peak.
-    let peak_load_n = cfg.scenario.preload_n + cfg.scenario.harmonic_amplitude_n.abs();
-    let force_max_n = cfg.rig.actuator.nominal.force_max_n();
-    if force_max_n < peak_load_n {
-        eprintln!(
-            "  WARNING: the actuator's force_max_n = {:.0} N is below the preload plus the harmonic load ({:.0} N): it saturates and cannot render the element",
-            force_max_n, peak_load_n
-        );
+    if let Some(why) = &cannot_hold {
+        eprintln!("  ERROR: {why}");
     }
     if cap_s.is_finite() {
         eprintln!(
@@ -574,7 +571,7 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
         None => {}
     }
     eprintln!("  plot: {}", plot.display());
-    Ok(if starts_stable {
+    Ok(if starts_stable && cannot_hold.is_none() {
         ExitCode::SUCCESS
     } else {
         ExitCode::from(1)
@@ -709,6 +706,12 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
     let cfg = load_config(&args)?;
     if args.check {
         return check(&args, &cfg);
+    }
+    // The simulated rig's actuator must be able to hold what the programme loads it with.
+    if !args.rig.external() {
+        if let Some(why) = crate::hil::check::actuator_cannot_hold(&cfg) {
+            anyhow::bail!("{why} (fastemu hil --check)");
+        }
     }
     let live_front = bind_live(&args)?;
     let out_dir = report_dir(&args)?;

@@ -83,6 +83,61 @@ pub fn starting_compensation(cfg: &HilConfig) -> crate::hil::compensation::Compe
     }
 }
 
+/// The programme's largest external force (magnitude) over one pass of its block
+/// sequence (or up to its end, if sooner), sampled at the loop's period, and when (s):
+/// what a fault's hold must carry, since the programme stands still while the rig holds.
+pub fn programme_peak_load(cfg: &HilConfig) -> (f64, f64) {
+    let load = crate::rig::load::LoadProgramme::new(&cfg.programme, cfg.model.length_m);
+    let span_s = if load.sequence_s() > 0.0 {
+        load.sequence_s().min(load.end_s())
+    } else {
+        0.0
+    };
+    let dt = cfg.loop_.dt_s();
+    let n = (span_s / dt).ceil() as u64;
+    let (mut peak, mut at) = (load.force_n(0.0).abs(), 0.0);
+    for i in 1..=n {
+        let t = i as f64 * dt;
+        let f = load.force_n(t).abs();
+        if f > peak {
+            peak = f;
+            at = t;
+        }
+    }
+    (peak, at)
+}
+
+/// Why the simulated rig's actuator cannot hold the specimen, one line naming the file,
+/// the key and its value: its force limit, at the lowest the perturbation can draw, below
+/// the programme's peak load. A saturated actuator leaves a constant force on a mass that
+/// nothing else holds (`shaker-10kn` under the default 20 kN preload: the hold after its
+/// trip let the specimen run away, tens of metres in the simulation). `None` when it can.
+pub fn actuator_cannot_hold(cfg: &HilConfig) -> Option<String> {
+    let a = &cfg.rig.actuator;
+    let nominal = a.nominal.force_max_n();
+    let lowest = nominal * (1.0 - a.perturb);
+    let (peak, at_s) = programme_peak_load(cfg);
+    (lowest < peak).then(|| {
+        format!(
+            "{}: rig.actuator.force_max_n = {:.0} N{} is below the programme's peak load of {:.0} N (at {:.3} s of programme): the actuator cannot carry it, and a fault's hold, which keeps the load where it tripped, could not hold the specimen; choose an actuator of at least {:.0} N{} or a lighter programme",
+            cfg.origin,
+            nominal,
+            if a.perturb > 0.0 {
+                format!(
+                    " (down to {:.0} N with perturb = {})",
+                    lowest, a.perturb
+                )
+            } else {
+                String::new()
+            },
+            peak,
+            at_s,
+            (peak / (1.0 - a.perturb)).ceil(),
+            if a.perturb > 0.0 { " nominal" } else { "" }
+        )
+    })
+}
+
 /// One line naming the simulated rig's actuator: kind, preset, its parameters.
 pub fn describe_actuator(cfg: &HilConfig) -> String {
     let a = &cfg.rig.actuator;
@@ -509,6 +564,40 @@ mod tests {
                 Complex64::new(0.0, 0.0),
             )
         }
+    }
+
+    /// An actuator that cannot carry the programme's peak load is refused (its hold could
+    /// not hold), with the file, the key and its value; the default one is not. The peak
+    /// is the preload plus the largest axle pulse, found by sampling the programme.
+    #[test]
+    fn an_actuator_below_the_programmes_peak_load_cannot_hold() {
+        let mut cfg = default_hil_config().unwrap();
+        assert_eq!(actuator_cannot_hold(&cfg), None);
+        let (peak, at_s) = programme_peak_load(&cfg);
+        let load = crate::rig::load::LoadProgramme::new(&cfg.programme, cfg.model.length_m);
+        assert!((load.force_n(at_s).abs() - peak).abs() < 1e-9);
+        // Above the preload plus the harmonic: the axles' pulses.
+        assert!(
+            peak > cfg.scenario.preload_n + cfg.scenario.harmonic_amplitude_n.abs(),
+            "{peak}"
+        );
+        for i in 0..2000 {
+            assert!(load.force_n(i as f64 * 3e-3).abs() <= peak + 1e-9);
+        }
+        cfg.rig.actuator.nominal.si[1] = 0.99 * peak;
+        let why = actuator_cannot_hold(&cfg).expect("refused");
+        assert!(
+            why.contains("rig.actuator.force_max_n")
+                && why.contains(&format!("{:.0} N", 0.99 * peak)),
+            "{why}"
+        );
+        cfg.rig.actuator.nominal.si[1] = 1.01 * peak;
+        assert_eq!(actuator_cannot_hold(&cfg), None);
+        // With perturb, the lowest force limit the rig can draw counts.
+        cfg.rig.actuator.perturb = 0.3;
+        assert!(actuator_cannot_hold(&cfg).is_some_and(|w| w.contains("perturb = 0.3")));
+        cfg.rig.actuator.nominal.si[1] = 1.01 * peak / 0.7;
+        assert_eq!(actuator_cannot_hold(&cfg), None);
     }
 
     #[test]
