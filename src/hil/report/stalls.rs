@@ -19,6 +19,9 @@ pub struct StallReport {
     pub at_s: f64,
     pub length_ms: f64,
     pub transient_m: f64,
+    /// The largest >100 Hz residual in the 100 ms before the stall, m: what was there
+    /// already (an oscillating loop's residual is not the stall's transient).
+    pub before_m: f64,
     /// `emulator`, `controller`, `bench_rig`, or `unknown` (transport, or no record).
     pub source: String,
 }
@@ -34,6 +37,9 @@ pub struct Stalls {
     pub ended_in_hold: u64,
     pub longest_ms: f64,
     pub largest_transient_m: f64,
+    /// The largest rise of an episode's transient over the residual before it, m (a stall
+    /// in a limit cycle shows the cycle's amplitude as its transient, and no rise).
+    pub largest_rise_m: f64,
     /// The episodes with the largest transients (at most 20).
     pub episodes: Vec<StallReport>,
 }
@@ -47,6 +53,7 @@ struct Episode {
     end_step: u64,
     max_age: u64,
     transient: f64,
+    before: f64,
     open: bool,
 }
 
@@ -59,7 +66,10 @@ pub struct StallTracker {
     count: u64,
     longest_periods: u64,
     largest: f64,
+    largest_rise: f64,
     finished: Vec<StallReport>,
+    /// The last window's >100 Hz residual: (step, |residual|).
+    recent: std::collections::VecDeque<(u64, f64)>,
 }
 
 impl StallTracker {
@@ -71,7 +81,9 @@ impl StallTracker {
             count: 0,
             longest_periods: 0,
             largest: 0.0,
+            largest_rise: 0.0,
             finished: Vec::new(),
+            recent: std::collections::VecDeque::new(),
         }
     }
 
@@ -86,11 +98,19 @@ impl StallTracker {
             Some(e) if e.open => e.open = false,
             _ if stalled => {
                 self.count += 1;
+                let start_step = step.saturating_sub(law_age_periods);
+                let from = start_step.saturating_sub(self.window_periods);
+                let before = self
+                    .recent
+                    .iter()
+                    .filter(|(s, _)| (from..start_step).contains(s))
+                    .fold(0.0f64, |m, (_, x)| m.max(*x));
                 self.episodes.push(Episode {
-                    start_step: step.saturating_sub(law_age_periods),
+                    start_step,
                     end_step: step,
                     max_age: law_age_periods,
                     transient: 0.0,
+                    before,
                     open: true,
                 });
             }
@@ -104,7 +124,13 @@ impl StallTracker {
         for e in &mut self.episodes {
             if step >= e.start_step && step <= e.end_step + window {
                 e.transient = e.transient.max(hp.abs());
+            } else if step < e.start_step && step + window >= e.start_step {
+                e.before = e.before.max(hp.abs());
             }
+        }
+        self.recent.push_back((step, hp.abs()));
+        while self.recent.front().is_some_and(|(s, _)| s + window < step) {
+            self.recent.pop_front();
         }
         // Episodes whose window has passed are final.
         let dt = self.dt_s;
@@ -123,6 +149,7 @@ impl StallTracker {
     fn close(&mut self, e: Episode, dt: f64, sources: &[(&str, &[Gap])]) {
         self.longest_periods = self.longest_periods.max(e.max_age);
         self.largest = self.largest.max(e.transient);
+        self.largest_rise = self.largest_rise.max(e.transient - e.before);
         let (t0, t1) = (e.start_step as f64 * dt, e.end_step as f64 * dt);
         // The source whose own gap overlaps the episode most.
         let mut best = ("unknown", 0.0);
@@ -138,6 +165,7 @@ impl StallTracker {
             at_s: t0,
             length_ms: e.max_age as f64 * dt * 1e3,
             transient_m: e.transient,
+            before_m: e.before,
             source: best.0.to_string(),
         };
         self.finished.push(report);
@@ -171,6 +199,7 @@ impl StallTracker {
             ended_in_hold,
             longest_ms: self.longest_periods as f64 * dt * 1e3,
             largest_transient_m: self.largest,
+            largest_rise_m: self.largest_rise,
             episodes: self.finished,
         }
     }
@@ -200,8 +229,35 @@ mod tests {
         assert_eq!(s.count, 1);
         assert!((s.longest_ms - 19.0 / 4.096).abs() < 1e-9, "{s:?}");
         assert_eq!(s.largest_transient_m, 7e-6);
+        assert_eq!(s.episodes[0].before_m, 1e-7);
+        assert!((s.largest_rise_m - (7e-6 - 1e-7)).abs() < 1e-15, "{s:?}");
         assert_eq!(s.episodes[0].source, "emulator");
         assert_eq!(s.ended_in_hold, 0);
+    }
+
+    /// A stall inside a limit cycle: its "transient" is the cycle's amplitude, which was
+    /// there before it; the rise says the stall added nothing.
+    #[test]
+    fn a_stall_in_an_oscillation_is_not_its_transient() {
+        let mut t = StallTracker::new(4096.0);
+        let sources: Vec<(&str, &[Gap])> = vec![];
+        let start = 4096;
+        for step in 0..8000u64 {
+            let age = if (start..start + 20).contains(&step) {
+                step - start
+            } else {
+                1
+            };
+            t.push_law_age(step, age);
+            // 84 um at 155 Hz, the lead-100-us-short limit cycle's size.
+            let hp = 84e-6 * (2.0 * std::f64::consts::PI * 155.0 * step as f64 / 4096.0).sin();
+            t.push_high_passed(step, hp, &sources);
+        }
+        let s = t.finish(&sources);
+        assert_eq!(s.count, 1);
+        assert!(s.largest_transient_m > 80e-6, "{s:?}");
+        assert!(s.episodes[0].before_m > 80e-6, "{s:?}");
+        assert!(s.largest_rise_m.abs() < 1e-6, "{s:?}");
     }
 
     /// A stall still going when the law ages end (the hold came during it: a kill's
