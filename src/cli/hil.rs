@@ -369,7 +369,15 @@ fn stability_warning(cfg: &HilConfig) -> Option<String> {
         "[compensation] initial_delay_us".to_string()
     };
     let max = cfg.compensation.max_delay_s;
-    Some(match lin.stable_leads(max) {
+    let nominal = if cfg.rig.actuator.perturb > 0.0 {
+        format!(
+            " [these figures are the actuator's nominal values; the rig draws its own within +-{:.0} %, which fastemu does not know]",
+            cfg.rig.actuator.perturb * 100.0
+        )
+    } else {
+        String::new()
+    };
+    let warning = match lin.stable_leads(max) {
         Some((lo, hi)) => format!(
             "the linearised loop is not stable with the starting lead of {:.0} us ({whence}); it is with {:.0}-{:.0} us.{held} {relies}{} (fastemu hil --check)",
             lead_s * 1e6,
@@ -381,7 +389,8 @@ fn stability_warning(cfg: &HilConfig) -> Option<String> {
             "no lead from 0 to {:.0} us makes the linearised loop stable: this actuator is too slow for the specimen's resonance on this element (SPEC 6.1, docs/compensation.md); expect loop-unstable and a hold (fastemu hil --check)",
             max * 1e6
         ),
-    })
+    };
+    Some(format!("{warning}{nominal}"))
 }
 
 /// For an actuator whose phase delay grows with frequency (a servo-hydraulic force loop):
@@ -532,9 +541,16 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
             }
         );
     }
-    eprintln!(
-        "  predicted faithful band with this lead: {band_hz:.1} Hz (the rendered force within 1 % and 2 degrees of the element's from 1 Hz up; the run's report measures it on the bins the load excites)"
-    );
+    if starts_stable {
+        eprintln!(
+            "  predicted faithful band with this lead: {band_hz:.1} Hz (the rendered force within 1 % and 2 degrees of the element's from 1 Hz up; the run's report measures it on the bins the load excites)"
+        );
+    } else {
+        // A band of a loop that diverges is no promise: said as what it is.
+        eprintln!(
+            "  predicted faithful band with this lead: none (the loop is not stable as it starts; a stable loop with this rendering would be faithful up to {band_hz:.1} Hz)"
+        );
+    }
     match best {
         Some((lead, band)) if band < 20.0 => {
             // What a lead and a gain cannot make up for: a delay that changes over the
@@ -880,8 +896,10 @@ fn summarise(
             "ended_in_hold": a.stalls.ended_in_hold,
             "longest_ms": a.stalls.longest_ms,
             "largest_transient_um": a.stalls.largest_transient_m * 1e6,
+            "largest_rise_um": a.stalls.largest_rise_m * 1e6,
             "episodes": a.stalls.episodes.iter().map(|e| json!({
-                "at_s": e.at_s, "length_ms": e.length_ms, "transient_um": e.transient_m * 1e6, "source": e.source,
+                "at_s": e.at_s, "length_ms": e.length_ms, "transient_um": e.transient_m * 1e6,
+                "before_um": e.before_m * 1e6, "source": e.source,
             })).collect::<Vec<_>>(),
         }))),
         "programme": value(analysis.map(|a| serde_json::to_value(&a.programme).unwrap_or_default())),
@@ -953,7 +971,7 @@ fn summarise(
             ),
         };
         eprintln!(
-            "hil: {} steps, {deadline_misses} emulator deadline misses ({:.1e}; {rig_timing}), {} stalls ridden through (longest {:.1} ms{}), largest transient {:.2} um of {:.1} um allowed ({:.2} um after a stall), displacement rel. RMS error {:.3} %, stable {}, end-to-end p50 {} us p99 {} us",
+            "hil: {} steps, {deadline_misses} emulator deadline misses ({:.1e}; {rig_timing}), {} stalls ridden through (longest {:.1} ms{}), largest transient {:.2} um of {:.1} um allowed ({:.2} um after a stall, {:.2} um above the residual before it), displacement rel. RMS error {:.3} %, stable {}, end-to-end p50 {} us p99 {} us",
             a.steps,
             deadline_misses as f64 / a.steps.max(1) as f64,
             a.stalls.count,
@@ -969,8 +987,15 @@ fn summarise(
             a.largest_transient_m * 1e6,
             cfg.safety.max_transient_m * 1e6,
             a.stalls.largest_transient_m * 1e6,
+            a.stalls.largest_rise_m.max(0.0) * 1e6,
             a.fidelity.displacement_rel_rms * 100.0,
-            a.stability.stable,
+            // As summary.json's `stable`: a fault makes a run not stable, whatever the
+            // residual before it showed (`stability.stable`).
+            match (summary["stable"] == true, a.stability.stable) {
+                (true, _) => "true",
+                (false, true) => "false (a fault; before it the residual did not grow)",
+                (false, false) => "false",
+            },
             a.latency_ns.end_to_end.p50 / 1000,
             a.latency_ns.end_to_end.p99 / 1000
         );
@@ -986,17 +1011,27 @@ fn summarise(
         print_programme_and_operator(a, summary["operator_stop"] == true);
         for f in &a.safety.faults {
             eprintln!(
-                "hil: fault {}: {}{} at {:.3} s (after {} periods) -> {}; largest excursion {} ({} beyond the pre-fault range), {}",
+                "hil: fault {}: {}{} at {:.3} s (after {} periods) -> {}{}; largest excursion {} ({} beyond the pre-fault range), {}",
                 f.process,
                 f.fault,
                 f.cause.as_ref().map_or(String::new(), |c| format!(" ({c})")),
                 f.detected_at_s,
                 f.detection_latency_periods,
                 f.action.as_deref().unwrap_or("the controller acts"),
+                f.already_held_since_s.map_or(String::new(), |t| format!(
+                    " (the rig already held the specimen, since {t:.3} s)"
+                )),
                 micrometres(f.largest_excursion_m),
                 micrometres(f.beyond_prefault_range_m),
-                f.time_to_rest_s.map_or("never at rest".to_string(), |t| format!("at rest after {t:.3} s"))
+                match f.time_to_rest_s {
+                    None => "never at rest".to_string(),
+                    Some(t) if t == 0.0 && f.already_held_since_s.is_some() => "already at rest".to_string(),
+                    Some(t) => format!("at rest after {t:.3} s"),
+                }
             );
+            if let Some(seen) = &f.instability {
+                eprintln!("hil:   it tripped on {}", seen.describe());
+            }
         }
     }
     if !outcome.faults.is_empty() {
@@ -1039,7 +1074,15 @@ fn print_programme_and_operator(a: &Analysis, operator_stop: bool) {
 
 /// "12.3 um", or "unknown" when the rig recorded nothing after the fault.
 fn micrometres(m: Option<f64>) -> String {
-    m.map_or("unknown".into(), |m| format!("{:.1} um", m * 1e6))
+    m.map_or("unknown".into(), |m| {
+        if m.abs() >= 0.1 {
+            format!("{m:.2} m")
+        } else if m.abs() >= 1e-3 {
+            format!("{:.2} mm", m * 1e3)
+        } else {
+            format!("{:.1} um", m * 1e6)
+        }
+    })
 }
 
 #[cfg(test)]

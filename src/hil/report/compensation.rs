@@ -161,6 +161,18 @@ impl CompensationReport {
         let warning = "; WARNING: the rendered force is not faithful over the load band";
         let band = format!("1-{LOAD_BAND_TOP_HZ:.0} Hz within 1 % and 2 degrees");
         match (self.faithful_band_hz, &self.faithful_band_limited_by) {
+            // The first failing excited bin lies above the load band: every excited bin of
+            // the load band was faithful, the bins between were not excited (a short run,
+            // a slow load).
+            (Some(b), Some(l))
+                if b < LOAD_BAND_TOP_HZ
+                    && limited_at_hz(l).is_some_and(|f| f > LOAD_BAND_TOP_HZ) =>
+            {
+                line.push_str(&format!(
+                    " (the load excited nothing between {b:.0} and {:.0} Hz{limited})",
+                    limited_at_hz(l).unwrap_or(f64::NAN)
+                ))
+            }
             (Some(b), Some(_)) if b < LOAD_BAND_TOP_HZ => line.push_str(&format!(
                 "{warning} ({band}) but only up to {b:.0} Hz{limited}"
             )),
@@ -186,6 +198,12 @@ impl CompensationReport {
         }
         line
     }
+}
+
+/// The frequency of a `faithful_band_limited_by` ("114 Hz: amplitude ..., phase ...", as
+/// `faithful_band` writes it).
+fn limited_at_hz(limited_by: &str) -> Option<f64> {
+    limited_by.split(" Hz").next()?.trim().parse().ok()
 }
 
 /// A faithful band for the console: its top, "none" when the first excited bin already
@@ -677,6 +695,17 @@ mod tests {
         assert!(!r.describe().contains("WARNING"), "{}", r.describe());
         r.faithful_band_hz = Some(20.0);
         assert!(!r.describe().contains("WARNING"), "{}", r.describe());
+        r.faithful_band_hz = Some(9.0);
+        // Limited above the load band (a short run: nothing excited between): no warning.
+        r.faithful_band_hz = Some(3.0);
+        r.faithful_band_limited_by = Some("114 Hz: amplitude -99.00 %, phase +4.00 deg".into());
+        let line = r.describe();
+        assert!(
+            !line.contains("WARNING")
+                && line
+                    .contains("the load excited nothing between 3 and 114 Hz, limited at 114 Hz"),
+            "{line}"
+        );
         r.faithful_band_hz = Some(9.0);
         r.faithful_band_limited_by = Some("10 Hz: amplitude -1.20 %, phase -0.40 deg".into());
         let line = r.describe();

@@ -32,7 +32,7 @@ use crate::rig::reference::{OperatorPause, PauseStep, ReferenceStepper};
 use decimate::Decimator;
 use fidelity::{CentredHighPass, Fidelity, ResidualAnalyser, Stability};
 use latency::{histogram, log_bins, percentiles, Latency};
-use safety::{Safety, SafetyTracker};
+use safety::{InstabilityTracker, Safety, SafetyTracker};
 use stalls::{Gap, StallTracker, Stalls, STALL_MIN_PERIODS};
 
 pub use fidelity::{
@@ -296,6 +296,7 @@ fn read_rig_stream(
     let mut hp_steps: VecDeque<u64> = VecDeque::new();
     let mut stalls = StallTracker::new(rate);
     let mut safety = SafetyTracker::new(&side.events, dt);
+    let mut instability = InstabilityTracker::new(&side.events, cfg.safety.stability);
     let first_fault = safety.first_fault_s();
     let rig_gaps: std::cell::RefCell<Vec<Gap>> = std::cell::RefCell::new(Vec::new());
     let mut catch_up_run: Option<(f64, u64)> = None;
@@ -392,6 +393,7 @@ fn read_rig_stream(
         set.for_each_of_two::<RigRecord, EmulatorRecord>(
             |_, r| on_rig_record(&r),
             |_, e| {
+                instability.push(e.t_s, e.generated_energy_j, e.oscillation_m);
                 if let Some(s) = settled.as_deref_mut() {
                     s.emulator(&e);
                 }
@@ -399,6 +401,7 @@ fn read_rig_stream(
         )?;
     } else {
         set.for_each::<EmulatorRecord>(|_, e| {
+            instability.push(e.t_s, e.generated_energy_j, e.oscillation_m);
             if let Some(s) = settled.as_deref_mut() {
                 s.emulator(&e);
             }
@@ -415,12 +418,14 @@ fn read_rig_stream(
         ("bench_rig", &gaps),
     ];
     let stalls = stalls.finish(&sources);
+    let mut safety = safety.finish();
+    instability.attach(&mut safety);
     Ok(RigPass {
         rig_steps,
         programme_at_end,
         residual,
         stalls,
-        safety: safety.finish(),
+        safety,
         plots,
     })
 }

@@ -33,8 +33,123 @@ pub struct FaultReport {
     /// How far the specimen went outside the pre-fault range after the fault, m (0: within;
     /// none: no rig record before and after it).
     pub beyond_prefault_range_m: Option<f64>,
-    /// From the detection to the rig's at-rest event, s (none: never at rest).
+    /// From the detection to the rig's at-rest event, s (none: never at rest; 0 when the
+    /// specimen was already at rest in an earlier fault's hold).
     pub time_to_rest_s: Option<f64>,
+    /// The rig already held the specimen when this fault came (a second fault in the
+    /// hold of an earlier one): since when, s. `hold_started_at_s` is then that hold's.
+    pub already_held_since_s: Option<f64>,
+    /// For `loop-unstable`: what the emulator's stability monitor saw before the trip.
+    pub instability: Option<InstabilitySeen>,
+}
+
+/// What the stability monitor saw in the window before a `loop-unstable` trip (from the
+/// emulator's records: the energy the loop generated in the monitored band and the
+/// displacement's oscillation in it), against its bounds.
+#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+pub struct InstabilitySeen {
+    /// The window before the detection, s (the persistence plus 50 ms).
+    pub window_s: f64,
+    pub peak_generated_energy_j: f64,
+    pub max_generated_energy_j: f64,
+    pub peak_oscillation_m: f64,
+    pub max_oscillation_m: f64,
+    pub band_hz: (f64, f64),
+}
+
+impl InstabilitySeen {
+    /// Which bound the loop crossed: the energy is checked first, as the monitor does.
+    pub fn bound(&self) -> &'static str {
+        if self.peak_generated_energy_j > self.max_generated_energy_j {
+            "generated energy"
+        } else if self.peak_oscillation_m > self.max_oscillation_m {
+            "oscillation"
+        } else {
+            "neither in the records"
+        }
+    }
+
+    /// One clause for the console.
+    pub fn describe(&self) -> String {
+        format!(
+            "the {} bound: in the {:.0}-{:.0} Hz band the loop generated up to {:.3} J (bound {:.3} J) and the displacement oscillated up to {:.1} um (bound {:.1} um) in the {:.2} s before",
+            self.bound(),
+            self.band_hz.0,
+            self.band_hz.1,
+            self.peak_generated_energy_j,
+            self.max_generated_energy_j,
+            self.peak_oscillation_m * 1e6,
+            self.max_oscillation_m * 1e6,
+            self.window_s
+        )
+    }
+}
+
+/// Follows the emulator's records for the windows before its `loop-unstable` trips.
+#[derive(Debug, Clone)]
+pub struct InstabilityTracker {
+    bounds: crate::hil::passivity::StabilityBounds,
+    /// (detection time, what was seen).
+    trips: Vec<(f64, InstabilitySeen)>,
+}
+
+impl InstabilityTracker {
+    pub fn new(events: &[EventRecord], bounds: crate::hil::passivity::StabilityBounds) -> Self {
+        let window_s = bounds.persist_s + 0.05;
+        let trips = events
+            .iter()
+            .filter(|e| {
+                e.kind == event_kind::FAULT
+                    && e.fault_code == crate::hil::fault::Fault::LoopUnstable.code()
+            })
+            .map(|e| {
+                (
+                    e.t_s,
+                    InstabilitySeen {
+                        window_s,
+                        peak_generated_energy_j: 0.0,
+                        max_generated_energy_j: bounds.max_generated_energy_j,
+                        peak_oscillation_m: 0.0,
+                        max_oscillation_m: bounds.max_oscillation_m,
+                        band_hz: bounds.band_hz,
+                    },
+                )
+            })
+            .collect();
+        InstabilityTracker { bounds, trips }
+    }
+
+    /// One emulator record: `t_s`, the band's generated energy and oscillation.
+    pub fn push(&mut self, t_s: f64, generated_energy_j: f64, oscillation_m: f64) {
+        let window = self.bounds.persist_s + 0.05;
+        for (at, seen) in &mut self.trips {
+            if t_s <= *at + 1e-9 && t_s >= *at - window {
+                if generated_energy_j.is_finite() {
+                    seen.peak_generated_energy_j =
+                        seen.peak_generated_energy_j.max(generated_energy_j);
+                }
+                if oscillation_m.is_finite() {
+                    seen.peak_oscillation_m = seen.peak_oscillation_m.max(oscillation_m.abs());
+                }
+            }
+        }
+    }
+
+    /// Attaches what was seen to the emulator's `loop-unstable` reports.
+    pub fn attach(self, safety: &mut Safety) {
+        for f in &mut safety.faults {
+            if f.process != "emulator" || f.fault != "loop-unstable" {
+                continue;
+            }
+            if let Some((_, seen)) = self
+                .trips
+                .iter()
+                .find(|(at, _)| (at - f.detected_at_s).abs() < 1e-9)
+            {
+                f.instability = Some(*seen);
+            }
+        }
+    }
 }
 
 /// The run's safety record.
@@ -85,6 +200,8 @@ pub struct SafetyTracker {
     held_periods: u64,
     dt_s: f64,
     last_state: u32,
+    /// When the rig's current hold began (none: not holding).
+    hold_since_s: Option<f64>,
     /// The rig recorded its end-of-run event.
     rig_finished: bool,
     pub safety: Safety,
@@ -113,6 +230,8 @@ impl SafetyTracker {
                         prefault_range_m: [f64::NAN, f64::NAN],
                         beyond_prefault_range_m: None,
                         time_to_rest_s: None,
+                        already_held_since_s: None,
+                        instability: None,
                     },
                     seen: false,
                     after_min: f64::INFINITY,
@@ -137,6 +256,7 @@ impl SafetyTracker {
             held_periods: 0,
             dt_s,
             last_state: rig_state::STARTING,
+            hold_since_s: None,
             rig_finished,
             safety,
         }
@@ -155,6 +275,13 @@ impl SafetyTracker {
         if holding {
             self.held_periods += 1;
         }
+        // The hold this record belongs to, and whether it began before this record.
+        let held_before = self.hold_since_s;
+        if !holding {
+            self.hold_since_s = None;
+        } else if self.hold_since_s.is_none() {
+            self.hold_since_s = Some(r.t_s);
+        }
         self.last_state = r.state;
         let (pre_min, pre_max) = (self.prefault_min, self.prefault_max);
         for f in &mut self.faults {
@@ -166,6 +293,11 @@ impl SafetyTracker {
             if !f.seen {
                 f.seen = true;
                 f.report.prefault_range_m = [pre_min, pre_max];
+                // Already holding before its detection: a fault in an earlier one's hold.
+                if let Some(since) = held_before.filter(|_| holding) {
+                    f.report.already_held_since_s = Some(since);
+                    f.report.hold_started_at_s = Some(since);
+                }
             }
             if holding && f.report.hold_started_at_s.is_none() {
                 f.report.hold_started_at_s = Some(r.t_s);
@@ -179,14 +311,10 @@ impl SafetyTracker {
             f.after_min = f.after_min.min(r.x_m);
             f.after_max = f.after_max.max(r.x_m);
         }
-        let before_all = self
-            .faults
-            .iter()
-            .all(|f| r.t_s + 0.5 * self.dt_s < f.report.detected_at_s);
-        if before_all || self.faults.is_empty() {
-            self.prefault_min = self.prefault_min.min(r.x_m);
-            self.prefault_max = self.prefault_max.max(r.x_m);
-        }
+        // Every record so far: each fault's pre-fault range is what came before it (a
+        // second fault in the first one's hold is measured against the hold's motion too).
+        self.prefault_min = self.prefault_min.min(r.x_m);
+        self.prefault_max = self.prefault_max.max(r.x_m);
     }
 
     pub fn finish(mut self) -> Safety {
@@ -196,10 +324,16 @@ impl SafetyTracker {
                 f.report.beyond_prefault_range_m =
                     Some((f.after_max - hi).max(lo - f.after_min).max(0.0));
             }
+            // In an earlier fault's hold, an at-rest event of that hold counts (0: the
+            // specimen was at rest already when this one came).
+            let from = f
+                .report
+                .already_held_since_s
+                .unwrap_or(f.report.detected_at_s);
             f.report.time_to_rest_s = self
                 .rest_times
                 .iter()
-                .find(|&&t| t >= f.report.detected_at_s - 0.5 * self.dt_s)
+                .find(|&&t| t >= from - 0.5 * self.dt_s)
                 .map(|t| (t - f.report.detected_at_s).max(0.0));
         }
         self.safety.faults = self.faults.into_iter().map(|f| f.report).collect();
@@ -287,6 +421,105 @@ mod tests {
         let ended_held = track(&[event(0.11, event_kind::FINISHED)], &held);
         assert_eq!(ended_held.final_state, "hold");
         assert!((ended_held.held_s - DT).abs() < 1e-12);
+    }
+
+    /// A second fault in the first one's hold (the emulator's own stall trip after the
+    /// controller's stale setpoints held the specimen): it says the rig already held since
+    /// the first, was already at rest, and its pre-fault range includes the hold's motion.
+    #[test]
+    fn a_fault_in_an_earlier_faults_hold_says_so() {
+        // Running at x = 0 until 0.05 s; the hold from 0.05 s moves it to 3 um and rests.
+        let records: Vec<_> = (0..30)
+            .map(|i| {
+                if i < 5 {
+                    record(i, 0.0, rig_state::RUNNING)
+                } else {
+                    record(i, (i.min(8) - 5) as f64 * 1e-6, rig_state::HOLD)
+                }
+            })
+            .collect();
+        let mut second = event(0.2, event_kind::FAULT);
+        second.process = 1;
+        let events = [
+            event(0.05, event_kind::FAULT),
+            event(0.1, event_kind::AT_REST),
+            second,
+        ];
+        let s = track(&events, &records);
+        let (first, second) = (&s.faults[0], &s.faults[1]);
+        assert_eq!(first.already_held_since_s, None);
+        assert_eq!(first.hold_started_at_s, Some(5.0 * DT));
+        assert!((first.time_to_rest_s.unwrap() - 0.05).abs() < 1e-12);
+        assert!((first.beyond_prefault_range_m.unwrap() - 3e-6).abs() < 1e-15);
+        assert_eq!(second.already_held_since_s, Some(5.0 * DT));
+        assert_eq!(second.hold_started_at_s, Some(5.0 * DT));
+        assert_eq!(second.time_to_rest_s, Some(0.0));
+        assert_eq!(second.prefault_range_m, [0.0, 3e-6]);
+        assert_eq!(second.beyond_prefault_range_m, Some(0.0));
+        assert_eq!(second.largest_excursion_m, Some(0.0));
+    }
+
+    /// The window before a `loop-unstable` trip: the peaks of the monitor's energy and
+    /// oscillation from the emulator's records, attached to the emulator's report only,
+    /// and the bound named.
+    #[test]
+    fn a_loop_unstable_trip_names_the_bound_it_crossed() {
+        let bounds = crate::hil::passivity::StabilityBounds::DEFAULT;
+        let mut trip = event(1.0, event_kind::FAULT);
+        trip.fault_code = crate::hil::fault::Fault::LoopUnstable.code();
+        let mut other = event(0.5, event_kind::FAULT);
+        other.fault_code = crate::hil::fault::Fault::LoopUnstable.code();
+        let events = [other, trip];
+        let mut tracker = InstabilityTracker::new(&events, bounds);
+        // Energy rising to 0.2 J before 1.0 s (outside the window of the trip at 0.5 s
+        // after it), oscillation 40 um; a spike after the trip is not counted.
+        for i in 0..=1100 {
+            let t = i as f64 * 1e-3;
+            let energy = if t > 0.9 && t <= 1.0 {
+                0.2 * (t - 0.9) / 0.1
+            } else {
+                0.01
+            };
+            let osc = if t > 1.0 { 5e-3 } else { 40e-6 };
+            tracker.push(t, energy, if i % 2 == 0 { osc } else { -osc });
+        }
+        let mut safety = Safety {
+            faults: vec![FaultReport {
+                process: "emulator".into(),
+                fault: "loop-unstable".into(),
+                cause: None,
+                detected_at_s: 1.0,
+                detection_latency_periods: 0,
+                action: None,
+                hold_started_at_s: None,
+                position_at_fault_m: None,
+                largest_excursion_m: None,
+                prefault_range_m: [0.0, 0.0],
+                beyond_prefault_range_m: None,
+                time_to_rest_s: None,
+                already_held_since_s: None,
+                instability: None,
+            }],
+            ..Safety::default()
+        };
+        let mut controller = safety.faults[0].clone();
+        controller.process = "controller".into();
+        controller.fault = "emulator-tripped".into();
+        safety.faults.push(controller);
+        tracker.attach(&mut safety);
+        let seen = safety.faults[0].instability.expect("attached");
+        assert!(
+            (seen.peak_generated_energy_j - 0.2).abs() < 1e-9,
+            "{seen:?}"
+        );
+        assert!((seen.peak_oscillation_m - 40e-6).abs() < 1e-15, "{seen:?}");
+        assert_eq!(seen.bound(), "generated energy");
+        assert!(
+            seen.describe().contains("0.200 J (bound 0.050 J)"),
+            "{}",
+            seen.describe()
+        );
+        assert_eq!(safety.faults[1].instability, None);
     }
 
     #[test]
