@@ -607,6 +607,59 @@ fn a_misspelt_hil_config_key_fails_before_anything_starts_naming_line_table_and_
     );
 }
 
+/// An actuator that cannot carry the programme's peak load (`shaker-10kn`, 10 kN, under
+/// the default programme's 20 kN preload and axle pulses): `hil` refuses before anything
+/// starts, naming the file, the key and its value, and `hil --check` exits 1 with it.
+#[test]
+fn an_actuator_that_cannot_hold_the_load_is_refused_before_anything_starts() {
+    let dir = TempDir::new("hil-weak-actuator");
+    let default = fastemu::hil::config::DEFAULT_CONFIG_TOML;
+    let block =
+        "kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_us = 80.0\nforce_max_n = 150000.0";
+    assert!(
+        default.contains(block),
+        "the default's [rig.actuator] changed"
+    );
+    let config = dir.write(
+        "weak.toml",
+        &default.replacen(block, "preset = \"shaker-10kn\"", 1),
+    );
+    let out = dir.join("report");
+    let args = [
+        "hil",
+        "--config",
+        path_str(&config),
+        "--out",
+        path_str(&out),
+    ];
+    assert_fails(
+        &args,
+        &[
+            path_str(&config),
+            "rig.actuator.force_max_n = 10000 N",
+            "below the programme's peak load",
+        ],
+    );
+    assert!(
+        !out.exists(),
+        "a report directory for a run that never started"
+    );
+    let check = fastemu(&[
+        "hil",
+        "--check",
+        "--config",
+        path_str(&config),
+        "--out",
+        path_str(&dir.join("check")),
+    ]);
+    assert_eq!(check.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&check.stderr);
+    assert!(
+        stderr.contains("ERROR: ") && stderr.contains("rig.actuator.force_max_n = 10000 N"),
+        "{stderr}"
+    );
+}
+
 #[test]
 fn a_bad_or_busy_live_address_fails_before_anything_starts_naming_the_reason() {
     let dir = TempDir::new("live-addr");
