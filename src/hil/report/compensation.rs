@@ -20,6 +20,12 @@ const SEGMENT: usize = 4096;
 const BAND_TOP_HZ: f64 = 200.0;
 /// Bins whose coherence is below this carry too little of the load to judge.
 const MIN_COHERENCE: f64 = 0.98;
+/// Fewest Welch segments (1 s, half overlapping: 3 s of force control) to judge a band.
+/// With one segment every bin's coherence is 1 whatever the two forces hold, with two or
+/// three overlapping ones nearly so (2026-11-27: a 2 s run killed at 1.5 s reported
+/// "faithful band 3 Hz ... limited at 4 Hz: amplitude -99.52 %" from 1.55 s of force
+/// control, two segments).
+const MIN_SEGMENTS: u64 = 5;
 /// Bins where the element's force spectrum lies more than 80 dB below its strongest bin
 /// in the band are not judged either: what is there is the loop's noise, not load, and
 /// the two forces' noise can be coherent without being a rendering (an external rig's run
@@ -602,7 +608,7 @@ impl Welch {
         let mut rendering = Vec::new();
         let mut faithful = None;
         let mut limited_by = None;
-        if self.segments > 0 {
+        if self.segments >= MIN_SEGMENTS {
             let top = ((BAND_TOP_HZ / df) as usize).min(self.sxx.len() - 1);
             let strongest = self.sxx[1..=top].iter().cloned().fold(0.0, f64::max);
             let mut broken = false;
