@@ -770,15 +770,13 @@ impl Compensator {
         let max_gain_step = 4.0 * self.dt_s;
         let gain_step = (k * (e.residual_gain - self.gain)).clamp(-max_gain_step, max_gain_step);
         self.gain = (self.gain + gain_step).clamp(0.5, 2.0);
-        // An estimate made of too many bridged samples is not acted on (neither the lead
-        // nor the end of the safe start), `MAX_MISSING_SHARE`.
-        if self.missing_share() > MAX_MISSING_SHARE {
-            return;
-        }
         let difference = e.delay_s - self.lead_s;
         self.end_safe_start(e);
-        let resolved = e.delay_sigma_s.is_finite()
-            && (e.delay_sigma_s < 20e-6 || e.delay_sigma_s < 0.25 * difference.abs());
+        // With too many bridged samples in the estimator's memory only a precise estimate
+        // moves the lead (`MAX_MISSING_SHARE`): a far one is not followed on its distance.
+        let far_enough =
+            self.missing_share() <= MAX_MISSING_SHARE && e.delay_sigma_s < 0.25 * difference.abs();
+        let resolved = e.delay_sigma_s.is_finite() && (e.delay_sigma_s < 20e-6 || far_enough);
         if !resolved || !e.delay_s.is_finite() {
             return;
         }
@@ -849,30 +847,38 @@ mod tests {
         }
         assert!(c.missing_share() < 1e-3, "{}", c.missing_share());
 
-        // A plant 252 us late, a guess of 0: with every fifth sample's setpoint missing
-        // (20 %) the lead stays at the guess and the safe start stays armed; with every
-        // twentieth missing (5 %) it is learned, as without gaps.
-        for (every, learns) in [(5u64, false), (20, true)] {
+        // A plant 252 us late with a noisy load cell (+-125 N), a guess of 0: the
+        // estimate's standard error (30-70 us) lies above 20 us, below a quarter of the
+        // distance at first. With every twentieth setpoint missing (5 %) the lead follows
+        // it on its distance (to 127 us, where a quarter of the distance meets the error);
+        // with every fifth (20 %) it does not (9 us: what early, precise-looking estimates
+        // moved it before the estimate settled).
+        for (every, follows) in [(20u64, true), (5, false)] {
             let true_delay = 252e-6;
-            let mut c = Compensator::new(CompensationConfig::with_initial_delay(0.0), DT);
+            let mut cfg = CompensationConfig::with_initial_delay(0.0);
+            cfg.passivity_guard = false;
+            let mut c = Compensator::new(cfg, DT);
             let mut comp = c.status().compensation;
-            for i in 0..(4096 * 3) {
+            let mut state = 0x2545_f491_4f6c_dd1du64;
+            for i in 0..(4096 * 2) {
                 let t = i as f64 * DT;
-                let measured = element_force(t - true_delay + comp.lead_s) / comp.gain;
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                let noise = ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 250.0;
+                let measured = element_force(t - true_delay + comp.lead_s) / comp.gain + noise;
                 if i % every == every - 1 {
                     continue;
                 }
                 comp = c.on_sample(i, 0.0, element_force(t), measured);
             }
-            if learns {
-                assert!(
-                    (comp.lead_s - true_delay).abs() < 0.05 * true_delay,
-                    "{comp:?}"
-                );
-                assert!(!c.status().guard.armed);
+            let sigma = c.status().identified_delay_sigma_s;
+            assert!((20e-6..70e-6).contains(&sigma), "{sigma}");
+            if follows {
+                assert!(comp.lead_s > 100e-6, "{comp:?}");
+                assert!(c.missing_share() < MAX_MISSING_SHARE);
             } else {
-                assert_eq!(comp.lead_s, 0.0, "{comp:?}");
-                assert!(c.status().guard.armed);
+                assert!(comp.lead_s < 20e-6, "{comp:?}");
                 assert!(c.missing_share() > MAX_MISSING_SHARE);
             }
         }
