@@ -209,11 +209,10 @@ impl StallTracker {
 mod tests {
     use super::*;
 
-    #[test]
-    fn an_episode_is_counted_measured_and_attributed() {
+    /// 8000 steps at 4096 Hz with one stall of 20 periods from step 4096, the >100 Hz
+    /// residual `hp(step)`.
+    fn one_stall(sources: &[(&str, &[Gap])], hp: impl Fn(u64) -> f64) -> Stalls {
         let mut t = StallTracker::new(4096.0);
-        let emulator_gaps: Vec<Gap> = vec![(1.0, 0.005)];
-        let sources: Vec<(&str, &[Gap])> = vec![("emulator", &emulator_gaps)];
         let start = 4096;
         for step in 0..8000u64 {
             let age = if (start..start + 20).contains(&step) {
@@ -222,10 +221,16 @@ mod tests {
                 1
             };
             t.push_law_age(step, age);
-            let hp = if step == start + 30 { 7e-6 } else { 1e-7 };
-            t.push_high_passed(step, hp, &sources);
+            t.push_high_passed(step, hp(step), sources);
         }
-        let s = t.finish(&sources);
+        t.finish(sources)
+    }
+
+    #[test]
+    fn an_episode_is_counted_measured_and_attributed() {
+        let emulator_gaps: Vec<Gap> = vec![(1.0, 0.005)];
+        let sources: Vec<(&str, &[Gap])> = vec![("emulator", &emulator_gaps)];
+        let s = one_stall(&sources, |step| if step == 4096 + 30 { 7e-6 } else { 1e-7 });
         assert_eq!(s.count, 1);
         assert!((s.longest_ms - 19.0 / 4.096).abs() < 1e-9, "{s:?}");
         assert_eq!(s.largest_transient_m, 7e-6);
@@ -239,21 +244,10 @@ mod tests {
     /// there before it; the rise says the stall added nothing.
     #[test]
     fn a_stall_in_an_oscillation_is_not_its_transient() {
-        let mut t = StallTracker::new(4096.0);
-        let sources: Vec<(&str, &[Gap])> = vec![];
-        let start = 4096;
-        for step in 0..8000u64 {
-            let age = if (start..start + 20).contains(&step) {
-                step - start
-            } else {
-                1
-            };
-            t.push_law_age(step, age);
-            // 84 um at 155 Hz, the lead-100-us-short limit cycle's size.
-            let hp = 84e-6 * (2.0 * std::f64::consts::PI * 155.0 * step as f64 / 4096.0).sin();
-            t.push_high_passed(step, hp, &sources);
-        }
-        let s = t.finish(&sources);
+        // 84 um at 155 Hz, the lead-100-us-short limit cycle's size.
+        let s = one_stall(&[], |step| {
+            84e-6 * (2.0 * std::f64::consts::PI * 155.0 * step as f64 / 4096.0).sin()
+        });
         assert_eq!(s.count, 1);
         assert!(s.largest_transient_m > 80e-6, "{s:?}");
         assert!(s.episodes[0].before_m > 80e-6, "{s:?}");
