@@ -13,7 +13,8 @@ use super::controller::{ControllerCore, ControllerRecord};
 use super::fault::Fault;
 use super::process::{
     install_termination_handler, meta_json, poll_control, real_time_setup, termination_requested,
-    wait_for_start, write_summary, Injector, ProcessError, HEARTBEAT_PERIOD_NS, IDLE_EXIT_S,
+    wait_for_start, write_summary, Injector, Priority, ProcessError, HEARTBEAT_PERIOD_NS,
+    IDLE_EXIT_S,
 };
 use crate::ipc::messages::{
     controller_state, emulator_state, process_id, ActuatorCommand, Heartbeat, HEARTBEAT_READY,
@@ -59,7 +60,14 @@ pub fn run_controller(
     let records = builder.sink::<ControllerRecord>(cfg.loop_.record_queue_capacity);
     let events = builder.sink::<EventRecord>(256);
     let recorder = builder.spawn()?;
-    real_time_setup(cfg, &cfg.loop_.controller_cpus, "controller");
+    // One priority above the rig's loop beside it: it blocks on the emulator's
+    // notification, so it never delays the rig by more than a command's work.
+    real_time_setup(
+        cfg,
+        &cfg.loop_.controller_cpus,
+        "controller",
+        Priority::EventDriven,
+    );
     let start = wait_for_start(process_id::CONTROLLER, &heartbeat, &control)?;
     recorder.start(
         start.start_unix_ns,

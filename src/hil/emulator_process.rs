@@ -15,7 +15,8 @@ use super::emulator::{CycleOutcome, EmulatorCore, EmulatorIo, EmulatorRecord};
 use super::fault::Fault;
 use super::process::{
     install_termination_handler, meta_json, poll_control, real_time_setup, termination_requested,
-    wait_for_start, write_summary, Injector, ProcessError, HEARTBEAT_PERIOD_NS, IDLE_EXIT_S,
+    wait_for_start, write_summary, Injector, Priority, ProcessError, HEARTBEAT_PERIOD_NS,
+    IDLE_EXIT_S,
 };
 use crate::ipc::messages::{
     emulator_state, process_id, sample_status, DisplacementSample, ForceSetpoint, Heartbeat,
@@ -207,7 +208,7 @@ pub fn run_emulator(
     let events = builder.sink::<EventRecord>(256);
     let recorder = builder.spawn()?;
 
-    real_time_setup(cfg, &cfg.loop_.emulator_cpus, "emulator");
+    real_time_setup(cfg, &cfg.loop_.emulator_cpus, "emulator", Priority::Loop);
     let start = wait_for_start(process_id::EMULATOR, &heartbeat, &control)?;
     recorder.start(
         start.start_unix_ns,

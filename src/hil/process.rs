@@ -165,11 +165,28 @@ pub fn poll_control(control: &In<RunControl>) -> ControlRequests {
     r
 }
 
-/// Applies the configured real-time setup for a loop thread; prints warnings.
-pub fn real_time_setup(cfg: &HilConfig, cpus: &[usize], who: &str) {
+/// The SCHED_FIFO priority of a thread relative to the loops' `[loop] fifo_priority`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Priority {
+    /// The rig's and the emulator's loops: they spin before each deadline and, when
+    /// late, run their periods back to back without blocking.
+    Loop,
+    /// One above the loops: threads that only wake for a message and pass it on in
+    /// microseconds (the controller, the link). At the loops' priority they would wait
+    /// behind a loop that is catching up: a rig late for 140 ms on a slowed CPU never
+    /// blocked, and the controller beside it sent no command for 38 ms.
+    EventDriven,
+}
+
+/// Applies the configured real-time setup for a thread; prints warnings.
+pub fn real_time_setup(cfg: &HilConfig, cpus: &[usize], who: &str, priority: Priority) {
+    let offset = match priority {
+        Priority::Loop => 0,
+        Priority::EventDriven => 1,
+    };
     let setup = RtSetup {
         lock_memory: cfg.loop_.lock_memory,
-        fifo_priority: cfg.loop_.fifo_priority,
+        fifo_priority: cfg.loop_.fifo_priority.map(|p| (p + offset).min(99)),
         cpus: cpus.to_vec(),
     };
     for w in apply_rt_setup(&setup) {

@@ -25,8 +25,8 @@ use super::protocol::{CommandDatagram, ControlDatagram, Datagram, Reject, Side};
 use super::socket::{open_link, LinkReceiver, LinkSender, Receive, ReceiveCounts};
 use crate::hil::config::HilConfig;
 use crate::hil::process::{
-    install_termination_handler, poll_control, termination_requested, wait_for_start_within,
-    write_summary, ProcessError, HEARTBEAT_PERIOD_NS,
+    install_termination_handler, poll_control, real_time_setup, termination_requested,
+    wait_for_start_within, write_summary, Priority, ProcessError, HEARTBEAT_PERIOD_NS,
 };
 use crate::hil::report::latency::{histogram, percentiles, Percentiles};
 use crate::ipc::messages::{
@@ -36,7 +36,6 @@ use crate::ipc::messages::{
 use crate::ipc::messages::{ActuatorCommand, RunControl};
 use crate::ipc::{In, IpcNode, IpcWaitSet, Out, WakeListener};
 use crate::rt::clock::monotonic_now_ns;
-use crate::rt::{apply_rt_setup, RtSetup};
 
 /// No datagram from the rig for this long after the start: the rig is gone, the link
 /// ends the session (the emulator has long tripped on stale samples by then).
@@ -120,14 +119,7 @@ struct Shared {
 /// wake for a datagram or a command and pass it on in microseconds, and at the loops'
 /// priority they would wait behind a loop spinning for exactly that sample.
 fn link_rt_setup(cfg: &HilConfig) {
-    let setup = RtSetup {
-        lock_memory: cfg.loop_.lock_memory,
-        fifo_priority: cfg.loop_.fifo_priority.map(|p| (p + 1).min(99)),
-        cpus: Vec::new(),
-    };
-    for w in apply_rt_setup(&setup) {
-        eprintln!("link: warning: {w}");
-    }
+    real_time_setup(cfg, &[], "link", Priority::EventDriven);
 }
 
 /// What the receiving thread returns.

@@ -22,8 +22,8 @@ use super::core::{RigCore, RigRecord};
 use crate::hil::config::{HilConfig, LoopProcess};
 use crate::hil::process::{
     install_termination_handler, meta_json, poll_control, real_time_setup, termination_requested,
-    wait_for_start_within, write_summary, ControlRequests, Injector, ProcessError, StartInfo,
-    HEARTBEAT_PERIOD_NS,
+    wait_for_start_within, write_summary, ControlRequests, Injector, Priority, ProcessError,
+    StartInfo, HEARTBEAT_PERIOD_NS,
 };
 use crate::ipc::messages::{
     process_id, rig_state, sample_status, ActuatorCommand, DisplacementSample, Heartbeat,
@@ -214,7 +214,7 @@ fn run_rig_loop(
     let recorder = builder.spawn()?;
     let mut core = RigCore::new(cfg);
 
-    real_time_setup(cfg, &cfg.loop_.rig_cpus, "bench_rig");
+    real_time_setup(cfg, &cfg.loop_.rig_cpus, "bench_rig", Priority::Loop);
     let start = transport.wait_for_start()?;
     recorder.start(
         start.start_unix_ns,
