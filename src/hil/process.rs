@@ -302,3 +302,53 @@ impl Injector {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The SCHED_FIFO priority and policy of the calling thread.
+    fn own_priority() -> (i32, i32) {
+        let mut param = libc::sched_param { sched_priority: 0 };
+        // SAFETY: pid 0 is the calling thread; `param` is valid for writing.
+        unsafe { libc::sched_getparam(0, &mut param) };
+        // SAFETY: plain syscall on the calling thread.
+        (unsafe { libc::sched_getscheduler(0) }, param.sched_priority)
+    }
+
+    /// The event-driven threads (controller, link) run one priority above the loops, so a
+    /// loop catching up without blocking cannot starve them; where the OS refuses
+    /// SCHED_FIFO (not root), every thread stays at normal scheduling.
+    #[test]
+    fn event_driven_threads_run_one_priority_above_the_loops() {
+        let mut cfg = crate::hil::config::default_hil_config().unwrap();
+        cfg.loop_.lock_memory = false;
+        cfg.loop_.fifo_priority = Some(80);
+        let applied = |cfg: &HilConfig, priority: Priority| {
+            let cfg = cfg.clone();
+            std::thread::spawn(move || {
+                real_time_setup(&cfg, &[], "test", priority);
+                own_priority()
+            })
+            .join()
+            .unwrap()
+        };
+        let (loop_policy, loop_prio) = applied(&cfg, Priority::Loop);
+        let (event_policy, event_prio) = applied(&cfg, Priority::EventDriven);
+        if loop_policy == libc::SCHED_FIFO {
+            assert_eq!(loop_prio, 80);
+            assert_eq!(event_policy, libc::SCHED_FIFO);
+            assert_eq!(event_prio, 81);
+        } else {
+            assert_eq!(
+                (loop_policy, event_policy),
+                (libc::SCHED_OTHER, libc::SCHED_OTHER)
+            );
+        }
+        cfg.loop_.fifo_priority = Some(99);
+        let (_, capped) = applied(&cfg, Priority::EventDriven);
+        if loop_policy == libc::SCHED_FIFO {
+            assert_eq!(capped, 99, "the priority is capped at SCHED_FIFO's highest");
+        }
+    }
+}
