@@ -42,6 +42,11 @@ pub struct HilArgs {
     /// `events.csv`) into the report directory (handy for short runs).
     #[arg(long)]
     pub csv: bool,
+    /// Run the simulated rig although no lead makes the linearised loop stable (`hil
+    /// --check`): the run then shows the trip (`loop-unstable`) and a hold that may move
+    /// the specimen by millimetres. Without it such a run is refused before it starts.
+    #[arg(long)]
+    pub run_unstable: bool,
     /// Serve the run live over the Foxglove WebSocket protocol (open it in the Foxglove
     /// app with configs/foxglove-layout.json).
     #[arg(long)]
@@ -440,6 +445,8 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     let best = lin.most_faithful_stable_lead(cfg.compensation.max_delay_s);
     // The actuator must carry the programme's peak load, or a fault's hold cannot hold.
     let cannot_hold = crate::hil::check::actuator_cannot_hold(cfg);
+    // hil refuses a loop no lead makes stable (unless --run-unstable).
+    let no_stable_lead = crate::hil::check::no_stable_lead(cfg);
     let [(delay_1_s, amplitude_1, _), (delay_20_s, amplitude_20, velocity_20)] =
         [1.0, 20.0].map(|f| lin.actuator_at(f));
     if args.json {
@@ -455,6 +462,7 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                 "safe_start_stable": safe_start,
                 "starts_stable": starts_stable,
                 "actuator_cannot_hold": cannot_hold,
+                "no_stable_lead": no_stable_lead,
                 "predicted_faithful_band_hz": band_hz,
                 "most_faithful_stable_lead": best.map(|(l, b)| json!({"lead_us": l * 1e6, "faithful_band_hz": b})),
                 "actuator_phase_delay_us": {"1_hz": delay_1_s * 1e6, "20_hz": delay_20_s * 1e6},
@@ -524,7 +532,7 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
             cfg.compensation.max_delay_s * 1e6
         ),
         None => eprintln!(
-            "  no lead from 0 to {:.0} us makes the linearised loop stable: this actuator is too slow for the specimen's resonance on this element (SPEC 6.1); expect loop-unstable and a hold",
+            "  no lead from 0 to {:.0} us makes the linearised loop stable: this actuator is too slow for the specimen's resonance on this element (SPEC 6.1); `fastemu hil` refuses to run it (--run-unstable runs it anyway: expect loop-unstable and a hold that may move the specimen by millimetres)",
             cfg.compensation.max_delay_s * 1e6
         ),
     }
@@ -727,6 +735,11 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
     if !args.rig.external() {
         if let Some(why) = crate::hil::check::actuator_cannot_hold(&cfg) {
             anyhow::bail!("{why} (fastemu hil --check)");
+        }
+        // Nor is a loop that no lead makes stable started, unless asked for.
+        if let Some(why) = crate::hil::check::no_stable_lead(&cfg) {
+            anyhow::ensure!(args.run_unstable, "{why} (fastemu hil --check)");
+            eprintln!("hil: --run-unstable: running a loop that no lead makes stable; expect loop-unstable and a hold");
         }
     }
     let live_front = bind_live(&args)?;

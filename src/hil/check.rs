@@ -138,6 +138,29 @@ pub fn actuator_cannot_hold(cfg: &HilConfig) -> Option<String> {
     })
 }
 
+/// Why the simulated rig's actuator cannot render this element at all: no lead from 0 to
+/// `[compensation] max_delay_us` makes the linearised loop stable (local-law commands).
+/// Such a run trips `loop-unstable` within tens of milliseconds, and the actuator still
+/// delivers the forces already in flight when it trips, so the hold of a loop that
+/// diverged moves the specimen by up to millimetres (`lag-delay` 1 + 1 ms: 0.7 mm, 3 + 2
+/// ms: 3.4 mm, against 0.1-0.3 mm for a loop one lead from stable). One line naming the
+/// file and the actuator; `None` when some lead is stable, or in force mode.
+pub fn no_stable_lead(cfg: &HilConfig) -> Option<String> {
+    if cfg.controller.command_mode != super::config::CommandMode::Law {
+        return None;
+    }
+    let max = cfg.compensation.max_delay_s;
+    let lin = LinearLoop::new(cfg, actuator_response(cfg), 0.0, 1.0);
+    lin.stable_leads(max).is_none().then(|| {
+        format!(
+            "{}: [rig.actuator] {}: no lead from 0 to {:.0} us makes the linearised loop stable: the actuator is too slow for the specimen's resonance on this element (SPEC 6.1); the run would trip loop-unstable within tens of milliseconds, and with the forces already in flight the hold would move the specimen by up to millimetres; choose a faster actuator, or pass --run-unstable to run it anyway",
+            cfg.origin,
+            describe_actuator(cfg),
+            max * 1e6
+        )
+    })
+}
+
 /// One line naming the simulated rig's actuator: kind, preset, its parameters.
 pub fn describe_actuator(cfg: &HilConfig) -> String {
     let a = &cfg.rig.actuator;

@@ -672,6 +672,86 @@ fn sigkill_of_hil_leaves_a_holding_rig_that_records_cleans_up_and_exits() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// An actuator too slow for any lead (`lag-delay` 1 ms + 1 ms: `hil --check` finds no
+/// stable lead up to 10 ms): `hil` refuses it before anything starts, naming the file and
+/// the flag; with `--run-unstable` it runs, `loop-unstable` trips within 0.1 s, the rig
+/// holds, and the specimen, pushed by the forces already in flight, comes to rest within
+/// 1.5 mm of where the loop was (0.67-0.75 mm measured).
+#[test]
+fn a_loop_no_lead_makes_stable_is_refused_and_run_anyway_trips_and_holds() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = scratch_dir("no-stable-lead");
+    let report = dir.join("report");
+    let config = write_config(
+        &dir,
+        &[(
+            "transport_delay_us = 50.0\nlag_us = 80.0",
+            "transport_delay_us = 1000.0\nlag_us = 1000.0",
+        )],
+        "",
+    );
+    let refused = Command::new(FASTEMU)
+        .arg("hil")
+        .arg("--config")
+        .arg(&config)
+        .arg("--out")
+        .arg(&report)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert_eq!(refused.status.code(), Some(1), "{stderr}");
+    for needle in [
+        config.to_str().unwrap(),
+        "no lead from 0 to 10000 us makes the linearised loop stable",
+        "--run-unstable",
+    ] {
+        assert!(stderr.contains(needle), "`{needle}` not in: {stderr}");
+    }
+    assert!(!report.exists(), "a report directory for a refused run");
+
+    let mut hil = spawn_hil_with(&config, &report, 1.0, &["--run-unstable"]);
+    let (code, json) = hil.finish(Duration::from_secs(60));
+    assert_ne!(code, 0, "{json}");
+    let list = json["safety"]["faults"].as_array().unwrap();
+    let trip = list
+        .iter()
+        .find(|f| f["fault"] == "loop-unstable")
+        .unwrap_or_else(|| panic!("no loop-unstable: {json}"));
+    assert!(trip["detected_at_s"].as_f64().unwrap() < 0.1, "{trip}");
+    let rig = rig_records(&report);
+    let tripped_s = trip["detected_at_s"].as_f64().unwrap();
+    let before: Vec<f64> = rig
+        .iter()
+        .filter(|r| r.t_s < tripped_s)
+        .map(|r| r.x_m)
+        .collect();
+    let (lo, hi) = before
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+            (a.min(*x), b.max(*x))
+        });
+    let after: Vec<&RigRecord> = rig.iter().filter(|r| r.t_s >= tripped_s).collect();
+    let worst = after
+        .iter()
+        .map(|r| (r.x_m - hi).max(lo - r.x_m))
+        .fold(0.0, f64::max);
+    assert!(
+        worst < 1.5e-3,
+        "{:.3} mm beyond the range before the trip",
+        worst * 1e3
+    );
+    assert!(
+        after.iter().filter(|r| r.state == rig_state::HOLD).count() as f64 / 4096.0 >= 0.5,
+        "the rig's records show less than 0.5 s of hold"
+    );
+    let last = &after[after.len() - 205..];
+    let range = last.iter().fold(f64::NEG_INFINITY, |m, r| m.max(r.x_m))
+        - last.iter().fold(f64::INFINITY, |m, r| m.min(r.x_m));
+    assert!(range < 5e-6, "not at rest at the end ({} um)", range * 1e6);
+    assert_nothing_left(&json);
+    drop(dir);
+}
+
 #[test]
 fn faults_injected_from_the_configuration_are_named_recorded_and_held() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
