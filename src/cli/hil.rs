@@ -445,8 +445,12 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     let best = lin.most_faithful_stable_lead(cfg.compensation.max_delay_s);
     // The actuator must carry the programme's peak load, or a fault's hold cannot hold.
     let cannot_hold = crate::hil::check::actuator_cannot_hold(cfg);
-    // hil refuses a loop no lead makes stable (unless --run-unstable).
-    let no_stable_lead = crate::hil::check::no_stable_lead(cfg);
+    // hil refuses a loop no lead makes stable on the simulated rig (unless --run-unstable).
+    let no_stable_lead = if args.rig.external() {
+        None
+    } else {
+        crate::hil::check::no_stable_lead(cfg)
+    };
     let [(delay_1_s, amplitude_1, _), (delay_20_s, amplitude_20, velocity_20)] =
         [1.0, 20.0].map(|f| lin.actuator_at(f));
     if args.json {
@@ -532,8 +536,15 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
             cfg.compensation.max_delay_s * 1e6
         ),
         None => eprintln!(
-            "  no lead from 0 to {:.0} us makes the linearised loop stable: this actuator is too slow for the specimen's resonance on this element (SPEC 6.1); `fastemu hil` refuses to run it (--run-unstable runs it anyway: expect loop-unstable and a hold that may move the specimen by millimetres)",
-            cfg.compensation.max_delay_s * 1e6
+            "  no lead from 0 to {:.0} us makes the linearised loop stable: this actuator is too slow for the specimen's resonance on this element (SPEC 6.1); {}",
+            cfg.compensation.max_delay_s * 1e6,
+            if no_stable_lead.is_some() {
+                "`fastemu hil` refuses to run it (--run-unstable runs it anyway: expect loop-unstable and a hold that may move the specimen by millimetres)"
+            } else if args.rig.external() {
+                "with this actuator, expect loop-unstable and a hold"
+            } else {
+                "the passivity guard's damping could make it stable, so `fastemu hil` runs it; expect loop-unstable and a hold if it does not"
+            }
         ),
     }
     if let Some(stable) = safe_start {

@@ -139,7 +139,8 @@ pub fn actuator_cannot_hold(cfg: &HilConfig) -> Option<String> {
 }
 
 /// Why the simulated rig's actuator cannot render this element at all: no lead from 0 to
-/// `[compensation] max_delay_us` makes the linearised loop stable (local-law commands).
+/// `[compensation] max_delay_us` makes the linearised loop stable (local-law commands),
+/// without the passivity guard's damping or, when it is on, with all of it.
 /// Such a run trips `loop-unstable` within tens of milliseconds, and the actuator still
 /// delivers the forces already in flight when it trips, so the hold of a loop that
 /// diverged moves the specimen by up to millimetres (`lag-delay` 1 + 1 ms: 0.7 mm, 3 + 2
@@ -151,7 +152,13 @@ pub fn no_stable_lead(cfg: &HilConfig) -> Option<String> {
     }
     let max = cfg.compensation.max_delay_s;
     let lin = LinearLoop::new(cfg, actuator_response(cfg), 0.0, 1.0);
-    lin.stable_leads(max).is_none().then(|| {
+    // The guard adds its damping at most while the loop generates energy: a loop that
+    // some lead makes stable with all of it is not refused.
+    let mut damped = lin.clone();
+    damped.guard_damping_ns_per_m = cfg.compensation.guard_max_damping_ns_per_m;
+    let some = lin.has_stable_lead(max)
+        || (cfg.compensation.passivity_guard && damped.has_stable_lead(max));
+    (!some).then(|| {
         format!(
             "{}: [rig.actuator] {}: no lead from 0 to {:.0} us makes the linearised loop stable: the actuator is too slow for the specimen's resonance on this element (SPEC 6.1); the run would trip loop-unstable within tens of milliseconds, and with the forces already in flight the hold would move the specimen by up to millimetres; choose a faster actuator, or pass --run-unstable to run it anyway",
             cfg.origin,
@@ -220,7 +227,14 @@ pub struct LinearLoop {
     actuator_u: Vec<Complex64>,
     actuator_v: Vec<Complex64>,
     omega: Vec<f64>,
+    /// Per grid point: `e^(-j w k T)` for the 4 newest samples, and the zero-order hold
+    /// (computed once: the stability scans evaluate thousands of leads on the same grid).
+    delays: Vec<[Complex64; 4]>,
+    zoh: Vec<Complex64>,
 }
+
+/// A prediction's value and slope weights (`rig::servo::lead_weights`).
+type Weights = ([f64; 4], [f64; 4]);
 
 /// What `--check` reports.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -270,6 +284,22 @@ impl LinearLoop {
             })
             .collect();
         let (actuator_u, actuator_v) = omega.iter().map(|&w| actuator(w)).unzip();
+        let h = cfg.loop_.dt_s();
+        let delays = omega
+            .iter()
+            .map(|&w| std::array::from_fn(|k| Complex64::from_polar(1.0, -w * k as f64 * h)))
+            .collect();
+        let zoh = omega
+            .iter()
+            .map(|&w| {
+                if w * h > 1e-9 {
+                    (Complex64::new(1.0, 0.0) - Complex64::from_polar(1.0, -w * h))
+                        / Complex64::new(0.0, w * h)
+                } else {
+                    Complex64::new(1.0, 0.0)
+                }
+            })
+            .collect();
         LinearLoop {
             mass_kg: cfg.rig.specimen_mass_kg,
             damping_ns_per_m: cfg.rig.damping_ns_per_m,
@@ -283,58 +313,65 @@ impl LinearLoop {
             actuator_u,
             actuator_v,
             omega,
+            delays,
+            zoh,
         }
     }
 
-    /// The rig's prediction and zero-order hold at `w`: the displacement predicted over the
-    /// lead from the newest samples, held over the period.
-    /// The rig's prediction and zero-order hold at `w`: the displacement and velocity
-    /// predicted over the lead from the newest samples, per displacement, held over the
-    /// period.
-    fn predicted(&self, w: f64) -> (Complex64, Complex64) {
-        let (value, slope) = lead_weights(self.lead_order as usize, self.period_s, self.lead_s);
+    /// The rig's prediction and zero-order hold at grid point `i`: the displacement and
+    /// velocity predicted over the lead from the newest samples, per displacement, held
+    /// over the period.
+    fn predicted(&self, i: usize, weights: &Weights) -> (Complex64, Complex64) {
+        let (value, slope) = weights;
         let (mut p, mut v) = (Complex64::new(0.0, 0.0), Complex64::new(0.0, 0.0));
-        for i in 0..value.len() {
-            let z = Complex64::from_polar(1.0, -w * i as f64 * self.period_s);
-            p += value[i] * z;
-            v += slope[i] * z;
+        for (k, z) in self.delays[i].iter().enumerate() {
+            p += value[k] * z;
+            v += slope[k] * z;
         }
-        let h = self.period_s;
-        let zoh = if w * h > 1e-9 {
-            (Complex64::new(1.0, 0.0) - Complex64::from_polar(1.0, -w * h))
-                / Complex64::new(0.0, w * h)
-        } else {
-            Complex64::new(1.0, 0.0)
-        };
-        (p * zoh, v * zoh)
+        (p * self.zoh[i], v * self.zoh[i])
     }
 
     /// The guard's damping force per displacement at `w`: its damping on the predicted
     /// velocity less that velocity's first-order low-pass at the guard's corner, as the
     /// rig evaluates it (`rig::servo`, updated each period before the force).
-    fn guard_force(&self, w: f64, velocity: Complex64) -> Complex64 {
+    fn guard_force(&self, i: usize, velocity: Complex64) -> Complex64 {
         if self.guard_damping_ns_per_m == 0.0 {
             return Complex64::new(0.0, 0.0);
         }
         let a = 1.0 - (-2.0 * PI * self.guard_corner_hz * self.period_s).exp();
-        let z1 = Complex64::from_polar(1.0, -w * self.period_s);
+        let z1 = self.delays[i][1];
         let low = a / (Complex64::new(1.0, 0.0) - (1.0 - a) * z1);
         self.guard_damping_ns_per_m * velocity * (Complex64::new(1.0, 0.0) - low)
     }
 
     /// Open part and loop part of `D` at grid point `i` with an extra delay and a gain
     /// factor on the actuator's force per command.
-    fn parts(&self, i: usize, extra_delay_s: f64, gain_factor: f64) -> (Complex64, Complex64) {
+    /// The prediction's weights for the lead in effect (once per sweep, not per point).
+    fn weights(&self) -> Weights {
+        lead_weights(self.lead_order as usize, self.period_s, self.lead_s)
+    }
+
+    fn parts(
+        &self,
+        i: usize,
+        extra_delay_s: f64,
+        gain_factor: f64,
+        weights: &Weights,
+    ) -> (Complex64, Complex64) {
         let w = self.omega[i];
         let jw = Complex64::new(0.0, w);
         let open = Complex64::new(-self.mass_kg * w * w, 0.0)
             + jw * self.damping_ns_per_m
             + jw * self.actuator_v[i];
-        let delay = Complex64::from_polar(gain_factor, -w * extra_delay_s);
-        let (position, velocity) = self.predicted(w);
+        let delay = if extra_delay_s == 0.0 {
+            Complex64::new(gain_factor, 0.0)
+        } else {
+            Complex64::from_polar(gain_factor, -w * extra_delay_s)
+        };
+        let (position, velocity) = self.predicted(i, weights);
         let rendered = self.actuator_u[i]
             * delay
-            * (position * self.element[i] + self.guard_force(w, velocity))
+            * (position * self.element[i] + self.guard_force(i, velocity))
             / self.gain;
         (open, rendered)
     }
@@ -343,8 +380,9 @@ impl LinearLoop {
     pub fn is_stable(&self, extra_delay_s: f64, gain_factor: f64) -> bool {
         let mut last = f64::NAN;
         let mut unwrapped = 0.0;
+        let weights = self.weights();
         for i in 0..self.omega.len() {
-            let (open, rendered) = self.parts(i, extra_delay_s, gain_factor);
+            let (open, rendered) = self.parts(i, extra_delay_s, gain_factor, &weights);
             let arg = (open + rendered).arg();
             if last.is_nan() {
                 unwrapped = arg;
@@ -402,8 +440,9 @@ impl LinearLoop {
             (None, None, None)
         };
         let (mut thin_i, mut thin) = (0, f64::INFINITY);
+        let weights = self.weights();
         for i in 0..self.omega.len() {
-            let (open, rendered) = self.parts(i, 0.0, 1.0);
+            let (open, rendered) = self.parts(i, 0.0, 1.0, &weights);
             let d = ((open + rendered) / open).norm();
             if d < thin {
                 thin = d;
@@ -425,9 +464,9 @@ impl LinearLoop {
     /// displacement predicted over the lead (held over the period), divided by the gain,
     /// plus its own force on the specimen's velocity (a servo-valve's residual flow, a
     /// shaker's back-EMF) per element force.
-    fn rendering(&self, i: usize) -> Complex64 {
+    fn rendering(&self, i: usize, weights: &Weights) -> Complex64 {
         let w = self.omega[i];
-        self.actuator_u[i] * self.predicted(w).0 / self.gain
+        self.actuator_u[i] * self.predicted(i, weights).0 / self.gain
             + Complex64::new(0.0, w) * self.actuator_v[i] / self.element[i]
     }
 
@@ -436,6 +475,7 @@ impl LinearLoop {
     /// tolerances), looked for up to `FAITHFUL_TOP_HZ`; 0 when it is not faithful at 1 Hz.
     pub fn faithful_band_hz(&self) -> f64 {
         let mut band = 0.0;
+        let weights = self.weights();
         for i in 0..self.omega.len() {
             let f = self.omega[i] / (2.0 * PI);
             if f < 1.0 - 1e-9 {
@@ -444,7 +484,7 @@ impl LinearLoop {
             if f > FAITHFUL_TOP_HZ {
                 break;
             }
-            let r = self.rendering(i);
+            let r = self.rendering(i, &weights);
             if (r.norm() - 1.0).abs() > FAITHFUL_AMPLITUDE
                 || r.arg().to_degrees().abs() > FAITHFUL_PHASE_DEG
             {
@@ -506,7 +546,18 @@ impl LinearLoop {
         best.map(|(first, last, band)| (0.5 * (first + last), band))
     }
 
-    /// The leads (10 us steps up to `max_lead_s`) with which the loop is stable: the
+    /// Whether some lead (10 us steps up to `max_lead_s`) makes the loop stable; stops at
+    /// the first.
+    pub fn has_stable_lead(&self, max_lead_s: f64) -> bool {
+        let mut probe = self.clone();
+        let n = (max_lead_s / 10e-6).round() as usize;
+        (0..=n).any(|i| {
+            probe.lead_s = i as f64 * 10e-6;
+            probe.is_stable(0.0, 1.0)
+        })
+    }
+
+    /// The leads (10 us steps up to `max_lead_s`) with which the loop is stable, as the
     /// first and last of the stable range, or `None` when no lead makes it stable.
     pub fn stable_leads(&self, max_lead_s: f64) -> Option<(f64, f64)> {
         let mut range: Option<(f64, f64)> = None;
@@ -526,8 +577,9 @@ impl LinearLoop {
     pub fn plot(&self, path: &std::path::Path, title: &str) -> anyhow::Result<()> {
         let mut f = Vec::new();
         let (mut mag, mut phase, mut re, mut im) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let weights = self.weights();
         for i in 0..self.omega.len() {
-            let (open, rendered) = self.parts(i, 0.0, 1.0);
+            let (open, rendered) = self.parts(i, 0.0, 1.0, &weights);
             let l = rendered / open;
             f.push(self.omega[i] / (2.0 * PI));
             mag.push(20.0 * l.norm().log10());

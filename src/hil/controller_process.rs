@@ -60,6 +60,9 @@ pub fn run_controller(
     let records = builder.sink::<ControllerRecord>(cfg.loop_.record_queue_capacity);
     let events = builder.sink::<EventRecord>(256);
     let recorder = builder.spawn()?;
+    // The starting compensation (a frequency sweep of the linearised loop when the guess
+    // is capped) before the thread gets its real-time priority on the rig's CPU.
+    let compensation = crate::hil::check::starting_compensation(cfg);
     // One priority above the rig's loop beside it: it blocks on the emulator's
     // notification, so it never delays the rig by more than a command's work.
     real_time_setup(
@@ -88,7 +91,7 @@ pub fn run_controller(
         period_ns,
         (cfg.safety.stall_limit_s * 1e9) as u64,
     )
-    .with_compensation(crate::hil::check::starting_compensation(cfg));
+    .with_compensation(compensation);
     core.set_start_time_ns(start.t0_ns);
     let mut injector = Injector::new(cfg, LoopProcess::Controller, process_id::CONTROLLER);
     // Ends when the emulator stops, on STOP or SIGTERM; as a last resort, after a minute

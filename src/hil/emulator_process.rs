@@ -25,9 +25,7 @@ use crate::ipc::messages::{
 use crate::ipc::{In, IpcNode, Out, Wake};
 use crate::records::{EventRecord, RecordSink, RecorderBuilder, SinkCounts};
 use crate::rt::clock::monotonic_now_ns;
-use crate::rt::{
-    apply_rt_setup, wait_until, Clock, CycleStats, CycleTurn, MonotonicClock, RtSetup, WaitMode,
-};
+use crate::rt::{wait_until, Clock, CycleStats, CycleTurn, MonotonicClock, WaitMode};
 
 struct IpcEmulatorIo<'a> {
     input: &'a In<DisplacementSample>,
@@ -264,7 +262,7 @@ pub fn run_emulator(
         Some(standby) => std::thread::scope(|scope| {
             let shared = &shared;
             scope.spawn(move || {
-                standby_setup(cfg, &standby.cpus);
+                real_time_setup(cfg, &standby.cpus, "emulator standby", Priority::Standby);
                 shared.run_thread(WaitMode::Sleep, standby.after_ns, true);
             });
             shared.run_thread(primary, 0, false);
@@ -318,17 +316,4 @@ pub fn run_emulator(
     };
     write_summary(out_dir, "emulator", &summary)?;
     Ok(summary)
-}
-
-/// The standby thread's real-time setup: its CPUs, one SCHED_FIFO priority below the
-/// loops (it never delays a primary loop on its CPU).
-fn standby_setup(cfg: &HilConfig, cpus: &[usize]) {
-    let setup = RtSetup {
-        lock_memory: false,
-        fifo_priority: cfg.loop_.fifo_priority.map(|p| (p - 1).max(1)),
-        cpus: cpus.to_vec(),
-    };
-    for w in apply_rt_setup(&setup) {
-        eprintln!("emulator standby: warning: {w}");
-    }
 }

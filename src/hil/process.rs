@@ -176,20 +176,47 @@ pub enum Priority {
     /// behind a loop that is catching up: a rig late for 140 ms on a slowed CPU never
     /// blocked, and the controller beside it sent no command for 38 ms.
     EventDriven,
+    /// One below the loops: the emulator's standby loop thread, on the rig's CPU, never
+    /// delays the rig's loop once that is runnable.
+    Standby,
 }
 
-/// Applies the configured real-time setup for a thread; prints warnings.
+/// Applies the configured real-time setup for a thread; prints warnings. `[loop]
+/// fifo_priority` is 2-98, so the three levels are distinct. Where the OS grants the
+/// loops' priority but refuses one above it (an RLIMIT_RTPRIO at the loops' level), an
+/// event-driven thread takes the loops' priority rather than normal scheduling beside a
+/// SCHED_FIFO loop, and says so.
 pub fn real_time_setup(cfg: &HilConfig, cpus: &[usize], who: &str, priority: Priority) {
     let offset = match priority {
         Priority::Loop => 0,
         Priority::EventDriven => 1,
+        Priority::Standby => -1,
     };
     let setup = RtSetup {
-        lock_memory: cfg.loop_.lock_memory,
-        fifo_priority: cfg.loop_.fifo_priority.map(|p| (p + offset).min(99)),
+        // mlockall is per process: the primary thread has done it for the standby.
+        lock_memory: cfg.loop_.lock_memory && priority != Priority::Standby,
+        fifo_priority: cfg.loop_.fifo_priority.map(|p| (p + offset).clamp(1, 99)),
         cpus: cpus.to_vec(),
     };
-    for w in apply_rt_setup(&setup) {
+    let mut warnings = apply_rt_setup(&setup);
+    if let (Priority::EventDriven, Some(p)) = (priority, cfg.loop_.fifo_priority) {
+        // SAFETY: plain syscall on the calling thread.
+        if unsafe { libc::sched_getscheduler(0) } != libc::SCHED_FIFO {
+            let retry = RtSetup {
+                lock_memory: false,
+                fifo_priority: Some(p),
+                cpus: Vec::new(),
+            };
+            let again = apply_rt_setup(&retry);
+            if again.is_empty() {
+                warnings.push(format!(
+                    "running at the loops' SCHED_FIFO priority {p} instead: a loop catching up on this thread's CPU can delay it"
+                ));
+            }
+            warnings.extend(again);
+        }
+    }
+    for w in warnings {
         eprintln!("{who}: warning: {w}");
     }
 }
@@ -317,8 +344,8 @@ mod tests {
     }
 
     /// The event-driven threads (controller, link) run one priority above the loops, so a
-    /// loop catching up without blocking cannot starve them; where the OS refuses
-    /// SCHED_FIFO (not root), every thread stays at normal scheduling.
+    /// loop catching up without blocking cannot starve them, the standby one below; where
+    /// the OS refuses SCHED_FIFO (not root), every thread stays at normal scheduling.
     #[test]
     fn event_driven_threads_run_one_priority_above_the_loops() {
         let mut cfg = crate::hil::config::default_hil_config().unwrap();
@@ -345,10 +372,15 @@ mod tests {
                 (libc::SCHED_OTHER, libc::SCHED_OTHER)
             );
         }
-        cfg.loop_.fifo_priority = Some(99);
-        let (_, capped) = applied(&cfg, Priority::EventDriven);
+        let (_, standby_prio) = applied(&cfg, Priority::Standby);
+        cfg.loop_.fifo_priority = Some(98);
+        let (_, highest) = applied(&cfg, Priority::EventDriven);
         if loop_policy == libc::SCHED_FIFO {
-            assert_eq!(capped, 99, "the priority is capped at SCHED_FIFO's highest");
+            assert_eq!(standby_prio, 79);
+            assert_eq!(
+                highest, 99,
+                "98, the highest the configuration takes, plus one"
+            );
         }
     }
 }

@@ -187,13 +187,18 @@ impl WakeListener {
     /// kernel until the notifier fires.
     pub fn wait(&self, waitset: &WaitSet<ipc::Service>, timeout: Duration) -> bool {
         let mut woken = false;
-        let _ = waitset.wait_and_process_once_with_timeout(
+        let waited = waitset.wait_and_process_once_with_timeout(
             |_| {
                 woken = true;
                 CallbackProgression::Stop
             },
             timeout,
         );
+        if waited.is_err() {
+            // A wait that fails at once must not turn its caller (a SCHED_FIFO thread
+            // above the loops) into a spin: it waits out its timeout instead.
+            std::thread::sleep(timeout);
+        }
         // Consume all pending notifications so the next wait blocks again.
         let _ = self.listener.try_wait(|_| {});
         woken

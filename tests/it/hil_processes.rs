@@ -298,6 +298,30 @@ pub(super) fn the_child(hil: &Hil, needle: &str) -> u32 {
     }
 }
 
+/// A process's scheduling policy and real-time priority (its main thread, which runs its
+/// loop), from `/proc/<pid>/stat`, once the process has applied its real-time setup
+/// (SCHED_FIFO seen) or has started its loop without it; `None` if it ended first.
+fn settled_sched(pid: u32) -> Option<(u32, u32)> {
+    let read = || {
+        let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+        let (_, after) = stat.rsplit_once(')')?;
+        // Fields from the state (field 3) on: rt_priority is field 40, policy field 41.
+        let f: Vec<&str> = after.split_whitespace().collect();
+        Some((f.get(41 - 3)?.parse().ok()?, f.get(40 - 3)?.parse().ok()?))
+    };
+    let mut last = None;
+    // The setup comes before the start; the loops start within seconds of the spawn.
+    for _ in 0..500 {
+        last = read();
+        match last {
+            None => return None,
+            Some((policy, _)) if policy == libc::SCHED_FIFO as u32 => return last,
+            _ => std::thread::sleep(Duration::from_millis(10)),
+        }
+    }
+    last
+}
+
 /// The rig's records, read back from the report directory.
 pub(super) fn rig_records(dir: &Path) -> Vec<RigRecord> {
     RecordSet::open(dir)
@@ -351,7 +375,26 @@ fn closed_loop_is_clean_faithful_replayable_exportable_and_leaves_nothing_behind
     let dir = scratch_dir("closed-loop");
     let report = dir.join("report");
     let mut hil = spawn_hil(&write_config(&dir, &[], ""), &report, 2.5);
+    // The controller runs one SCHED_FIFO priority above the rig's loop on the rig's CPU,
+    // so a rig catching up without blocking cannot starve it.
+    let rig = the_child(&hil, "bench_rig --config");
+    let controller = the_child(&hil, " controller --config");
+    let (rig_sched, controller_sched) = (settled_sched(rig), settled_sched(controller));
     let (code, json) = hil.finish(Duration::from_secs(60));
+    if let (Some((rig_policy, rig_prio)), Some((policy, prio))) = (rig_sched, controller_sched) {
+        if rig_policy == libc::SCHED_FIFO as u32 {
+            assert_eq!(
+                (policy, prio),
+                (rig_policy, rig_prio + 1),
+                "controller vs rig"
+            );
+        } else {
+            assert_eq!(
+                policy, rig_policy,
+                "the rig got no SCHED_FIFO, the controller did"
+            );
+        }
+    }
     assert_eq!(code, 0, "hil failed: {json}\n{}", hil.stderr());
     assert_eq!(json["stable"], true);
     assert_eq!(json["clean"], true);

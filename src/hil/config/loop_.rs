@@ -97,10 +97,13 @@ pub(super) fn parse_loop(check: &Check, l: &RawLoop) -> Result<LoopConfig, Confi
         l.record_queue_capacity as u64,
         16,
     )?;
-    if !(0..=99).contains(&l.fifo_priority) {
+    if l.fifo_priority != 0 && !(2..=98).contains(&l.fifo_priority) {
         return Err(check.err(
             "loop.fifo_priority",
-            format!("{} is not valid: expected 0 (off) or 1-99", l.fifo_priority),
+            format!(
+                "{} is not valid: expected 0 (off) or 2-98 (the loops' SCHED_FIFO priority; the controller runs one above it, the emulator's standby one below)",
+                l.fifo_priority
+            ),
         ));
     }
     let emulator_standby = parse_standby(check, l, period_ns)?;

@@ -464,6 +464,24 @@ mod tests {
         );
     }
 
+    /// The loops' priority leaves room for the controller one above and the standby one
+    /// below: 1 and 99 are refused, naming the key; 0 (off), 2 and 98 are taken.
+    #[test]
+    fn the_fifo_priority_leaves_a_level_above_and_below_the_loops() {
+        for bad in ["1", "99", "100"] {
+            let e = error_with("fifo_priority = 80", &format!("fifo_priority = {bad}"));
+            assert!(
+                e.contains("loop.fifo_priority") && e.contains("2-98"),
+                "{bad}: {e}"
+            );
+        }
+        for good in ["0", "2", "98"] {
+            let text = DEFAULT_CONFIG_TOML
+                .replace("fifo_priority = 80", &format!("fifo_priority = {good}"));
+            assert!(parse_hil_config(&text, "x.toml", None).is_ok(), "{good}");
+        }
+    }
+
     #[test]
     fn the_standby_sits_on_another_cpu_and_claims_within_a_period() {
         let c = default_hil_config().unwrap();
