@@ -108,7 +108,7 @@ pub(super) fn parse_actuator(
         let full = format!("rig.actuator.{}", k.name);
         let value = match t.get(k.name) {
             Some(v) => number(check, &full, v)?,
-            None => match preset.map(|p| p.values[i]).or(k.default) {
+            None => match preset.and_then(|p| p.values.get(i).copied()).or(k.default) {
                 Some(v) => v,
                 None => {
                     return Err(check.err(

@@ -43,7 +43,7 @@ const fn key(name: &'static str, to_si: f64, rule: Rule) -> ParamKey {
 }
 
 /// Most parameters a kind has.
-pub const MAX_PARAMS: usize = 9;
+pub const MAX_PARAMS: usize = 10;
 
 const TRANSPORT: ParamKey = key("transport_delay_us", 1e-6, Rule::NonNegative);
 const FORCE_MAX: ParamKey = key("force_max_n", 1.0, Rule::Positive);
@@ -51,7 +51,7 @@ const FORCE_MAX: ParamKey = key("force_max_n", 1.0, Rule::Positive);
 const LAG_DELAY_KEYS: [ParamKey; 3] =
     [TRANSPORT, FORCE_MAX, key("lag_us", 1e-6, Rule::NonNegative)];
 
-const SERVO_HYDRAULIC_KEYS: [ParamKey; 9] = [
+const SERVO_HYDRAULIC_KEYS: [ParamKey; 10] = [
     TRANSPORT,
     FORCE_MAX,
     key("valve_frequency_hz", 1.0, Rule::Positive),
@@ -66,6 +66,14 @@ const SERVO_HYDRAULIC_KEYS: [ParamKey; 9] = [
     ParamKey {
         default: Some(0.0),
         ..key("leakage_m3_per_s_pa", 1.0, Rule::NonNegative)
+    },
+    // The servo controller's velocity compensation: the fraction of the measured piston
+    // velocity fed forward into the valve command (1: full, the presets; 0: none, a force
+    // loop that fights the oil column's natural velocity feedback with its gain alone).
+    ParamKey {
+        physical: false,
+        default: Some(1.0),
+        ..key("velocity_compensation", 1.0, Rule::NonNegative)
     },
 ];
 
@@ -132,11 +140,12 @@ pub struct ActuatorParams {
 }
 
 impl ActuatorParams {
-    /// Parameters from values in configured units (`values[i]` for `kind.keys()[i]`).
+    /// Parameters from values in configured units (`values[i]` for `kind.keys()[i]`; a key
+    /// beyond `values` takes its default, e.g. a preset written before the key existed).
     pub fn from_config_units(kind: ActuatorKind, values: &[f64]) -> ActuatorParams {
         let mut si = [0.0; MAX_PARAMS];
-        for ((slot, k), v) in si.iter_mut().zip(kind.keys()).zip(values) {
-            *slot = v * k.to_si;
+        for (i, (slot, k)) in si.iter_mut().zip(kind.keys()).enumerate() {
+            *slot = values.get(i).copied().or(k.default).unwrap_or(0.0) * k.to_si;
         }
         ActuatorParams { kind, si }
     }

@@ -2,7 +2,7 @@
 //!
 //! States: `F` (force = piston area x load pressure), `q` (valve flow over piston area,
 //! m/s), `q'`, `I` (the force error's integral). With `e = u(t - tau) - F`:
-//! `q_c = Kp e + Ki I - v`, `q'' = wv^2 (q_c - q) - 2 zeta wv q'`,
+//! `q_c = Kp e + Ki I - g_v v`, `q'' = wv^2 (q_c - q) - 2 zeta wv q'`,
 //! `dF/dt = k_h (q + v) - lambda F`, `k_h = 4 beta A^2 / V`, `lambda = 4 beta C_L / V`,
 //! `v` the specimen's (= the piston's) velocity, positive in compression: a specimen
 //! pushing into the actuator compresses the oil and raises the force.
@@ -11,11 +11,14 @@
 //! w_c / k_h` puts the crossover of the P loop `Kp k_h / s` (flow integrates into force)
 //! at the configured bandwidth `w_c`; `Ki = Kp w_c / 10` (the integral's corner a decade
 //! below) removes the steady-state error leakage would leave. The measured piston velocity
-//! is fed forward into the valve command (`- v`: the flow that lets the piston follow the
+//! is fed forward into the valve command (`- g_v v`, `g_v = 1` unless
+//! `velocity_compensation` says otherwise: the flow that lets the piston follow the
 //! specimen without compressing the oil), the velocity compensation that force control of
 //! servo-hydraulic actuators needs against their natural velocity feedback (Dyke et al.
 //! 1995; Dimig et al. 1999 and Shield et al. 2001, effective force testing). It acts
-//! through the valve, so the valve's lag leaves a residual `H_v = P (1 - G) / (1 + P G C)`.
+//! through the valve, so the valve's lag leaves a residual `H_v = P (1 - g_v G) / (1 + P G
+//! C)`; `g_v = 0` is a force loop without it, whose natural velocity feedback damps the
+//! specimen heavily and lags the rendered force by milliseconds in the load band.
 //!
 //! Stroke control (the interlock's position hold, as a servo-hydraulic controller holds
 //! on its own displacement transducer): `q_c = Kx (x - x_hold)`, the piston following the
@@ -41,6 +44,8 @@ pub struct ServoHydraulic {
     pub ki: f64,
     /// Stroke control's gain, (m/s) per m.
     pub kx_per_s: f64,
+    /// The fraction of the piston's velocity fed forward into the valve command.
+    pub velocity_compensation: f64,
 }
 
 /// Hydraulic stiffness and leakage rate of a parameter set.
@@ -66,6 +71,7 @@ impl ServoHydraulic {
             kp,
             ki: kp * omega_c / 10.0,
             kx_per_s: 2.0 * std::f64::consts::PI * nominal.si[2] / 10.0,
+            velocity_compensation: nominal.si[9],
         }
     }
 
@@ -78,7 +84,7 @@ impl ServoHydraulic {
     #[inline]
     pub fn derivative(&self, s: &PlantState, u: f64, v: f64) -> PlantState {
         let e = u - s[0];
-        let q_c = self.kp * e + self.ki * s[3] - v;
+        let q_c = self.kp * e + self.ki * s[3] - self.velocity_compensation * v;
         let w = self.valve_omega;
         [
             self.k_h_n_per_m * (s[1] + v) - self.leak_per_s * s[0],
@@ -124,6 +130,9 @@ impl ServoHydraulic {
         let valve = w * w / (s * s + 2.0 * self.valve_zeta * w * s + w * w);
         let controller = self.kp + self.ki / s;
         let open = plant * valve * controller;
-        (open / (1.0 + open), plant * (1.0 - valve) / (1.0 + open))
+        (
+            open / (1.0 + open),
+            plant * (1.0 - self.velocity_compensation * valve) / (1.0 + open),
+        )
     }
 }
