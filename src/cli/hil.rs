@@ -335,13 +335,13 @@ fn merge_records(out_dir: &std::path::Path) -> serde_json::Value {
 /// warning when the linearised loop (`hil --check`) is not stable with the starting lead,
 /// naming the leads that would be, or that none is. `None` when stable or in force mode.
 fn stability_warning(cfg: &HilConfig) -> Option<String> {
-    use crate::hil::check::{actuator_response, LinearLoop};
+    use crate::hil::check::{nominal_plant, LinearLoop};
     if cfg.controller.command_mode != crate::hil::config::CommandMode::Law {
         return None;
     }
     let cap_s = crate::hil::check::starting_lead_cap_s(cfg);
     let lead_s = cfg.compensation.initial_delay_s.min(cap_s);
-    let lin = LinearLoop::new(cfg, actuator_response(cfg), lead_s, 1.0);
+    let lin = LinearLoop::for_plant(cfg, &nominal_plant(cfg), lead_s, 1.0);
     let safe_start = lin.safe_start_stable(cfg);
     if lin.margins().stable && safe_start != Some(false) {
         return None;
@@ -391,8 +391,9 @@ fn stability_warning(cfg: &HilConfig) -> Option<String> {
             dispersive_hint(&lin, cfg.compensation.adapt)
         ),
         None => format!(
-            "no lead from 0 to {:.0} us makes the linearised loop stable: this actuator is too slow for the specimen's resonance on this element (SPEC 6.1, docs/compensation.md); expect loop-unstable and a hold (fastemu hil --check)",
-            max * 1e6
+            "no lead from 0 to {:.0} us makes the linearised loop stable: {} (docs/compensation.md); expect loop-unstable and a hold (fastemu hil --check)",
+            max * 1e6,
+            crate::hil::check::why_no_stable_lead(cfg)
         ),
     };
     Some(format!("{warning}{nominal}"))
@@ -418,7 +419,7 @@ fn dispersive_hint(lin: &crate::hil::check::LinearLoop, adapt: bool) -> String {
 /// `hil --check`: the linearised loop's margins, printed, as JSON with `--json`, and its
 /// plot. Exit 0 when the loop is stable, 1 when not.
 fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
-    use crate::hil::check::{actuator_response, describe_actuator, LinearLoop};
+    use crate::hil::check::{describe_actuator, nominal_plant, LinearLoop};
     anyhow::ensure!(
         cfg.controller.command_mode == crate::hil::config::CommandMode::Law,
         "{}: [controller] command_mode = \"force\": --check models local-law commands (the rig's prediction over the controller's lead) only",
@@ -426,7 +427,7 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     );
     let cap_s = crate::hil::check::starting_lead_cap_s(cfg);
     let lead_s = cfg.compensation.initial_delay_s.min(cap_s);
-    let lin = LinearLoop::new(cfg, actuator_response(cfg), lead_s, 1.0);
+    let lin = LinearLoop::for_plant(cfg, &nominal_plant(cfg), lead_s, 1.0);
     let m = lin.margins();
     let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("."));
     std::fs::create_dir_all(&dir).map_err(|e| anyhow::anyhow!("--out {}: {e}", dir.display()))?;
@@ -536,8 +537,9 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
             cfg.compensation.max_delay_s * 1e6
         ),
         None => eprintln!(
-            "  no lead from 0 to {:.0} us makes the linearised loop stable: this actuator is too slow for the specimen's resonance on this element (SPEC 6.1); {}",
+            "  no lead from 0 to {:.0} us makes the linearised loop stable: {}; {}",
             cfg.compensation.max_delay_s * 1e6,
+            crate::hil::check::why_no_stable_lead(cfg),
             if no_stable_lead.is_some() {
                 "`fastemu hil` refuses to run it (--run-unstable runs it anyway: expect loop-unstable and a hold that may move the specimen by millimetres)"
             } else if args.rig.external() {

@@ -27,12 +27,10 @@ use crate::rig::actuator::ActuatorPlant;
 use crate::rig::servo::lead_weights;
 
 /// The simulated rig's actuator as configured (`[rig.actuator]`, its nominal values: the
-/// perturbed truth is the rig's alone): force per command and per specimen velocity at
-/// circular frequency `w`.
-pub fn actuator_response(cfg: &HilConfig) -> impl Fn(f64) -> (Complex64, Complex64) {
+/// perturbed truth is the rig's alone).
+pub fn nominal_plant(cfg: &HilConfig) -> ActuatorPlant {
     let nominal = cfg.rig.actuator.nominal;
-    let plant = ActuatorPlant::new(&nominal, &nominal);
-    move |w| plant.response(w)
+    ActuatorPlant::new(&nominal, &nominal)
 }
 
 /// The longest lead the run may start with: the guess, or, when the linearised loop
@@ -151,7 +149,7 @@ pub fn no_stable_lead(cfg: &HilConfig) -> Option<String> {
         return None;
     }
     let max = cfg.compensation.max_delay_s;
-    let lin = LinearLoop::new(cfg, actuator_response(cfg), 0.0, 1.0);
+    let lin = LinearLoop::for_plant(cfg, &nominal_plant(cfg), 0.0, 1.0);
     // The guard adds its damping at most while the loop generates energy: a loop that
     // some lead makes stable with all of it is not refused.
     let mut damped = lin.clone();
@@ -160,12 +158,31 @@ pub fn no_stable_lead(cfg: &HilConfig) -> Option<String> {
         || (cfg.compensation.passivity_guard && damped.has_stable_lead(max));
     (!some).then(|| {
         format!(
-            "{}: [rig.actuator] {}: no lead from 0 to {:.0} us makes the linearised loop stable: the actuator is too slow for the specimen's resonance on this element (SPEC 6.1); the run would trip loop-unstable within tens of milliseconds, and with the forces already in flight the hold would move the specimen by up to millimetres; choose a faster actuator, or pass --run-unstable to run it anyway",
+            "{}: [rig.actuator] {}: no lead from 0 to {:.0} us makes the linearised loop stable: {}; the run would trip loop-unstable within tens of milliseconds, and with the forces already in flight the hold would move the specimen by up to millimetres; choose another actuator, or pass --run-unstable to run it anyway",
             cfg.origin,
             describe_actuator(cfg),
-            max * 1e6
+            max * 1e6,
+            why_no_stable_lead(cfg)
         )
     })
+}
+
+/// Why no lead makes the loop stable, in words: the actuator's own servo loop unstable
+/// (right-half-plane poles on a blocked piston: nothing fastemu sends can make up for
+/// that), or an actuator too slow for the specimen's resonance on the element.
+pub fn why_no_stable_lead(cfg: &HilConfig) -> String {
+    let plant = nominal_plant(cfg);
+    let on_mass = plant.unstable_poles_on_mass(cfg.rig.specimen_mass_kg, cfg.rig.damping_ns_per_m);
+    match (plant.unstable_poles(), on_mass) {
+        (0, 0) => "the actuator is too slow for the specimen's resonance on this element (SPEC 6.1)"
+            .to_string(),
+        (0, n) => format!(
+            "the actuator's force loop is unstable with the specimen's mass on it, without any element ({n} poles in the right half-plane: its servo controller's gains do not suit this specimen), which no compensation can make up for"
+        ),
+        (n, _) => format!(
+            "the actuator's own force loop is unstable ({n} poles in the right half-plane with its piston blocked: its servo controller's gains do not suit these parameters), which no compensation can make up for"
+        ),
+    }
 }
 
 /// One line naming the simulated rig's actuator: kind, preset, its parameters.
@@ -221,6 +238,9 @@ pub struct LinearLoop {
     /// Damping the guard adds on the velocity high-passed at `guard_corner_hz`, N s/m.
     pub guard_damping_ns_per_m: f64,
     pub guard_corner_hz: f64,
+    /// The actuator's own poles in the right half-plane (`ActuatorPlant::unstable_poles`):
+    /// a servo loop unstable by itself; the stability count needs them.
+    pub actuator_unstable_poles: usize,
     /// The element's modulus `k_eq(w) + j w c_eq(w)` at the preload, on the frequency grid.
     element: Vec<Complex64>,
     /// Actuator responses on the grid: force per command, force per specimen velocity.
@@ -309,6 +329,7 @@ impl LinearLoop {
             gain,
             guard_damping_ns_per_m: 0.0,
             guard_corner_hz: cfg.compensation.guard_band_hz,
+            actuator_unstable_poles: 0,
             element,
             actuator_u,
             actuator_v,
@@ -316,6 +337,14 @@ impl LinearLoop {
             delays,
             zoh,
         }
+    }
+
+    /// The configured loop in front of `plant`: its responses and its own unstable poles.
+    pub fn for_plant(cfg: &HilConfig, plant: &ActuatorPlant, lead_s: f64, gain: f64) -> Self {
+        let p = *plant;
+        let mut l = LinearLoop::new(cfg, move |w| p.response(w), lead_s, gain);
+        l.actuator_unstable_poles = plant.unstable_poles();
+        l
     }
 
     /// The rig's prediction and zero-order hold at grid point `i`: the displacement and
@@ -398,8 +427,12 @@ impl LinearLoop {
             }
             last = arg;
         }
-        // From 0 (a positive static stiffness) to pi (the mass dominates): one half turn.
-        (unwrapped - PI).abs() < 0.5 * PI
+        // From 0 (a positive static stiffness) to pi (the mass dominates): one half turn,
+        // plus one per right-half-plane pole of the actuator's own responses (the
+        // argument principle on the positive half of the imaginary axis counts
+        // `pi (1 + P_R - Z_R)` for a function two orders above its poles; stable: Z_R = 0).
+        let turns = 1.0 + self.actuator_unstable_poles as f64;
+        (unwrapped - turns * PI).abs() < 0.5 * PI
     }
 
     /// The margins (bisection on `is_stable`).
@@ -771,7 +804,7 @@ mod tests {
             "{band} vs {expected}"
         );
 
-        let shipped = LinearLoop::new(&cfg, actuator_response(&cfg), 252e-6, 1.0);
+        let shipped = LinearLoop::for_plant(&cfg, &nominal_plant(&cfg), 252e-6, 1.0);
         assert!(
             shipped.faithful_band_hz() > 100.0,
             "{}",
@@ -788,7 +821,7 @@ mod tests {
             "preset = \"fatigue-150kn\"",
         );
         let cfg = crate::hil::config::parse_hil_config(&text, "servo.toml", None).unwrap();
-        let servo = LinearLoop::new(&cfg, actuator_response(&cfg), 2800e-6, 1.0);
+        let servo = LinearLoop::for_plant(&cfg, &nominal_plant(&cfg), 2800e-6, 1.0);
         assert!(servo.is_stable(0.0, 1.0));
         let (_, band) = servo
             .most_faithful_stable_lead(cfg.compensation.max_delay_s)
@@ -797,5 +830,35 @@ mod tests {
         let ((slow, _, _), (fast, gain_20, _)) = (servo.actuator_at(1.0), servo.actuator_at(20.0));
         assert!(slow < 1e-3 && fast > 2.5e-3, "{slow} {fast}");
         assert!(gain_20 > 1.05, "{gain_20}");
+    }
+
+    /// The refusal says why no lead is stable: an actuator too slow for the resonance
+    /// (lag-delay 3 + 2 ms), a servo loop unstable with the specimen's mass on it
+    /// (`rths-fast-150kn` without velocity compensation: the oil column's resonance with
+    /// the 60 kg specimen near 340 Hz), or one unstable on a blocked piston (a force loop
+    /// tuned above its valve: 250 Hz on a 100 Hz valve). A stable loop is not refused.
+    #[test]
+    fn the_refusal_names_why_no_lead_is_stable() {
+        let with = |actuator: &str| {
+            let text = crate::hil::config::DEFAULT_CONFIG_TOML.replace(
+                "kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_us = 80.0\nforce_max_n = 150000.0",
+                actuator,
+            );
+            crate::hil::config::parse_hil_config(&text, "a.toml", None).unwrap()
+        };
+        let slow = with("kind = \"lag-delay\"\ntransport_delay_us = 3000.0\nlag_us = 2000.0\nforce_max_n = 150000.0");
+        let on_mass = with("preset = \"rths-fast-150kn\"\nvelocity_compensation = 0.0");
+        let blocked = with("preset = \"fatigue-150kn\"\nforce_loop_bandwidth_hz = 250.0");
+        let plant = nominal_plant(&on_mass);
+        assert_eq!(plant.unstable_poles(), 0);
+        assert_eq!(plant.unstable_poles_on_mass(60.16, 3600.0), 2);
+        assert_eq!(nominal_plant(&blocked).unstable_poles(), 2);
+        let refused =
+            |cfg: &HilConfig| no_stable_lead(cfg).unwrap_or_else(|| panic!("not refused"));
+        assert!(refused(&slow).contains("too slow for the specimen's resonance"));
+        assert!(refused(&on_mass).contains("unstable with the specimen's mass on it"));
+        assert!(refused(&blocked)
+            .contains("unstable (2 poles in the right half-plane with its piston blocked"));
+        assert_eq!(no_stable_lead(&with("preset = \"fatigue-150kn\"")), None);
     }
 }

@@ -620,3 +620,45 @@ fn a_servo_hydraulic_force_loop_without_velocity_compensation_stays_stable_and_i
         assert!(error > 0.015, "{actuator}: {:.3} %", error * 100.0);
     }
 }
+
+/// A servo loop that is unstable by itself (`rths-fast-150kn` without velocity
+/// compensation, perturbed seed 5: its force loop, tuned on the nominal oil column, has a
+/// pair of right-half-plane poles on the truth's stiffer one): the linearised loop on that
+/// truth counts the actuator's own poles and finds no stable lead (counted as before, as if
+/// the actuator were stable, it found every lead stable), and the time domain agrees: at
+/// leads 0, 252 and 800 us, without adaptation or guard, the loop oscillates near 480 Hz,
+/// grows, and trips `loop-unstable` within a second.
+#[test]
+fn an_actuator_unstable_by_itself_is_unstable_at_every_lead_in_the_check_and_in_time() {
+    let actuator =
+        "preset = \"rths-fast-150kn\"\nvelocity_compensation = 0.0\nperturb = 0.3\nperturb_seed = 5";
+    let cfg = config_with_actuator(actuator, 252.0, false, false);
+    let plant = fastemu::rig::actuator::ActuatorPlant::from_config(&cfg.rig.actuator);
+    assert_eq!(plant.unstable_poles(), 2);
+    let counted = fastemu::hil::check::LinearLoop::for_plant(&cfg, &plant, 0.0, 1.0);
+    assert_eq!(counted.stable_leads(3e-3), None);
+    let mut uncounted = counted.clone();
+    uncounted.actuator_unstable_poles = 0;
+    assert_eq!(uncounted.stable_leads(3e-3), Some((0.0, 3e-3)));
+    for lead_us in [0.0, 252.0, 800.0] {
+        let cfg = config_with_actuator(actuator, lead_us, false, false);
+        let run = run_in_process(&cfg, &script(2.0));
+        let trip = faults(&run)
+            .into_iter()
+            .find(|(p, f, _)| *p == process_id::EMULATOR && *f == Fault::LoopUnstable)
+            .unwrap_or_else(|| panic!("lead {lead_us}: no loop-unstable: {:?}", faults(&run)));
+        assert!(trip.2 < 1.0, "lead {lead_us}: tripped at {} s", trip.2);
+        // The oscillation's frequency in the 50 ms before the trip, from its zero crossings.
+        let window: Vec<_> = run
+            .emulator
+            .iter()
+            .filter(|r| r.t_s > trip.2 - 0.1 && r.t_s <= trip.2 - 0.05)
+            .collect();
+        let crossings = window
+            .windows(2)
+            .filter(|p| p[0].oscillation_m.signum() != p[1].oscillation_m.signum())
+            .count();
+        let f_hz = crossings as f64 / 2.0 / 0.05;
+        assert!((420.0..540.0).contains(&f_hz), "lead {lead_us}: {f_hz} Hz");
+    }
+}

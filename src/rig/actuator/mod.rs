@@ -182,6 +182,43 @@ impl ActuatorPlant {
         }
     }
 
+    /// How many of the plant's own poles lie in the right half-plane: the eigenvalues of
+    /// its state matrix with the command and the specimen's velocity held at zero (the
+    /// actuator on a blocked piston, its controller closed). `H_u` and `H_v` share these
+    /// poles; a servo loop that is unstable by itself (a force loop tuned on nominal values
+    /// the hardware does not have) has some, and the linearised loop's stability count
+    /// must know them (`hil::check`). Poles on the axis (integrators) are not counted.
+    pub fn unstable_poles(&self) -> usize {
+        let column = |j: usize| {
+            let mut e = [0.0; 4];
+            e[j] = 1.0;
+            self.derivative(&e, 0.0, 0.0)
+        };
+        let a = nalgebra::Matrix4::from_fn(|i, j| column(j)[i]);
+        count_unstable(a.complex_eigenvalues().iter())
+    }
+
+    /// How many poles the actuator has in the right half-plane with a free specimen of
+    /// `mass_kg` and `damping_ns_per_m` on it and a zero command (no element rendered):
+    /// a force loop that the oil column's resonance with the specimen, say, makes unstable
+    /// by itself. Poles on the axis (the free mass, integrators) are not counted.
+    pub fn unstable_poles_on_mass(&self, mass_kg: f64, damping_ns_per_m: f64) -> usize {
+        // States: specimen displacement, velocity, the plant's four.
+        let m = mass_kg + self.moving_mass_kg();
+        let derivative = |x: &[f64; 6]| -> [f64; 6] {
+            let plant: PlantState = [x[2], x[3], x[4], x[5]];
+            let d = self.derivative(&plant, 0.0, x[1]);
+            let accel = (-damping_ns_per_m * x[1] - self.force_n(&plant, x[1])) / m;
+            [x[1], accel, d[0], d[1], d[2], d[3]]
+        };
+        let a = nalgebra::Matrix6::from_fn(|i, j| {
+            let mut e = [0.0; 6];
+            e[j] = 1.0;
+            derivative(&e)[i]
+        });
+        count_unstable(a.complex_eigenvalues().iter())
+    }
+
     /// `(H_u(jw), H_v(jw))` of the linearised plant (no saturation); `H_u` includes the
     /// transport delay; `H_v` is zero for lag-delay.
     pub fn response(&self, omega: f64) -> (Complex64, Complex64) {
@@ -247,3 +284,9 @@ impl ActuatorParams {
 
 #[cfg(test)]
 mod tests;
+
+/// Eigenvalues with a positive real part beyond round-off (a millionth of the largest).
+fn count_unstable<'a>(eigen: impl Iterator<Item = &'a nalgebra::Complex<f64>> + Clone) -> usize {
+    let scale = eigen.clone().map(|l| l.norm()).fold(0.0f64, f64::max);
+    eigen.filter(|l| l.re > 1e-6 * scale.max(1.0)).count()
+}

@@ -229,3 +229,52 @@ fn a_perturbed_servo_hydraulic_still_holds_its_force_and_tracks() {
         );
     }
 }
+
+/// A force loop tuned on nominal values can be unstable on the hardware it gets: a
+/// perturbed `fatigue-150kn` (seed 5: a stiffer oil column, so the same gain crosses over
+/// where the valve's lag leaves no margin) has a pair of right-half-plane poles on a
+/// blocked piston; the nominal has none. Checked against the time simulation: from a
+/// small force offset with command and velocity at zero, the nominal's force dies away and
+/// seed 5's grows at the rate the eigenvalues give.
+#[test]
+fn a_servo_loop_unstable_on_its_hardware_has_right_half_plane_poles() {
+    let nominal = preset_params("fatigue-150kn");
+    for p in PRESETS {
+        let params = ActuatorParams::from_config_units(p.kind, p.values);
+        assert_eq!(
+            ActuatorPlant::new(&params, &params).unstable_poles(),
+            0,
+            "{}",
+            p.name
+        );
+    }
+    let unstable = ActuatorPlant::new(&nominal.perturbed(0.3, 5), &nominal);
+    assert_eq!(unstable.unstable_poles(), 2);
+    let blocked_peak = |plant: &ActuatorPlant, from_s: f64, to_s: f64| {
+        let h = 2e-6;
+        let mut s: PlantState = [1.0, 0.0, 0.0, 0.0];
+        let mut peak = 0.0f64;
+        for i in 0..(to_s / h) as usize {
+            let add = |s: &PlantState, k: &PlantState, f: f64| {
+                std::array::from_fn::<f64, 4, _>(|j| s[j] + f * k[j])
+            };
+            let k1 = plant.derivative(&s, 0.0, 0.0);
+            let k2 = plant.derivative(&add(&s, &k1, 0.5 * h), 0.0, 0.0);
+            let k3 = plant.derivative(&add(&s, &k2, 0.5 * h), 0.0, 0.0);
+            let k4 = plant.derivative(&add(&s, &k3, h), 0.0, 0.0);
+            for j in 0..4 {
+                s[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j]);
+            }
+            if i as f64 * h >= from_s {
+                peak = peak.max(s[0].abs());
+            }
+        }
+        peak
+    };
+    // Nominal: decayed below 1e-3 of the offset within 0.3 s.
+    assert!(blocked_peak(&ActuatorPlant::new(&nominal, &nominal), 0.25, 0.3) < 1e-3);
+    // Seed 5: growth rate 4.6 1/s (eigenvalues 4.58 +- 649.7j 1/s): from 0.5-0.6 s to
+    // 1.5-1.6 s the envelope grows by about e^4.6 = 99.
+    let growth = blocked_peak(&unstable, 1.5, 1.6) / blocked_peak(&unstable, 0.5, 0.6);
+    assert!((60.0..160.0).contains(&growth), "{growth}");
+}
