@@ -10,7 +10,7 @@ use anyhow::Context;
 use clap::{Args, ValueEnum};
 
 use crate::hil::controller::ControllerRecord;
-use crate::hil::emulator::EmulatorRecord;
+use crate::hil::emulator::{AfterFaultSampleRecord, EmulatorRecord};
 use crate::records::export::{export_csv, CsvOf};
 use crate::records::{EventRecord, RecordSet};
 use crate::rig::core::RigRecord;
@@ -39,6 +39,7 @@ pub fn export_dir(record: &Path, out: &Path) -> anyhow::Result<Vec<(PathBuf, u64
     let sinks = vec![
         CsvOf::<RigRecord>::create(&out.join("rig.csv"))?,
         CsvOf::<EmulatorRecord>::create(&out.join("emulator.csv"))?,
+        CsvOf::<AfterFaultSampleRecord>::create(&out.join("emulator_after_fault.csv"))?,
         CsvOf::<ControllerRecord>::create(&out.join("controller.csv"))?,
         CsvOf::<EventRecord>::create(&out.join("events.csv"))?,
     ];
@@ -74,6 +75,10 @@ fn columns_text() -> String {
     for (file, schema) in [
         ("rig.csv", RigRecord::schema_text()),
         ("emulator.csv", EmulatorRecord::schema_text()),
+        (
+            "emulator_after_fault.csv",
+            AfterFaultSampleRecord::schema_text(),
+        ),
         ("controller.csv", ControllerRecord::schema_text()),
         ("events.csv", EventRecord::schema_text()),
     ] {

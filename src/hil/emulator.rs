@@ -95,6 +95,47 @@ impl RigView {
     }
 }
 
+record_type! {
+    /// A rig sample the emulator received after its own fault (`/emulator/after_fault`):
+    /// the model is no longer stepped, but the rig's view goes on being recorded, so the
+    /// hold an external rig keeps (whose own records fastemu does not have) is in the
+    /// records and the report.
+    pub struct AfterFaultSampleRecord {
+        topic: "/emulator/after_fault",
+        schema: "fastemu/AfterFaultSampleRecord",
+        log_time: |r| (r.t_s * 1e9).round() as u64,
+        fields: {
+            /// rig time of the sample, s
+            t_s: f64,
+            /// the sample's sequence
+            sample_seq: u64,
+            /// the rig's measured displacement, m
+            z_measured_m: f64,
+            /// the rig's measured actuator force, N (NaN: not measured)
+            rig_force_n: f64,
+            /// the rig's state in the sample: 1 running, 2 hold, 4 unload, 5 operator hold
+            rig_state: u32,
+            /// the rig's latched fault code in the sample, 0 none
+            rig_fault_code: u32,
+        }
+    }
+}
+
+/// Where the emulator's loop puts its records: one per model step, and after its fault
+/// one per rig sample (`after_fault`, dropped by default). A closure taking
+/// `EmulatorRecord` is one.
+pub trait EmulatorRecords {
+    fn step(&mut self, r: EmulatorRecord);
+    fn after_fault(&mut self, _r: AfterFaultSampleRecord) {}
+}
+
+impl<F: FnMut(EmulatorRecord)> EmulatorRecords for F {
+    #[inline]
+    fn step(&mut self, r: EmulatorRecord) {
+        self(r)
+    }
+}
+
 /// What the loop should do after a cycle.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum CycleOutcome {
@@ -138,6 +179,8 @@ pub struct EmulatorCore {
     fault: Option<Fault>,
     fault_reported: bool,
     end_of_run: bool,
+    /// The newest sample recorded after the fault.
+    last_after_fault_seq: Option<u64>,
     setpoint_seq: u64,
     step_idx: u64,
     flags: u32,
@@ -170,6 +213,7 @@ impl EmulatorCore {
             fault: None,
             fault_reported: false,
             end_of_run: false,
+            last_after_fault_seq: None,
             setpoint_seq: 0,
             step_idx: 0,
             flags: 0,
@@ -252,7 +296,7 @@ impl EmulatorCore {
         interpolated: bool,
         rig: RigView,
         stats: &CycleStats,
-        record: &mut impl FnMut(EmulatorRecord),
+        record: &mut impl EmulatorRecords,
     ) {
         let (force, flags) = self.stepper.step(z_m);
         self.flags = flags.0 as u32;
@@ -266,7 +310,7 @@ impl EmulatorCore {
             self.fault = Some(Fault::LoopUnstable);
         }
         let energy = self.monitor.state();
-        record(EmulatorRecord {
+        record.step(EmulatorRecord {
             t_s: sample_seq as f64 * self.dt_s,
             step_idx: self.step_idx,
             cycle_idx: stats.cycle_idx + stats.missed_deadlines,
@@ -296,13 +340,31 @@ impl EmulatorCore {
         &mut self,
         sample: DisplacementSample,
         stats: &CycleStats,
-        record: &mut impl FnMut(EmulatorRecord),
+        record: &mut impl EmulatorRecords,
     ) {
         if sample.status == sample_status::END_OF_RUN {
             self.end_of_run = true;
             return;
         }
-        if self.fault.is_some() || self.end_of_run {
+        if self.end_of_run {
+            return;
+        }
+        if self.fault.is_some() {
+            // The model stops; the rig's view (its hold) goes on being recorded.
+            if self
+                .last_after_fault_seq
+                .is_none_or(|last| sample.sequence > last)
+            {
+                self.last_after_fault_seq = Some(sample.sequence);
+                record.after_fault(AfterFaultSampleRecord {
+                    t_s: sample.sequence as f64 * self.dt_s,
+                    sample_seq: sample.sequence,
+                    z_measured_m: sample.displacement_m,
+                    rig_force_n: sample.actuator_force_n,
+                    rig_state: sample.rig_state,
+                    rig_fault_code: sample.rig_fault_code,
+                });
+            }
             return;
         }
         if let Some(last) = self.last_sample {
@@ -357,7 +419,7 @@ impl EmulatorCore {
         &mut self,
         stats: &CycleStats,
         io: &mut impl EmulatorIo,
-        record: &mut impl FnMut(EmulatorRecord),
+        record: &mut impl EmulatorRecords,
     ) -> CycleOutcome {
         self.counts.cycles += 1;
         self.counts.missed_deadlines += stats.missed_deadlines;

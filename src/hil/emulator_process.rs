@@ -11,7 +11,9 @@ use std::path::Path;
 use std::time::Duration;
 
 use super::config::{HilConfig, LoopProcess};
-use super::emulator::{CycleOutcome, EmulatorCore, EmulatorIo, EmulatorRecord};
+use super::emulator::{
+    AfterFaultSampleRecord, CycleOutcome, EmulatorCore, EmulatorIo, EmulatorRecord, EmulatorRecords,
+};
 use super::fault::Fault;
 use super::process::{
     install_termination_handler, meta_json, poll_control, real_time_setup, termination_requested,
@@ -92,6 +94,7 @@ struct EmulatorLoop<'a> {
     heartbeat: &'a Out<Heartbeat>,
     control: &'a In<RunControl>,
     records: &'a RecordSink<EmulatorRecord>,
+    after_fault: &'a RecordSink<AfterFaultSampleRecord>,
     events: &'a RecordSink<EventRecord>,
     dt: f64,
     heartbeat_every: u64,
@@ -113,10 +116,11 @@ impl EmulatorLoop<'_> {
         let cpu_stall = self
             .injector
             .fire_due(now_idx as f64 * self.dt, now_idx, self.events);
-        let records = self.records;
-        let outcome = self
-            .core
-            .cycle(stats, &mut self.io, &mut |r| records.push(r));
+        let mut sinks = Sinks {
+            steps: self.records,
+            after_fault: self.after_fault,
+        };
+        let outcome = self.core.cycle(stats, &mut self.io, &mut sinks);
         if let Some(event) = self.core.take_fault_event(now_idx) {
             self.events.push(event);
         }
@@ -144,6 +148,24 @@ impl EmulatorLoop<'_> {
             }
         }
         (true, cpu_stall)
+    }
+}
+
+/// The record queues the loop pushes into (bounded, lock-free).
+struct Sinks<'a> {
+    steps: &'a RecordSink<EmulatorRecord>,
+    after_fault: &'a RecordSink<AfterFaultSampleRecord>,
+}
+
+impl EmulatorRecords for Sinks<'_> {
+    #[inline]
+    fn step(&mut self, r: EmulatorRecord) {
+        self.steps.push(r);
+    }
+
+    #[inline]
+    fn after_fault(&mut self, r: AfterFaultSampleRecord) {
+        self.after_fault.push(r);
     }
 }
 
@@ -203,6 +225,7 @@ pub fn run_emulator(
     let control = node.control_in()?;
     let mut builder = RecorderBuilder::new(out_dir, "emulator");
     let records = builder.sink::<EmulatorRecord>(cfg.loop_.record_queue_capacity);
+    let after_fault = builder.sink::<AfterFaultSampleRecord>(cfg.loop_.record_queue_capacity);
     let events = builder.sink::<EventRecord>(256);
     let recorder = builder.spawn()?;
 
@@ -243,6 +266,7 @@ pub fn run_emulator(
             heartbeat: &heartbeat,
             control: &control,
             records: &records,
+            after_fault: &after_fault,
             events: &events,
             dt: cfg.loop_.dt_s(),
             heartbeat_every: (HEARTBEAT_PERIOD_NS / cfg.loop_.period_ns).max(1),

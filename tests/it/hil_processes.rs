@@ -472,6 +472,7 @@ fn closed_loop_is_clean_faithful_replayable_exportable_and_leaves_nothing_behind
     for f in [
         "rig.csv",
         "emulator.csv",
+        "emulator_after_fault.csv",
         "controller.csv",
         "events.csv",
         "meta.json",
@@ -485,6 +486,7 @@ fn closed_loop_is_clean_faithful_replayable_exportable_and_leaves_nothing_behind
     for (file, name) in [
         ("rig.csv", "rig.csv"),
         ("emulator.csv", "emulator.csv"),
+        ("emulator_after_fault.csv", "emulator_after_fault.csv"),
         ("controller.csv", "controller.csv"),
         ("events.csv", "events.csv"),
     ] {

@@ -589,6 +589,95 @@ fn an_external_rig_written_from_the_header_completes_sessions_over_iceoryx2_and_
     assert!(l["received"]["sample"].as_u64().unwrap() >= json["steps"].as_u64().unwrap());
 }
 
+/// An external rig holds after the emulator's own fault (a 300 ms stall of the emulator
+/// at 1 s: the controller commands the hold on stale setpoints, the emulator trips
+/// `emulator-stalled` when it runs again). fastemu has no records of the rig itself; the
+/// emulator goes on recording the rig's samples after its fault without stepping the
+/// model, so the hold is in the records and the report: the run ends in the hold, which
+/// lasts from the controller's detection to the end, and the samples recorded after the
+/// fault say the rig held.
+#[test]
+fn an_external_rigs_hold_after_the_emulators_fault_is_in_the_records_and_the_report() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = scratch_dir("external-hold");
+    let report = dir.join("report");
+    let config = write_config(
+        &dir,
+        &[
+            ("preload_n = 20000.0", "preload_n = 0.0"),
+            ("train_speed_kmh = 200.0", "train_speed_kmh = 0.0"),
+        ],
+        "\n[[inject]]\nprocess = \"emulator\"\nkind = \"stall\"\nat_s = 1.0\nduration_ms = 300\n",
+    );
+    let run_id = format!("feit{}hold", std::process::id());
+    let mut hil = spawn_hil_with(
+        &config,
+        &report,
+        2.5,
+        &["--rig", "external", "--run-id", &run_id],
+    );
+    let rig = Command::new(EXAMPLE_RIG)
+        .args(["--ipc", &run_id, "--duration-s", "2.5"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .unwrap();
+    let mut rig = ChildGuard::new(rig);
+    let status = rig.wait_timeout(Duration::from_secs(60)).unwrap();
+    assert!(status.is_some(), "the example rig did not end");
+    drop(rig);
+    let (code, json) = hil.finish(Duration::from_secs(60));
+    assert_ne!(code, 0, "{}", hil.stderr());
+    let faults = json["safety"]["faults"].as_array().unwrap();
+    let emulator = faults
+        .iter()
+        .find(|f| f["process"] == "emulator")
+        .unwrap_or_else(|| panic!("no emulator fault: {json}"));
+    assert_eq!(emulator["fault"], "emulator-stalled", "{emulator}");
+    assert_eq!(json["safety"]["final_state"], "hold", "{}", json["safety"]);
+    let held_s = json["safety"]["held_s"].as_f64().unwrap();
+    assert!(held_s > 1.0, "held {held_s} s");
+    // The records after the fault: the rig's samples, in its hold, to the end of the run.
+    let csv = dir.join("csv");
+    let out = Command::new(FASTEMU)
+        .args(["export", "--record"])
+        .arg(report.join("records.mcap"))
+        .arg("--out")
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = std::fs::read_to_string(csv.join("emulator_after_fault.csv")).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let (t, state) = (col("t_s"), col("rig_state"));
+    let rows: Vec<(f64, u32)> = lines
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (f[t].parse().unwrap(), f[state].parse().unwrap())
+        })
+        .collect();
+    let emulator_trip = emulator["detected_at_s"].as_f64().unwrap();
+    assert!(rows.len() > 2048, "{} samples after the fault", rows.len());
+    assert!(
+        rows.iter().all(|r| r.0 >= emulator_trip - 0.3),
+        "{:?}",
+        rows.first()
+    );
+    assert!(
+        rows.iter().all(|r| r.1 == 2),
+        "not all in the hold: {:?}",
+        rows.iter().find(|r| r.1 != 2)
+    );
+    assert_nothing_left(&json);
+}
+
 #[test]
 fn an_external_rig_that_never_connects_is_a_named_fault_that_leaves_nothing() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());

@@ -22,7 +22,7 @@ use serde::Serialize;
 
 use super::config::HilConfig;
 use super::controller::ControllerRecord;
-use super::emulator::EmulatorRecord;
+use super::emulator::{AfterFaultSampleRecord, EmulatorRecord};
 use crate::ipc::messages::rig_state;
 use crate::plot::{draw_png, Panel, Series};
 use crate::records::{EventRecord, RecordSet};
@@ -104,26 +104,56 @@ pub const RIG_VIEW_EXTERNAL: &str = "external rig: what it sent in its samples (
 
 /// The rig's view of one period from the emulator's record of its sample (external rig).
 fn rig_record_from_sample(e: &EmulatorRecord) -> RigRecord {
+    rig_view_record(
+        e.t_s,
+        e.sample_seq,
+        e.z_used_m,
+        e.rig_force_n,
+        e.rig_state,
+        e.rig_fault_code,
+    )
+}
+
+/// The same from a sample the emulator recorded after its own fault (the rig's hold).
+fn rig_record_after_fault(a: &AfterFaultSampleRecord) -> RigRecord {
+    rig_view_record(
+        a.t_s,
+        a.sample_seq,
+        a.z_measured_m,
+        a.rig_force_n,
+        a.rig_state,
+        a.rig_fault_code,
+    )
+}
+
+fn rig_view_record(
+    t_s: f64,
+    seq: u64,
+    z_m: f64,
+    force_n: f64,
+    state: u32,
+    fault_code: u32,
+) -> RigRecord {
     RigRecord {
-        t_s: e.t_s,
-        step_idx: e.sample_seq,
-        x_m: e.z_used_m,
+        t_s,
+        step_idx: seq,
+        x_m: z_m,
         // Unknown: a resume from an operator hold restarts the reference at rest.
         v_m_per_s: 0.0,
-        z_measured_m: e.z_used_m,
+        z_measured_m: z_m,
         command_n: f64::NAN,
-        actuator_force_n: e.rig_force_n,
+        actuator_force_n: force_n,
         external_force_n: f64::NAN,
         // Unknown: the rig's sample time stands in (the comparison ends at a hold).
-        programme_time_s: e.t_s,
+        programme_time_s: t_s,
         programme_cycle: 0,
         programme_block: 0,
         command_sample_seq: u64::MAX,
         command_age_periods: 0,
         law_age_periods: 0,
         mode: crate::ipc::messages::command_mode::LAW,
-        state: e.rig_state,
-        fault_code: e.rig_fault_code,
+        state,
+        fault_code,
         wake_late_ns: 0,
         catch_up: 0,
         published: 1,
@@ -407,6 +437,8 @@ fn read_rig_stream(
             }
             on_rig_record(&rig_record_from_sample(&e))
         })?;
+        // After the emulator's own fault: the rig's samples (its hold), model not stepped.
+        set.for_each::<AfterFaultSampleRecord>(|_, a| on_rig_record(&rig_record_after_fault(&a)))?;
     }
     for out in high_pass.finish() {
         on_hp(out, &mut hp_steps, &mut residual, &mut stalls);
