@@ -43,8 +43,11 @@
  * ======================================================================================
  *  a. Measure displacement z_k (and, if it can, the actuator force); send the sample
  *     {sequence k, rig_time_ns k*T, displacement, force (NaN if not measured), status,
- *     its state and latched fault code, and the force command applied over period k-1
- *     (NaN if the rig does not say; from sample 0, its own servo's command)}.
+ *     its state (FASTEMU_RIG_STARTING from sample 0 until the first FORCE or LAW command
+ *     takes over) and latched fault code, and the force command applied over period k-1
+ *     (NaN if the rig does not say; from sample 0, its own servo's command in newtons;
+ *     a servo that commands a valve or a position, not a force, sends NaN: fastemu then
+ *     reads the actuator's gain from the first samples in force control instead)}.
  *  b. Take every command that arrived since the last period; the newest counts. A
  *     command with mode HOLD or HOLD_UNLOAD latches the interlock (fault 22
  *     hold-requested) and is never left in this session. Drop, as if it had not
@@ -416,7 +419,9 @@ typedef struct fastemu_law_state {
 /* Every period k in LAW mode (2c): push the measurement z_k, then the force to command,
  * N, for `cmd` (its law, limits and compensation) at period k with period T (s);
  * stale_limit_s = N * T bounds since_s. Also call it (and ignore the result) in other
- * modes so the state follows the measurement. */
+ * modes so the state follows the measurement: with the newest LAW command, or, before
+ * the first one, a zeroed command with compensation.gain = 1 (a FORCE or HOLD command's
+ * compensation is not checked, 2b: never pass it). */
 static inline double fastemu_compensated_force(fastemu_law_state *st,
                                                const fastemu_actuator_command *cmd, double z_k,
                                                uint64_t k, double T, double stale_limit_s) {

@@ -674,17 +674,20 @@ pub fn run_processes(
                 if progress && now.duration_since(last_progress) > Duration::from_secs(1) {
                     last_progress = now;
                     let elapsed_s = now.duration_since(t).as_secs_f64();
-                    eprintln!(
-                        "hil: t = {elapsed_s:.1} s of {:.1} s{}",
-                        plan.duration_s,
-                        if sup.first_fault_at.is_some() {
-                            " (fault: holding)"
-                        } else if elapsed_s > plan.duration_s {
-                            " of programme (it paused while the rig held, or is unloading)"
-                        } else {
-                            ""
-                        }
-                    );
+                    if sup.first_fault_at.is_some() {
+                        // The programme stopped at the fault; the hold runs its own time.
+                        eprintln!("hil: t = {elapsed_s:.1} s (fault: holding)");
+                    } else {
+                        eprintln!(
+                            "hil: t = {elapsed_s:.1} s of {:.1} s{}",
+                            plan.duration_s,
+                            if elapsed_s > plan.duration_s {
+                                " of programme (it paused while the rig held, or is unloading)"
+                            } else {
+                                ""
+                            }
+                        );
+                    }
                 }
             }
         }

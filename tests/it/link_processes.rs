@@ -637,7 +637,8 @@ fn an_external_rigs_hold_after_the_emulators_fault_is_in_the_records_and_the_rep
     assert_eq!(emulator["fault"], "emulator-stalled", "{emulator}");
     assert_eq!(json["safety"]["final_state"], "hold", "{}", json["safety"]);
     let held_s = json["safety"]["held_s"].as_f64().unwrap();
-    assert!(held_s > 1.0, "held {held_s} s");
+    // From the first sample that carried the hold (after the stalled emulator missed some) to the end.
+    assert!(held_s > 0.5, "held {held_s} s");
     // The records after the fault: the rig's samples, in its hold, to the end of the run.
     let csv = dir.join("csv");
     let out = Command::new(FASTEMU)

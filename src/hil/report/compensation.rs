@@ -191,6 +191,14 @@ impl CompensationReport {
             )),
             _ => {}
         }
+        if let Some(d) = self
+            .identified_delay_us
+            .filter(|d| *d < 0.0 && self.identified_delay_sigma_us.is_none_or(|s| -d > 2.0 * s))
+        {
+            line.push_str(&format!(
+                "; the identified delay ({d:.0} us) is negative: the rendered force leads the element's in the load band, which no delay does; the actuator adds a force of its own on the specimen's motion (a damper: a servo-hydraulic force loop without velocity compensation, for one), which a lead, kept at 0 here, cannot take out"
+            ));
+        }
         if self.guard.safe_start_ended == Some(false) && self.law_ended_in_hold {
             line.push_str(&format!(
                 "; the safe start had not ended when the law gave way to a hold, after {:.2} s",
@@ -688,6 +696,27 @@ mod tests {
             ) && !line.contains("WARNING"),
             "{line}"
         );
+    }
+
+    /// A negative identified delay (beyond two standard errors) is explained, not left as
+    /// if it were an actuator's delay; a positive one or one within its error is not.
+    #[test]
+    fn a_negative_identified_delay_is_explained() {
+        let mut r = CompensationReport {
+            identified_delay_us: Some(-4420.0),
+            identified_delay_sigma_us: Some(34.0),
+            ..CompensationReport::default()
+        };
+        assert!(
+            r.describe().contains("(-4420 us) is negative"),
+            "{}",
+            r.describe()
+        );
+        r.identified_delay_sigma_us = Some(3000.0);
+        assert!(!r.describe().contains("is negative"), "{}", r.describe());
+        r.identified_delay_us = Some(250.0);
+        r.identified_delay_sigma_us = Some(5.0);
+        assert!(!r.describe().contains("is negative"), "{}", r.describe());
     }
 
     /// The console line warns when the faithful band ends inside the load band, names the

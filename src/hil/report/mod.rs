@@ -102,6 +102,17 @@ pub const RIG_VIEW_OWN: &str = "the rig's own records";
 /// `Analysis::rig_view` for an external rig.
 pub const RIG_VIEW_EXTERNAL: &str = "external rig: what it sent in its samples (measured displacement, measured force, its state and fault), from the emulator's records; its true displacement, load programme, commands applied and own events are not available, and its own fault is dated by the first sample that carried it; the fidelity compares the measured displacement with the offline reference of this configuration's scenario, meaningful only if the rig ran that scenario on the configured specimen";
 
+/// An external rig's faults named as such (the events' process label is the simulated
+/// rig's, `bench_rig`).
+fn external_rig_named(mut safety: safety::Safety) -> safety::Safety {
+    for f in &mut safety.faults {
+        if f.process == "bench_rig" {
+            f.process = "external rig".to_string();
+        }
+    }
+    safety
+}
+
 /// The rig's view of one period from the emulator's record of its sample (external rig).
 fn rig_record_from_sample(e: &EmulatorRecord) -> RigRecord {
     rig_view_record(
@@ -221,11 +232,23 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
                     }
                 }
             }
+            t if t == AfterFaultSampleRecord::TOPIC => {
+                if let Some(r) = AfterFaultSampleRecord::decode(data) {
+                    if r.rig_fault_code != 0 && side.sample_rig_fault.is_none() {
+                        side.sample_rig_fault = Some((r.t_s, r.sample_seq, r.rig_fault_code));
+                    }
+                }
+            }
             t if t == EmulatorRecord::TOPIC => {
                 if let Some(r) = EmulatorRecord::decode(data) {
                     side.emulator_steps += 1;
                     side.compensation.emulator(&r);
-                    if r.rig_fault_code != 0 && side.sample_rig_fault.is_none() {
+                    // An interpolated step carries the view of the sample after the gap:
+                    // it would date the rig's fault to the gap's start.
+                    if r.rig_fault_code != 0
+                        && r.interpolated == 0
+                        && side.sample_rig_fault.is_none()
+                    {
                         side.sample_rig_fault = Some((r.t_s, r.sample_seq, r.rig_fault_code));
                     }
                     side.emulator_force.push(r.t_s, r.force_n);
@@ -435,7 +458,10 @@ fn read_rig_stream(
             if let Some(s) = settled.as_deref_mut() {
                 s.emulator(&e);
             }
-            on_rig_record(&rig_record_from_sample(&e))
+            // The rig's view only where it sent a sample (not the interpolated steps).
+            if e.interpolated == 0 {
+                on_rig_record(&rig_record_from_sample(&e));
+            }
         })?;
         // After the emulator's own fault: the rig's samples (its hold), model not stepped.
         set.for_each::<AfterFaultSampleRecord>(|_, a| on_rig_record(&rig_record_after_fault(&a)))?;
@@ -559,14 +585,29 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
         largest_transient_m: stability.resonant_residual_max_m,
         stability,
         latency_ns,
-        safety: rig.safety,
+        safety: if side.rig_records > 0 {
+            rig.safety
+        } else {
+            external_rig_named(rig.safety)
+        },
         stalls: rig.stalls,
         compensation: compensation_report,
         records: RecordsInfo {
             files: set.files.iter().map(|p| p.display().to_string()).collect(),
             truncated: side.truncated.clone(),
         },
-        events: side.events.iter().map(EventRecord::describe).collect(),
+        events: side
+            .events
+            .iter()
+            .map(|e| {
+                let line = e.describe();
+                if side.rig_records == 0 {
+                    line.replacen(" bench_rig: ", " external rig: ", 1)
+                } else {
+                    line
+                }
+            })
+            .collect(),
         rig_view: if side.rig_records > 0 {
             RIG_VIEW_OWN
         } else {
