@@ -839,6 +839,14 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
     }
     // Process deaths first: they are the cause; the others' reactions follow from them.
     outcome.faults.sort_by_key(|f| !f.contains("process (pid"));
+    if args.rig.external() {
+        // The rig's slot carries an external rig's own faults (from its samples).
+        for f in &mut outcome.faults {
+            if let Some(rest) = f.strip_prefix("bench_rig: ") {
+                *f = format!("external rig: {rest}");
+            }
+        }
+    }
     let records = merge_records(&out_dir);
     if args.csv && records["parts"].as_u64() != Some(0) {
         if let Err(e) = crate::cli::export::export_dir(&out_dir, &out_dir) {

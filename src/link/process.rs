@@ -115,11 +115,20 @@ struct Shared {
     t0_ns: AtomicU64,
 }
 
-/// The link's threads run one SCHED_FIFO priority above the loops, unpinned: they only
-/// wake for a datagram or a command and pass it on in microseconds, and at the loops'
-/// priority they would wait behind a loop spinning for exactly that sample.
+/// The link's threads run one SCHED_FIFO priority above the loops: they only wake for a
+/// datagram or a command and pass it on in microseconds, and at the loops' priority they
+/// would wait behind a loop spinning for exactly that sample. They sit on the
+/// controller's CPUs (`[loop] controller_cpus`): the command path then hangs on one CPU,
+/// the one the emulator's standby covers for, not on whichever the kernel picked (an
+/// outside rig saw the link forward nothing for 49 ms while the controller published
+/// and the emulator kept pace: what a held CPU under an unpinned thread gives).
 fn link_rt_setup(cfg: &HilConfig) {
-    real_time_setup(cfg, &[], "link", Priority::EventDriven);
+    real_time_setup(
+        cfg,
+        &cfg.loop_.controller_cpus,
+        "link",
+        Priority::EventDriven,
+    );
 }
 
 /// What the receiving thread returns.
