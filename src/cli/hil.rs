@@ -842,9 +842,7 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
     if args.rig.external() {
         // The rig's slot carries an external rig's own faults (from its samples).
         for f in &mut outcome.faults {
-            if let Some(rest) = f.strip_prefix("bench_rig: ") {
-                *f = format!("external rig: {rest}");
-            }
+            *f = crate::records::event::external_rig_labelled(f);
         }
     }
     let records = merge_records(&out_dir);

@@ -85,6 +85,24 @@ record_type! {
 
 const PROCESS_LABELS: [&str; 4] = ["bench_rig", "emulator", "controller", "hil"];
 
+/// What a report calls the rig's slot when the rig is external (its own faults arrive in
+/// its samples and carry the simulated rig's label).
+pub const EXTERNAL_RIG_LABEL: &str = "external rig";
+
+/// `text` (a fault line "bench_rig: ...", an event line "1.0 s bench_rig: ...", or the
+/// bare label) with the rig's label, if it begins a line or follows a space, as an
+/// external rig's.
+pub fn external_rig_labelled(text: &str) -> String {
+    let rig = PROCESS_LABELS[0];
+    if text == rig {
+        return EXTERNAL_RIG_LABEL.to_string();
+    }
+    if let Some(rest) = text.strip_prefix(&format!("{rig}: ")) {
+        return format!("{EXTERNAL_RIG_LABEL}: {rest}");
+    }
+    text.replacen(&format!(" {rig}: "), &format!(" {EXTERNAL_RIG_LABEL}: "), 1)
+}
+
 impl EventRecord {
     /// Process label (`bench_rig`, `emulator`, ...).
     pub fn process_name(&self) -> &'static str {
@@ -147,4 +165,29 @@ impl EventRecord {
 
     /// Size check used by tests: the encoded record is fixed-size.
     pub const ENCODED_SIZE: usize = <EventRecord as Record>::SIZE;
+}
+
+#[cfg(test)]
+mod label_tests {
+    use super::*;
+
+    /// The rig's label becomes an external rig's in a fault line, an event line and alone;
+    /// other processes and words that merely contain it are left alone.
+    #[test]
+    fn the_rigs_label_is_an_external_rigs() {
+        assert_eq!(external_rig_labelled("bench_rig"), "external rig");
+        assert_eq!(
+            external_rig_labelled("bench_rig: commands-stale"),
+            "external rig: commands-stale"
+        );
+        assert_eq!(
+            external_rig_labelled("1.2340 s bench_rig: hold-requested"),
+            "1.2340 s external rig: hold-requested"
+        );
+        assert_eq!(external_rig_labelled("emulator"), "emulator");
+        assert_eq!(
+            external_rig_labelled("controller: emulator-tripped (bench_rig)"),
+            "controller: emulator-tripped (bench_rig)"
+        );
+    }
 }

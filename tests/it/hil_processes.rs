@@ -271,6 +271,22 @@ pub(super) fn faults(json: &serde_json::Value) -> Vec<String> {
     })
 }
 
+/// `fastemu export --format csv` of `record` into `out`, which must succeed.
+pub(super) fn export_csv(record: &Path, out: &Path) {
+    let done = Command::new(FASTEMU)
+        .args(["export", "--format", "csv", "--record"])
+        .arg(record)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap();
+    assert!(
+        done.status.success(),
+        "{}",
+        String::from_utf8_lossy(&done.stderr)
+    );
+}
+
 pub(super) fn assert_nothing_left(json: &serde_json::Value) {
     let run_id = json["run_id"].as_str().expect("run_id in output");
     assert!(
@@ -457,18 +473,7 @@ fn closed_loop_is_clean_faithful_replayable_exportable_and_leaves_nothing_behind
     assert!(ok && text.contains(" 0 forces differ"), "{text}");
     // ... from its CSV export too, and notices a single changed force.
     let csv = dir.join("csv");
-    let out = Command::new(FASTEMU)
-        .args(["export", "--format", "csv", "--record"])
-        .arg(report.join("records.mcap"))
-        .arg("--out")
-        .arg(&csv)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    export_csv(&report.join("records.mcap"), &csv);
     for f in [
         "rig.csv",
         "emulator.csv",

@@ -29,8 +29,8 @@ use fastemu::rig::process::RigTransport;
 use fastemu::rt::CycleStats;
 
 use super::hil_processes::{
-    assert_hold_in_records, assert_nothing_left, faults, scratch_dir, spawn_hil_with, the_child,
-    write_config, Hil, Scratch, AXLE_S, FASTEMU, SERIAL,
+    assert_hold_in_records, assert_nothing_left, export_csv, faults, scratch_dir, spawn_hil_with,
+    the_child, write_config, Hil, Scratch, AXLE_S, FASTEMU, SERIAL,
 };
 
 const EXAMPLE_RIG: &str = env!("CARGO_BIN_EXE_example_rig");
@@ -499,22 +499,16 @@ fn killing_the_link_leaves_the_far_rig_holding() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
-/// Runs `hil --rig external ...` and the example rig with `rig_args`; returns hil's JSON.
-fn external_session(name: &str, hil_args: &[&str], rig_args: &[&str]) -> serde_json::Value {
-    let dir = scratch_dir(name);
-    let report = dir.join("report");
-    // The example rig's programme: no preload ramp, no train; the same mass and damping.
-    let config = write_config(
-        &dir,
-        &[
-            ("preload_n = 20000.0", "preload_n = 0.0"),
-            ("train_speed_kmh = 200.0", "train_speed_kmh = 0.0"),
-        ],
-        "",
-    );
-    let mut args = vec!["--rig", "external"];
-    args.extend_from_slice(hil_args);
-    let mut hil = spawn_hil_with(&config, &report, 2.5, &args);
+/// The example rig's programme in the configuration: no preload ramp, no train; the same
+/// mass and damping.
+const EXAMPLE_RIG_SCENARIO: &[(&str, &str)] = &[
+    ("preload_n = 20000.0", "preload_n = 0.0"),
+    ("train_speed_kmh = 200.0", "train_speed_kmh = 0.0"),
+];
+
+/// Runs the example rig for 2.5 s with `rig_args` to its end (killed and reaped on any
+/// exit path); its exit status, `None` when it outlived 60 s.
+fn run_example_rig(rig_args: &[&str]) -> Option<std::process::ExitStatus> {
     let rig = Command::new(EXAMPLE_RIG)
         .args(rig_args)
         .args(["--duration-s", "2.5"])
@@ -523,13 +517,24 @@ fn external_session(name: &str, hil_args: &[&str], rig_args: &[&str]) -> serde_j
         .stderr(Stdio::inherit())
         .spawn()
         .unwrap();
-    let mut rig = ChildGuard::new(rig);
-    let status = rig.wait_timeout(Duration::from_secs(60)).unwrap();
+    ChildGuard::new(rig)
+        .wait_timeout(Duration::from_secs(60))
+        .unwrap()
+}
+
+/// Runs `hil --rig external ...` and the example rig with `rig_args`; returns hil's JSON.
+fn external_session(name: &str, hil_args: &[&str], rig_args: &[&str]) -> serde_json::Value {
+    let dir = scratch_dir(name);
+    let report = dir.join("report");
+    let config = write_config(&dir, EXAMPLE_RIG_SCENARIO, "");
+    let mut args = vec!["--rig", "external"];
+    args.extend_from_slice(hil_args);
+    let mut hil = spawn_hil_with(&config, &report, 2.5, &args);
+    let status = run_example_rig(rig_args);
     assert!(
         status.is_some_and(|s| s.success()),
         "example rig: {status:?}"
     );
-    drop(rig);
     let (code, json) = hil.finish(Duration::from_secs(60));
     assert_eq!(code, 0, "{name}: {json}\n{}", hil.stderr());
     assert_eq!(json["clean"], true, "{name}: {}", json["not_clean_because"]);
@@ -593,8 +598,8 @@ fn an_external_rig_written_from_the_header_completes_sessions_over_iceoryx2_and_
 /// at 1 s: the controller commands the hold on stale setpoints, the emulator trips
 /// `emulator-stalled` when it runs again). fastemu has no records of the rig itself; the
 /// emulator goes on recording the rig's samples after its fault without stepping the
-/// model, so the hold is in the records and the report: the run ends in the hold, which
-/// lasts from the controller's detection to the end, and the samples recorded after the
+/// model, so the hold is in the records and the report: the run ends in the hold, held
+/// from the first sample that carried it to the end, and the samples recorded after the
 /// fault say the rig held.
 #[test]
 fn an_external_rigs_hold_after_the_emulators_fault_is_in_the_records_and_the_report() {
@@ -603,10 +608,7 @@ fn an_external_rigs_hold_after_the_emulators_fault_is_in_the_records_and_the_rep
     let report = dir.join("report");
     let config = write_config(
         &dir,
-        &[
-            ("preload_n = 20000.0", "preload_n = 0.0"),
-            ("train_speed_kmh = 200.0", "train_speed_kmh = 0.0"),
-        ],
+        EXAMPLE_RIG_SCENARIO,
         "\n[[inject]]\nprocess = \"emulator\"\nkind = \"stall\"\nat_s = 1.0\nduration_ms = 300\n",
     );
     let run_id = format!("feit{}hold", std::process::id());
@@ -616,17 +618,8 @@ fn an_external_rigs_hold_after_the_emulators_fault_is_in_the_records_and_the_rep
         2.5,
         &["--rig", "external", "--run-id", &run_id],
     );
-    let rig = Command::new(EXAMPLE_RIG)
-        .args(["--ipc", &run_id, "--duration-s", "2.5"])
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .unwrap();
-    let mut rig = ChildGuard::new(rig);
-    let status = rig.wait_timeout(Duration::from_secs(60)).unwrap();
+    let status = run_example_rig(&["--ipc", &run_id]);
     assert!(status.is_some(), "the example rig did not end");
-    drop(rig);
     let (code, json) = hil.finish(Duration::from_secs(60));
     assert_ne!(code, 0, "{}", hil.stderr());
     let faults = json["safety"]["faults"].as_array().unwrap();
@@ -641,18 +634,7 @@ fn an_external_rigs_hold_after_the_emulators_fault_is_in_the_records_and_the_rep
     assert!(held_s > 0.5, "held {held_s} s");
     // The records after the fault: the rig's samples, in its hold, to the end of the run.
     let csv = dir.join("csv");
-    let out = Command::new(FASTEMU)
-        .args(["export", "--record"])
-        .arg(report.join("records.mcap"))
-        .arg("--out")
-        .arg(&csv)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    export_csv(&report.join("records.mcap"), &csv);
     let text = std::fs::read_to_string(csv.join("emulator_after_fault.csv")).unwrap();
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().unwrap().split(',').collect();

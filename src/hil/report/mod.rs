@@ -106,11 +106,15 @@ pub const RIG_VIEW_EXTERNAL: &str = "external rig: what it sent in its samples (
 /// rig's, `bench_rig`).
 fn external_rig_named(mut safety: safety::Safety) -> safety::Safety {
     for f in &mut safety.faults {
-        if f.process == "bench_rig" {
-            f.process = "external rig".to_string();
-        }
+        f.process = crate::records::event::external_rig_labelled(&f.process);
     }
     safety
+}
+
+/// Whether `t_s` comes before the rig fault found so far (the streams are not read in
+/// time order: the first fault is the earliest, not the first met).
+fn earlier(found: &Option<(f64, u64, u32)>, t_s: f64) -> bool {
+    found.is_none_or(|(t, _, _)| t_s < t)
 }
 
 /// The rig's view of one period from the emulator's record of its sample (external rig).
@@ -234,7 +238,7 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
             }
             t if t == AfterFaultSampleRecord::TOPIC => {
                 if let Some(r) = AfterFaultSampleRecord::decode(data) {
-                    if r.rig_fault_code != 0 && side.sample_rig_fault.is_none() {
+                    if r.rig_fault_code != 0 && earlier(&side.sample_rig_fault, r.t_s) {
                         side.sample_rig_fault = Some((r.t_s, r.sample_seq, r.rig_fault_code));
                     }
                 }
@@ -247,7 +251,7 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
                     // it would date the rig's fault to the gap's start.
                     if r.rig_fault_code != 0
                         && r.interpolated == 0
-                        && side.sample_rig_fault.is_none()
+                        && earlier(&side.sample_rig_fault, r.t_s)
                     {
                         side.sample_rig_fault = Some((r.t_s, r.sample_seq, r.rig_fault_code));
                     }
@@ -602,7 +606,7 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
             .map(|e| {
                 let line = e.describe();
                 if side.rig_records == 0 {
-                    line.replacen(" bench_rig: ", " external rig: ", 1)
+                    crate::records::event::external_rig_labelled(&line)
                 } else {
                     line
                 }
