@@ -416,6 +416,16 @@ fn dispersive_hint(lin: &crate::hil::check::LinearLoop, adapt: bool) -> String {
     )
 }
 
+/// `cfg` with its `[compensation]` as `plan` sets it.
+fn planned_config(
+    cfg: &HilConfig,
+    plan: Option<&crate::hil::check::CompensationPlan>,
+) -> HilConfig {
+    let mut planned = cfg.clone();
+    planned.compensation = crate::hil::check::planned(&cfg.compensation, plan);
+    planned
+}
+
 /// `hil --check`: the linearised loop's margins, printed, as JSON with `--json`, and its
 /// plot. Exit 0 when the loop is stable, 1 when not.
 fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
@@ -425,6 +435,18 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
         "{}: [controller] command_mode = \"force\": --check models local-law commands (the rig's prediction over the controller's lead) only",
         cfg.origin
     );
+    // The plan for the simulated rig's declared actuator; the rest is judged as planned.
+    let plan = if args.rig.external() {
+        None
+    } else {
+        crate::hil::check::compensation_plan(cfg)
+    };
+    let original_lead_s = cfg
+        .compensation
+        .initial_delay_s
+        .min(crate::hil::check::starting_lead_cap_s(cfg));
+    let planned = planned_config(cfg, plan.as_ref());
+    let cfg = &planned;
     let cap_s = crate::hil::check::starting_lead_cap_s(cfg);
     let lead_s = cfg.compensation.initial_delay_s.min(cap_s);
     let lin = LinearLoop::for_plant(cfg, &nominal_plant(cfg), lead_s, 1.0);
@@ -474,6 +496,7 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                 "actuator_amplitude_ratio": {"1_hz": amplitude_1, "20_hz": amplitude_20},
                 "actuator_velocity_force_share_20_hz": velocity_20,
                 "actuator": describe_actuator(cfg),
+                "plan": plan,
                 "plot": plot.display().to_string(),
             }))?
         );
@@ -503,8 +526,13 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
         );
     }
     eprintln!(
-        "  compensation: starting lead {:.0} us ([compensation] initial_delay_us), prediction order {}",
+        "  compensation: starting lead {:.0} us ({}), prediction order {}",
         lead_s * 1e6,
+        if cfg.compensation.adapt_lead {
+            "[compensation] initial_delay_us"
+        } else {
+            "planned, fixed"
+        },
         cfg.compensation.lead_order
     );
     if m.stable {
@@ -531,10 +559,17 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     }
     match lin.stable_leads(cfg.compensation.max_delay_s) {
         Some((lo, hi)) => eprintln!(
-            "  leads with which the linearised loop is stable: {:.0}-{:.0} us (the adaptation keeps the lead within [0, {:.0}] us)",
+            "  leads with which the linearised loop is stable: {:.0}-{:.0} us ({})",
             lo * 1e6,
             hi * 1e6,
-            cfg.compensation.max_delay_s * 1e6
+            if cfg.compensation.adapt && cfg.compensation.adapt_lead {
+                format!(
+                    "the adaptation keeps the lead within [0, {:.0}] us",
+                    cfg.compensation.max_delay_s * 1e6
+                )
+            } else {
+                "the lead stays where it starts".to_string()
+            }
         ),
         None => eprintln!(
             "  no lead from 0 to {:.0} us makes the linearised loop stable: {}; {}",
@@ -548,6 +583,15 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                 "the passivity guard's damping could make it stable, so `fastemu hil` runs it; expect loop-unstable and a hold if it does not"
             }
         ),
+    }
+    if let Some(p) = &plan {
+        eprintln!("  {}", crate::hil::check::describe_plan(p));
+        if let Some(t) = &p.scan {
+            eprintln!(
+                "  {}",
+                crate::hil::check::describe_tolerance(t, original_lead_s)
+            );
+        }
     }
     if let Some(stable) = safe_start {
         eprintln!(
@@ -804,7 +848,21 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         out_dir.display()
     );
     print_rig_instructions(&run_id, &rig_setup);
-    if !matches!(rig_setup, RigSetup::External { .. }) {
+    // The plan for the simulated rig's declared actuator, left for the controller; the
+    // report judges the run as planned.
+    let compensation_plan = if args.rig.external() {
+        None
+    } else {
+        crate::hil::check::compensation_plan(&cfg)
+    };
+    let cfg = planned_config(&cfg, compensation_plan.as_ref());
+    if let Some(p) = &compensation_plan {
+        eprintln!("hil: {}", crate::hil::check::describe_plan(p));
+        let path = out_dir.join(crate::hil::check::PLAN_FILE);
+        std::fs::write(&path, serde_json::to_string_pretty(p)?)
+            .with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    if !args.rig.external() {
         if let Some(warning) = stability_warning(&cfg) {
             eprintln!("hil: WARNING: {warning}");
         }
@@ -971,6 +1029,14 @@ fn summarise(
         "report_dir": out_dir.display().to_string(),
     });
     summary["rig"] = json!({"kind": args.rig.kind, "link": args.rig.link});
+    // The launcher's plan for the simulated rig's declared actuator (none: as configured).
+    if let Some(c) = summary
+        .get_mut("compensation")
+        .and_then(|c| c.as_object_mut())
+    {
+        let plan = crate::hil::check::read_plan(out_dir).unwrap_or(None);
+        c.insert("plan".into(), serde_json::to_value(plan)?);
+    }
     summary["link"] = link_report(out_dir, rig_setup);
     let text = serde_json::to_string_pretty(&summary)?;
     std::fs::write(out_dir.join("summary.json"), &text)?;

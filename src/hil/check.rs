@@ -33,6 +33,350 @@ pub fn nominal_plant(cfg: &HilConfig) -> ActuatorPlant {
     ActuatorPlant::new(&nominal, &nominal)
 }
 
+/// The step of the lead scans (`LinearLoop::stable_lead_map`), s.
+pub const LEAD_STEP_S: f64 = 10e-6;
+
+/// How many actuators the plan and the check draw: the declared one and the others.
+pub const TOLERANCE_DRAWS: usize = 24;
+
+/// The step of the plan's lead scan, s (a fifth of the narrowest servo-hydraulic window
+/// of stable leads seen, 0.25 ms, and a quarter of the 10 us scans' cost).
+pub const PLAN_LEAD_STEP_S: f64 = 50e-6;
+
+/// The seed stream of the draws: its own, so that the scan describes the tolerance, not
+/// the rig's one draw (`perturb_seed`), which fastemu is never told.
+const TOLERANCE_SEED_BASE: u64 = 0x701E_5CA7_0000;
+
+/// The declared actuator (`[rig.actuator]`, nominal) and `draws - 1` others with each
+/// parameter within `[compensation] actuator_tolerance` of it (none when that is 0), each
+/// with its controller tuned on the declared one, as the rig's is.
+fn tolerance_draws(cfg: &HilConfig, draws: usize) -> Vec<ActuatorPlant> {
+    let nominal = cfg.rig.actuator.nominal;
+    let tolerance = cfg.compensation.actuator_tolerance;
+    let draws = if tolerance > 0.0 { draws.max(1) } else { 1 };
+    (0..draws)
+        .map(|i| {
+            let truth = if i == 0 {
+                nominal
+            } else {
+                nominal.perturbed(tolerance, TOLERANCE_SEED_BASE + i as u64)
+            };
+            ActuatorPlant::new(&truth, &nominal)
+        })
+        .collect()
+}
+
+/// `f` over `items` on two threads, in order.
+fn on_two_threads<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+    let half = items.len().div_ceil(2);
+    std::thread::scope(|scope| {
+        let second = scope.spawn(|| items[half..].iter().map(&f).collect::<Vec<_>>());
+        let mut out: Vec<R> = items[..half].iter().map(&f).collect();
+        out.extend(second.join().expect("a scan thread"));
+        out
+    })
+}
+
+/// The leads the linearised loop is stable with over the declared actuator and others
+/// within its tolerance (`tolerance_draws`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ToleranceScan {
+    /// The tolerance, a fraction of each parameter (`[compensation] actuator_tolerance`).
+    pub tolerance: f64,
+    /// The step of the scan, us.
+    pub step_us: f64,
+    /// Each drawn actuator's stable leads (first, last), us, the declared one first;
+    /// `None`: no lead.
+    pub windows_us: Vec<Option<(f64, f64)>>,
+    /// The leads stable for every drawn actuator (first, last), us; `None`: no lead is.
+    pub common_us: Option<(f64, f64)>,
+    /// The lead stable for the most drawn actuators (the middle of the first run of leads
+    /// that tie), us, and for how many; `None` when no lead is stable for any.
+    pub most_widely_stable: Option<(f64, usize)>,
+    /// How many drawn actuators the starting lead is stable for.
+    pub starting_lead_stable_for: usize,
+}
+
+/// `tolerance_draws` and the leads (`step_s` apart, up to `max_delay_us`) with which the
+/// linearised loop is stable for each and for all; `starting_lead_s` is judged the same
+/// way. Pure numbers, on two threads.
+pub fn tolerance_scan(
+    cfg: &HilConfig,
+    starting_lead_s: f64,
+    draws: usize,
+    step_s: f64,
+) -> ToleranceScan {
+    let plants = tolerance_draws(cfg, draws);
+    let max = cfg.compensation.max_delay_s;
+    let n = (max / step_s).round() as usize;
+    // (stable with the starting lead, stable with each lead of the scan), per draw.
+    let scans = on_two_threads(&plants, |plant| {
+        let mut lin = LinearLoop::for_plant(cfg, plant, starting_lead_s, 1.0);
+        let starts = lin.is_stable(0.0, 1.0);
+        let map: Vec<bool> = (0..=n)
+            .map(|i| {
+                lin.lead_s = i as f64 * step_s;
+                lin.is_stable(0.0, 1.0)
+            })
+            .collect();
+        (starts, map)
+    });
+    let draws = scans.len();
+    let counts: Vec<usize> = (0..=n)
+        .map(|i| scans.iter().filter(|(_, m)| m[i]).count())
+        .collect();
+    let us = |i: usize| i as f64 * step_s * 1e6;
+    let window = |ok: &dyn Fn(usize) -> bool| {
+        let first = (0..n + 1).position(ok)?;
+        let last = (0..n + 1).rposition(ok)?;
+        Some((us(first), us(last)))
+    };
+    let windows_us = scans.iter().map(|(_, m)| window(&|i| m[i])).collect();
+    let common_us = window(&|i| counts[i] == draws);
+    let best = counts.iter().copied().max().unwrap_or(0);
+    let most_widely_stable = (best > 0).then(|| {
+        let first = counts.iter().position(|&c| c == best).unwrap_or(0);
+        let run = counts[first..].iter().take_while(|&&c| c == best).count();
+        (us(first) + 0.5 * us(run - 1), best)
+    });
+    ToleranceScan {
+        tolerance: cfg.compensation.actuator_tolerance,
+        step_us: step_s * 1e6,
+        windows_us,
+        common_us,
+        most_widely_stable,
+        starting_lead_stable_for: scans.iter().filter(|(starts, _)| *starts).count(),
+    }
+}
+
+/// What the controller runs with in front of the simulated rig's declared actuator
+/// (`compensation_plan`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CompensationPlan {
+    /// Actuators judged: the declared one and the others within the tolerance.
+    pub draws: usize,
+    pub tolerance: f64,
+    /// The leads the adaptation may settle on, over all of them (the actuator's phase
+    /// delay on the element from 1 Hz to the estimator's band, plus half a period of
+    /// hold), us: lowest and highest.
+    pub destinations_us: (f64, f64),
+    /// How many of them are unstable at some lead of their own such range.
+    pub destination_unstable_for: usize,
+    /// True: the lead is fixed at `lead_us` and only the gain is learned.
+    pub lead_fixed: bool,
+    /// The lead the run starts with (fixed or not), us.
+    pub lead_us: f64,
+    /// How many drawn actuators `lead_us` is stable for.
+    pub lead_stable_for: usize,
+    /// Whether the passivity guard acts (false: its full damping at `lead_us` makes the
+    /// declared actuator's loop unstable: through its lag the damping generates energy).
+    pub guard: bool,
+    /// The scan of leads, when the lead is fixed.
+    pub scan: Option<ToleranceScan>,
+}
+
+/// Leads judged between the ends of the adaptation's possible destinations.
+const DESTINATION_POINTS: usize = 8;
+
+/// The actuator's smallest and largest phase delay from command to force (with the
+/// specimen on an element of stiffness `k`, `ActuatorPlant::response_on_element`) from 1 Hz
+/// to `band_hz`, s: where the adaptation's estimate may settle, which weighs that band by
+/// the programme's content (a programme of 1-2 Hz harmonics reads the low end, one of
+/// axle passages more of the top).
+fn phase_delay_range(plant: &ActuatorPlant, k: f64, band_hz: f64) -> (f64, f64) {
+    const POINTS: usize = 24;
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    let mut previous = 0.0;
+    for i in 0..POINTS {
+        // Log-spaced from 1 Hz to the band's corner.
+        let f = band_hz.max(1.0).powf(i as f64 / (POINTS - 1) as f64);
+        let w = 2.0 * PI * f;
+        let mut phase = plant.response_on_element(w, k).arg();
+        while phase - previous > PI {
+            phase -= 2.0 * PI;
+        }
+        while phase - previous < -PI {
+            phase += 2.0 * PI;
+        }
+        previous = phase;
+        let delay = -phase / w;
+        lo = lo.min(delay);
+        hi = hi.max(delay);
+    }
+    (lo, hi)
+}
+
+/// The plan for the simulated rig's declared actuator (`[rig.actuator]`'s nominal values;
+/// never the rig's perturbed truth), with `[compensation] plan_from_actuator` and `adapt`
+/// (`None` otherwise, and in force mode). The adaptation learns the load band's delay; in
+/// front of an actuator whose stable leads lie elsewhere (a servo-hydraulic force loop:
+/// its phase delay grows with frequency and its velocity feedback moves the loop's
+/// crossover, docs/compensation.md) that walks the loop into `loop-unstable`. So when the
+/// loop is unstable at that destination for any of the declared actuator and the others
+/// within `actuator_tolerance`, the lead is fixed at the lead stable for most of them
+/// (`tolerance_scan`), only the gain is learned, and the guard acts only if its damping
+/// keeps the declared actuator's loop stable there. Otherwise the compensation stays as
+/// configured.
+pub fn compensation_plan(cfg: &HilConfig) -> Option<CompensationPlan> {
+    let c = &cfg.compensation;
+    if !(c.plan_from_actuator && c.adapt)
+        || cfg.controller.command_mode != super::config::CommandMode::Law
+    {
+        return None;
+    }
+    let plants = tolerance_draws(cfg, TOLERANCE_DRAWS);
+    let preload = cfg.scenario.preload_n;
+    let k = equivalent(
+        &cfg.model.element,
+        preload,
+        2.0 * PI * cfg.emulator.law_frequency_hz,
+    )
+    .k_eq_n_per_m;
+    let hold = 0.5 * cfg.loop_.dt_s();
+    // Per draw: (the range of leads the adaptation may settle on, stable over all of it).
+    let judged = on_two_threads(&plants, |plant| {
+        let (lo, hi) = phase_delay_range(plant, k, c.estimator_band_hz);
+        let (lo, hi) = (
+            (lo + hold).clamp(0.0, c.max_delay_s),
+            (hi + hold).clamp(0.0, c.max_delay_s),
+        );
+        let mut lin = LinearLoop::for_plant(cfg, plant, lo, 1.0);
+        let stable = (0..=DESTINATION_POINTS).all(|i| {
+            lin.lead_s = lo + (hi - lo) * i as f64 / DESTINATION_POINTS as f64;
+            lin.is_stable(0.0, 1.0)
+        });
+        ((lo, hi), stable)
+    });
+    let destinations_us = judged
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |(a, b), ((lo, hi), _)| {
+            (a.min(lo * 1e6), b.max(hi * 1e6))
+        });
+    let destination_unstable_for = judged.iter().filter(|(_, ok)| !ok).count();
+    let starting = c.initial_delay_s.min(starting_lead_cap_s(cfg));
+    let mut plan = CompensationPlan {
+        draws: plants.len(),
+        tolerance: c.actuator_tolerance,
+        destinations_us,
+        destination_unstable_for,
+        lead_fixed: false,
+        lead_us: starting * 1e6,
+        lead_stable_for: 0,
+        guard: c.passivity_guard,
+        scan: None,
+    };
+    if destination_unstable_for == 0 {
+        plan.lead_stable_for = on_two_threads(&plants, |plant| {
+            LinearLoop::for_plant(cfg, plant, starting, 1.0).is_stable(0.0, 1.0)
+        })
+        .iter()
+        .filter(|&&ok| ok)
+        .count();
+        return Some(plan);
+    }
+    let scan = tolerance_scan(cfg, starting, TOLERANCE_DRAWS, PLAN_LEAD_STEP_S);
+    if let Some((lead_us, count)) = scan.most_widely_stable {
+        plan.lead_fixed = true;
+        plan.lead_us = lead_us;
+        plan.lead_stable_for = count;
+        if c.passivity_guard {
+            let mut lin = LinearLoop::for_plant(cfg, &plants[0], lead_us * 1e-6, 1.0);
+            lin.guard_damping_ns_per_m = c.guard_max_damping_ns_per_m;
+            plan.guard = lin.is_stable(0.0, 1.0);
+        }
+    }
+    plan.scan = Some(scan);
+    Some(plan)
+}
+
+/// `cfg`'s `[compensation]` as the plan (`compensation_plan`) sets it.
+pub fn planned(
+    cfg: &crate::hil::compensation::CompensationConfig,
+    plan: Option<&CompensationPlan>,
+) -> crate::hil::compensation::CompensationConfig {
+    match plan {
+        Some(p) if p.lead_fixed => crate::hil::compensation::CompensationConfig {
+            initial_delay_s: p.lead_us * 1e-6,
+            starting_lead_cap_s: f64::INFINITY,
+            adapt_lead: false,
+            passivity_guard: p.guard,
+            ..*cfg
+        },
+        _ => *cfg,
+    }
+}
+
+/// One line on `tolerance_scan`'s result: whether one lead serves every actuator the
+/// tolerance allows.
+pub fn describe_tolerance(t: &ToleranceScan, starting_lead_s: f64) -> String {
+    let draws = t.windows_us.len();
+    let each: Vec<String> = t
+        .windows_us
+        .iter()
+        .map(|w| match w {
+            Some((a, b)) => format!("{a:.0}-{b:.0}"),
+            None => "none".into(),
+        })
+        .collect();
+    let common = match (t.common_us, t.most_widely_stable) {
+        (Some((a, b)), _) => format!("leads stable for all of them: {a:.0}-{b:.0} us"),
+        (None, Some((lead, count))) => format!(
+            "NO lead is stable for all of them (the most widely stable, {lead:.0} us, for {count})"
+        ),
+        (None, None) => "no lead is stable for any of them".into(),
+    };
+    format!(
+        "over the declared actuator and {} others within [compensation] actuator_tolerance = {} (a seed stream of the check's own, not the rig's draw), stable leads in {:.0} us steps: {}; {common}; the starting lead ({:.0} us) is stable for {} of {draws}",
+        draws - 1,
+        t.tolerance,
+        t.step_us,
+        each.join(", "),
+        starting_lead_s * 1e6,
+        t.starting_lead_stable_for
+    )
+}
+
+/// One line on the plan: what the controller runs with and why.
+pub fn describe_plan(p: &CompensationPlan) -> String {
+    let judged = if p.draws > 1 {
+        format!(
+            "the declared actuator and {} others within actuator_tolerance = {}",
+            p.draws - 1,
+            p.tolerance
+        )
+    } else {
+        "the declared actuator (actuator_tolerance = 0)".to_string()
+    };
+    if !p.lead_fixed {
+        let unstable = if p.destination_unstable_for == 0 {
+            "stable for all of them".to_string()
+        } else {
+            format!(
+                "unstable for {} of them, and no lead is stable for any",
+                p.destination_unstable_for
+            )
+        };
+        return format!(
+            "compensation as configured: over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are {unstable}; the starting lead ({:.0} us) is stable for {} of {}",
+            p.destinations_us.0, p.destinations_us.1, p.lead_us, p.lead_stable_for, p.draws
+        );
+    }
+    format!(
+        "compensation planned from the declared actuator: over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are unstable for {} of them, so the lead is fixed at {:.0} us, stable for {} of {} (the adaptation learns the gain only){}; such an actuator is rendered stable but not faithful (a lead does not make up for a delay that varies with frequency: expect a run that is not clean); [compensation] plan_from_actuator = false runs as configured",
+        p.destinations_us.0,
+        p.destinations_us.1,
+        p.destination_unstable_for,
+        p.lead_us,
+        p.lead_stable_for,
+        p.draws,
+        if p.guard {
+            ""
+        } else {
+            "; the passivity guard is off: its damping, through this actuator's lag above its corner, makes the declared actuator's loop unstable at this lead"
+        }
+    )
+}
+
 /// The longest lead the run may start with: the guess, or, when the linearised loop
 /// in front of an actuator twice as fast as the guess (a pure delay of half the guessed
 /// effective delay: the fastest the "off by 100 %" allows, and, without a lag's
@@ -73,11 +417,30 @@ pub fn starting_lead_cap_s(cfg: &HilConfig) -> f64 {
 }
 
 /// `cfg`'s `[compensation]` with its starting lead capped (`starting_lead_cap_s`): what
-/// the controller runs with.
-pub fn starting_compensation(cfg: &HilConfig) -> crate::hil::compensation::CompensationConfig {
-    crate::hil::compensation::CompensationConfig {
+/// the controller runs with, as `plan` (`compensation_plan`) sets it.
+pub fn starting_compensation(
+    cfg: &HilConfig,
+    plan: Option<&CompensationPlan>,
+) -> crate::hil::compensation::CompensationConfig {
+    let capped = crate::hil::compensation::CompensationConfig {
         starting_lead_cap_s: starting_lead_cap_s(cfg),
         ..cfg.compensation
+    };
+    planned(&capped, plan)
+}
+
+/// Where the launcher leaves the plan for the controller (in the report directory).
+pub const PLAN_FILE: &str = "compensation-plan.json";
+
+/// The plan the launcher left in `out_dir` (`PLAN_FILE`), if any.
+pub fn read_plan(out_dir: &std::path::Path) -> anyhow::Result<Option<CompensationPlan>> {
+    let path = out_dir.join(PLAN_FILE);
+    match std::fs::read_to_string(&path) {
+        Ok(text) => serde_json::from_str(&text)
+            .map(Some)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display())),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(e) => Err(anyhow::anyhow!("{}: {e}", path.display())),
     }
 }
 
@@ -532,7 +895,8 @@ impl LinearLoop {
     /// `cfg`'s compensation arms it (`adapt` and `passivity_guard`), else as it is.
     /// `None` without a safe start.
     pub fn safe_start_stable(&self, cfg: &HilConfig) -> Option<bool> {
-        (cfg.compensation.adapt && cfg.compensation.passivity_guard).then(|| {
+        let c = &cfg.compensation;
+        (c.adapt && c.adapt_lead && c.passivity_guard).then(|| {
             let mut armed = self.clone();
             armed.guard_damping_ns_per_m = cfg.compensation.guard_max_damping_ns_per_m;
             armed.is_stable(0.0, 1.0)
@@ -593,17 +957,22 @@ impl LinearLoop {
     /// The leads (10 us steps up to `max_lead_s`) with which the loop is stable, as the
     /// first and last of the stable range, or `None` when no lead makes it stable.
     pub fn stable_leads(&self, max_lead_s: f64) -> Option<(f64, f64)> {
-        let mut range: Option<(f64, f64)> = None;
+        let map = self.stable_lead_map(max_lead_s);
+        let first = map.iter().position(|&s| s)?;
+        let last = map.iter().rposition(|&s| s)?;
+        Some((first as f64 * LEAD_STEP_S, last as f64 * LEAD_STEP_S))
+    }
+
+    /// Whether the loop is stable with each lead `i * LEAD_STEP_S` up to `max_lead_s`.
+    pub fn stable_lead_map(&self, max_lead_s: f64) -> Vec<bool> {
         let mut probe = self.clone();
-        let n = (max_lead_s / 10e-6).round() as usize;
-        for i in 0..=n {
-            probe.lead_s = i as f64 * 10e-6;
-            if probe.is_stable(0.0, 1.0) {
-                range =
-                    Some(range.map_or((probe.lead_s, probe.lead_s), |(a, _)| (a, probe.lead_s)));
-            }
-        }
-        range
+        let n = (max_lead_s / LEAD_STEP_S).round() as usize;
+        (0..=n)
+            .map(|i| {
+                probe.lead_s = i as f64 * LEAD_STEP_S;
+                probe.is_stable(0.0, 1.0)
+            })
+            .collect()
     }
 
     /// Bode (|L|, phase of L) and Nyquist of the loop transfer `L = rendered / open`.
@@ -764,7 +1133,7 @@ mod tests {
         assert!(long.is_stable(0.0, 1.0));
         long.guard_damping_ns_per_m = cfg.compensation.guard_max_damping_ns_per_m;
         assert!(!long.is_stable(0.0, 1.0));
-        assert_eq!(starting_compensation(&cfg).starting_lead_cap_s, cap);
+        assert_eq!(starting_compensation(&cfg, None).starting_lead_cap_s, cap);
         // The guess itself, and the shipped guess on the shipped actuator: no cap.
         let mut at_truth = cfg.clone();
         at_truth.compensation.initial_delay_s = 722e-6;
@@ -837,6 +1206,80 @@ mod tests {
     /// (`rths-fast-150kn` without velocity compensation: the oil column's resonance with
     /// the 60 kg specimen near 340 Hz), or one unstable on a blocked piston (a force loop
     /// tuned above its valve: 250 Hz on a 100 Hz valve). A stable loop is not refused.
+    /// The plan: the shipped actuator keeps the configured compensation (the lead the
+    /// adaptation settles on, its effective delay plus half a period, 252 us, is stable for
+    /// the declared actuator and every draw); `fatigue-150kn`'s is not (its load band's
+    /// delay lies below its stable leads), so the lead is fixed inside the declared
+    /// actuator's own stable leads (the 10 us scan, not the plan's 50 us one), the guard is
+    /// off (its full damping there makes the loop unstable) and only the gain adapts.
+    /// Without a tolerance one actuator is judged; with `plan_from_actuator` or `adapt` off
+    /// there is no plan.
+    #[test]
+    fn the_plan_fixes_the_lead_only_where_the_adaptation_would_leave_the_stable_leads() {
+        let shipped = default_hil_config().unwrap();
+        let p = compensation_plan(&shipped).expect("a plan");
+        assert_eq!(
+            (p.draws, p.destination_unstable_for, p.lead_fixed),
+            (24, 0, false)
+        );
+        assert!(
+            p.destinations_us.0 > 200.0 && p.destinations_us.1 < 300.0,
+            "{p:?}"
+        );
+        // The shaker's delay is nearly flat too: kept.
+        let shaker = crate::hil::config::DEFAULT_CONFIG_TOML.replace(
+            "kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_us = 80.0\nforce_max_n = 150000.0",
+            "preset = \"shaker-150kn\"",
+        );
+        let shaker = crate::hil::config::parse_hil_config(&shaker, "shaker.toml", None).unwrap();
+        assert!(!compensation_plan(&shaker).unwrap().lead_fixed);
+        assert_eq!((p.lead_us, p.lead_stable_for), (252.0, 24));
+        assert_eq!(
+            planned(&shipped.compensation, Some(&p)),
+            shipped.compensation
+        );
+        let text = crate::hil::config::DEFAULT_CONFIG_TOML.replace(
+            "kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_us = 80.0\nforce_max_n = 150000.0",
+            "preset = \"fatigue-150kn\"",
+        );
+        let servo = crate::hil::config::parse_hil_config(&text, "servo.toml", None).unwrap();
+        let p = compensation_plan(&servo).expect("a plan");
+        assert!(
+            p.lead_fixed && p.destination_unstable_for > 0 && !p.guard,
+            "{p:?}"
+        );
+        let nominal = LinearLoop::for_plant(&servo, &nominal_plant(&servo), 0.0, 1.0);
+        let (lo, hi) = nominal.stable_leads(0.01).unwrap();
+        assert!(
+            lo * 1e6 < p.lead_us && p.lead_us < hi * 1e6,
+            "{p:?} vs {lo}-{hi}"
+        );
+        let mut guarded = nominal.clone();
+        guarded.lead_s = p.lead_us * 1e-6;
+        guarded.guard_damping_ns_per_m = servo.compensation.guard_max_damping_ns_per_m;
+        assert!(!guarded.is_stable(0.0, 1.0));
+        let scan = p.scan.as_ref().unwrap();
+        assert_eq!(scan.windows_us.len(), 24);
+        assert_eq!(scan.starting_lead_stable_for, 0);
+        let c = planned(&servo.compensation, Some(&p));
+        assert!(c.adapt && !c.adapt_lead && !c.passivity_guard);
+        assert_eq!(c.initial_delay_s, p.lead_us * 1e-6);
+        let mut exact = servo.clone();
+        exact.compensation.actuator_tolerance = 0.0;
+        let p = compensation_plan(&exact).unwrap();
+        assert_eq!(p.draws, 1);
+        assert!(
+            p.lead_fixed && (lo * 1e6..hi * 1e6).contains(&p.lead_us),
+            "{p:?}"
+        );
+        let mut off = servo.clone();
+        off.compensation.plan_from_actuator = false;
+        assert_eq!(compensation_plan(&off), None);
+        off.compensation.plan_from_actuator = true;
+        off.compensation.adapt = false;
+        assert_eq!(compensation_plan(&off), None);
+    }
+
     #[test]
     fn the_refusal_names_why_no_lead_is_stable() {
         let with = |actuator: &str| {

@@ -35,6 +35,16 @@ pub struct CompensationConfig {
     pub lead_order: u32,
     /// Learn the delay and gain during the run.
     pub adapt: bool,
+    /// With `adapt`, whether the lead follows the identified delay (false: the lead stays
+    /// where it starts and only the gain is learned; set by `check::compensation_plan`
+    /// when the identified delay would take the loop out of its stable leads).
+    pub adapt_lead: bool,
+    /// Let `check::compensation_plan` choose the lead (and whether it adapts and the
+    /// guard acts) from the simulated rig's declared actuator within `actuator_tolerance`.
+    pub plan_from_actuator: bool,
+    /// How far the hardware may be from the declared actuator: each parameter within
+    /// this fraction (the plan's draws).
+    pub actuator_tolerance: f64,
     /// Add damping above the load band while the loop generates energy.
     pub passivity_guard: bool,
     /// Largest lead the adaptation may reach, s.
@@ -68,6 +78,9 @@ impl CompensationConfig {
             starting_lead_cap_s: f64::INFINITY,
             lead_order: 2,
             adapt: true,
+            adapt_lead: true,
+            plan_from_actuator: true,
+            actuator_tolerance: 0.3,
             passivity_guard: true,
             max_delay_s: 0.01,
             estimator_band_hz: 30.0,
@@ -326,7 +339,7 @@ impl PassivityGuard {
             damping: 0.0,
             last_z_hp_m: 0.0,
             dt_s,
-            armed: cfg.adapt && cfg.passivity_guard,
+            armed: cfg.adapt && cfg.adapt_lead && cfg.passivity_guard,
             activity: GuardActivity::default(),
         }
     }
@@ -564,7 +577,7 @@ impl Compensator {
             .min(cfg.starting_lead_cap_s)
             .clamp(0.0, cfg.max_delay_s);
         // The safe start: full damping from the first command (`PassivityGuard`).
-        let armed = cfg.adapt && cfg.passivity_guard;
+        let armed = cfg.adapt && cfg.adapt_lead && cfg.passivity_guard;
         let guard = GuardState {
             damping_ns_per_m: if armed {
                 cfg.guard_max_damping_ns_per_m
@@ -770,6 +783,9 @@ impl Compensator {
         let max_gain_step = 4.0 * self.dt_s;
         let gain_step = (k * (e.residual_gain - self.gain)).clamp(-max_gain_step, max_gain_step);
         self.gain = (self.gain + gain_step).clamp(0.5, 2.0);
+        if !self.cfg.adapt_lead {
+            return;
+        }
         let difference = e.delay_s - self.lead_s;
         self.end_safe_start(e);
         // With too many bridged samples in the estimator's memory only a precise estimate

@@ -62,7 +62,10 @@ pub fn run_controller(
     let recorder = builder.spawn()?;
     // The starting compensation (a frequency sweep of the linearised loop when the guess
     // is capped) before the thread gets its real-time priority on the rig's CPU.
-    let compensation = crate::hil::check::starting_compensation(cfg);
+    // The launcher's plan for the simulated rig's declared actuator (none for an external
+    // rig, or a controller started by hand).
+    let plan = crate::hil::check::read_plan(out_dir).map_err(|e| ProcessError(format!("{e:#}")))?;
+    let compensation = crate::hil::check::starting_compensation(cfg, plan.as_ref());
     // One priority above the rig's loop beside it: it blocks on the emulator's
     // notification, so it never delays the rig by more than a command's work.
     real_time_setup(

@@ -80,7 +80,10 @@ pub fn run_in_process(cfg: &HilConfig, script: &InProcessScript) -> InProcessRun
         period_ns,
         (cfg.safety.stall_limit_s * 1e9) as u64,
     )
-    .with_compensation(crate::hil::check::starting_compensation(cfg));
+    .with_compensation(crate::hil::check::starting_compensation(
+        cfg,
+        crate::hil::check::compensation_plan(cfg).as_ref(),
+    ));
     controller.set_start_time_ns(0);
     let mut samples: VecDeque<DisplacementSample> = VecDeque::new();
     let mut setpoints: VecDeque<ForceSetpoint> = VecDeque::new();

@@ -35,6 +35,10 @@ pub(super) struct RawCompensation {
     guard_max_damping_ns_per_m: Option<f64>,
     #[serde(default)]
     guard_release_ms: Option<f64>,
+    #[serde(default = "yes")]
+    plan_from_actuator: bool,
+    #[serde(default)]
+    actuator_tolerance: Option<f64>,
 }
 
 fn yes() -> bool {
@@ -75,6 +79,16 @@ pub(super) fn parse_compensation(
     }
     out.adapt = c.adapt;
     out.passivity_guard = c.passivity_guard;
+    out.plan_from_actuator = c.plan_from_actuator;
+    if let Some(t) = c.actuator_tolerance {
+        if !(0.0..=0.9).contains(&t) {
+            return Err(check.err(
+                "compensation.actuator_tolerance",
+                format!("{t} is not valid: expected a fraction from 0 to 0.9 (0.3: each parameter within +-30 %)"),
+            ));
+        }
+        out.actuator_tolerance = t;
+    }
     if let Some(order) = c.lead_order {
         if order > 3 {
             return Err(check.err(
