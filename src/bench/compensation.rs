@@ -54,6 +54,8 @@ pub struct ControllerWork {
 pub struct FidelityCell {
     pub actuator: String,
     pub initial_delay_us: f64,
+    /// The lead the plan fixed instead (`check::compensation_plan`), us.
+    pub planned_lead_us: Option<f64>,
     pub fault: Option<String>,
     pub displacement_error_pct: f64,
     pub identified_delay_us: Option<f64>,
@@ -184,6 +186,11 @@ pub fn fidelity_cell(cfg: &HilConfig, actuator: &str, duration_s: f64) -> Fideli
     FidelityCell {
         actuator: actuator.to_string(),
         initial_delay_us: cfg.compensation.initial_delay_s * 1e6,
+        planned_lead_us: run
+            .plan
+            .as_ref()
+            .filter(|p| p.lead_fixed)
+            .map(|p| p.lead_us),
         fault,
         displacement_error_pct: if r2 > 0.0 {
             (e2 / r2).sqrt() * 100.0
@@ -209,9 +216,12 @@ pub fn fidelity_table(cells: &[FidelityCell]) -> String {
         |v: Option<f64>, digits: usize| v.map_or("-".to_string(), |x| format!("{x:.digits$}"));
     for c in cells {
         s.push_str(&format!(
-            "| {} | {:.0} | {} | {:.3} | {} | {} | {} | {} | {:.2} | {:.1} |\n",
+            "| {} | {} | {} | {:.3} | {} | {} | {} | {} | {:.2} | {:.1} |\n",
             c.actuator,
-            c.initial_delay_us,
+            match c.planned_lead_us {
+                Some(lead) => format!("{:.0} (planned: fixed {lead:.0})", c.initial_delay_us),
+                None => format!("{:.0}", c.initial_delay_us),
+            },
             c.fault.as_deref().unwrap_or("none"),
             c.displacement_error_pct,
             opt(c.identified_delay_us, 0),

@@ -41,6 +41,8 @@ pub struct InProcessRun {
     pub emulator: Vec<EmulatorRecord>,
     pub controller: Vec<ControllerRecord>,
     pub events: Vec<EventRecord>,
+    /// The compensation plan the controller ran with (`check::compensation_plan`).
+    pub plan: Option<crate::hil::check::CompensationPlan>,
 }
 
 struct QueueIo<'a> {
@@ -74,22 +76,23 @@ pub fn run_in_process(cfg: &HilConfig, script: &InProcessScript) -> InProcessRun
         cfg.stall_limit_periods(),
     )
     .with_stability_bounds(cfg.safety.stability);
+    let plan = crate::hil::check::compensation_plan(cfg);
     let mut controller = ControllerCore::new(
         cfg.controller,
         cfg.safety.actions,
         period_ns,
         (cfg.safety.stall_limit_s * 1e9) as u64,
     )
-    .with_compensation(crate::hil::check::starting_compensation(
-        cfg,
-        crate::hil::check::compensation_plan(cfg).as_ref(),
-    ));
+    .with_compensation(crate::hil::check::starting_compensation(cfg, plan.as_ref()));
     controller.set_start_time_ns(0);
     let mut samples: VecDeque<DisplacementSample> = VecDeque::new();
     let mut setpoints: VecDeque<ForceSetpoint> = VecDeque::new();
     // Commands with the period from which the rig sees them.
     let mut commands: VecDeque<(u64, ActuatorCommand)> = VecDeque::new();
-    let mut run = InProcessRun::default();
+    let mut run = InProcessRun {
+        plan,
+        ..InProcessRun::default()
+    };
     let mut emulator_last_cycle: Option<u64> = None;
     let delay = script.command_delay_periods.max(1);
     for k in 0..script.max_steps {

@@ -687,6 +687,7 @@ fn servo_hydraulic_presets_run_stable_on_the_planned_lead_and_are_not_clean() {
         assert!(plan.lead_fixed, "{actuator}: {plan:?}");
         assert!(plan.destination_unstable_for > 0);
         let run = run_in_process(&cfg, &script(6.0));
+        assert_eq!(run.plan.as_ref(), Some(&plan), "{actuator}");
         assert_eq!(run.rig.len(), 6 * RATE as usize, "{actuator}");
         assert!(faults(&run).is_empty(), "{actuator}: {:?}", faults(&run));
         assert!(
