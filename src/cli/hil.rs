@@ -856,12 +856,12 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         crate::hil::check::compensation_plan(&cfg)
     };
     let cfg = planned_config(&cfg, compensation_plan.as_ref());
+    // The controller reads the plan from the report directory: one left there by an
+    // earlier run in the same directory must not stand for this one.
     if let Some(p) = &compensation_plan {
         eprintln!("hil: {}", crate::hil::check::describe_plan(p));
-        let path = out_dir.join(crate::hil::check::PLAN_FILE);
-        std::fs::write(&path, serde_json::to_string_pretty(p)?)
-            .with_context(|| format!("cannot write {}", path.display()))?;
     }
+    crate::hil::check::leave_plan(&out_dir, compensation_plan.as_ref())?;
     if !args.rig.external() {
         if let Some(warning) = stability_warning(&cfg) {
             eprintln!("hil: WARNING: {warning}");

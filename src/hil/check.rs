@@ -90,8 +90,9 @@ pub struct ToleranceScan {
     pub windows_us: Vec<Option<(f64, f64)>>,
     /// The leads stable for every drawn actuator (first, last), us; `None`: no lead is.
     pub common_us: Option<(f64, f64)>,
-    /// The lead stable for the most drawn actuators (the middle of the first run of leads
-    /// that tie), us, and for how many; `None` when no lead is stable for any.
+    /// Among the leads stable for the declared actuator, the one stable for the most drawn
+    /// actuators (the middle grid point of the first run of leads that tie), us, and for
+    /// how many; `None` when no lead is stable for the declared one.
     pub most_widely_stable: Option<(f64, usize)>,
     /// How many drawn actuators the starting lead is stable for.
     pub starting_lead_stable_for: usize,
@@ -125,7 +126,8 @@ pub fn tolerance_scan(
     let counts: Vec<usize> = (0..=n)
         .map(|i| scans.iter().filter(|(_, m)| m[i]).count())
         .collect();
-    let us = |i: usize| i as f64 * step_s * 1e6;
+    // Whole microseconds (the steps are), exact through the plan's JSON.
+    let us = |i: usize| (i as f64 * step_s * 1e6).round();
     let window = |ok: &dyn Fn(usize) -> bool| {
         let first = (0..n + 1).position(ok)?;
         let last = (0..n + 1).rposition(ok)?;
@@ -133,11 +135,15 @@ pub fn tolerance_scan(
     };
     let windows_us = scans.iter().map(|(_, m)| window(&|i| m[i])).collect();
     let common_us = window(&|i| counts[i] == draws);
-    let best = counts.iter().copied().max().unwrap_or(0);
+    // Among the leads stable for the declared actuator (the first draw): the one stable
+    // for most draws, the middle grid point of the first run of leads that tie.
+    let declared = &scans[0].1;
+    let eligible = |i: usize| if declared[i] { counts[i] } else { 0 };
+    let best = (0..n + 1).map(eligible).max().unwrap_or(0);
     let most_widely_stable = (best > 0).then(|| {
-        let first = counts.iter().position(|&c| c == best).unwrap_or(0);
-        let run = counts[first..].iter().take_while(|&&c| c == best).count();
-        (us(first) + 0.5 * us(run - 1), best)
+        let first = (0..n + 1).position(|i| eligible(i) == best).unwrap_or(0);
+        let run = (first..n + 1).take_while(|&i| eligible(i) == best).count();
+        (us(first + (run - 1) / 2), best)
     });
     ToleranceScan {
         tolerance: cfg.compensation.actuator_tolerance,
@@ -389,7 +395,11 @@ pub fn describe_plan(p: &CompensationPlan) -> String {
 /// force mode, when the guess is stable for that actuator, or when no lead below it is.
 pub fn starting_lead_cap_s(cfg: &HilConfig) -> f64 {
     let guess = cfg.compensation.initial_delay_s;
-    if cfg.controller.command_mode != super::config::CommandMode::Law || guess <= 0.0 {
+    // A lead fixed by the plan (`adapt_lead` off) is the lead, judged on the actuator.
+    if cfg.controller.command_mode != super::config::CommandMode::Law
+        || guess <= 0.0
+        || !cfg.compensation.adapt_lead
+    {
         return f64::INFINITY;
     }
     let tau = (0.5 * guess - 0.5 * cfg.loop_.dt_s()).max(0.0);
@@ -431,6 +441,25 @@ pub fn starting_compensation(
 
 /// Where the launcher leaves the plan for the controller (in the report directory).
 pub const PLAN_FILE: &str = "compensation-plan.json";
+
+/// Leaves `plan` in `out_dir` for the controller (`PLAN_FILE`), or, without one, removes
+/// a plan an earlier run in the same directory left there: it must not stand for this run.
+pub fn leave_plan(
+    out_dir: &std::path::Path,
+    plan: Option<&CompensationPlan>,
+) -> anyhow::Result<()> {
+    let path = out_dir.join(PLAN_FILE);
+    match plan {
+        Some(p) => std::fs::write(&path, serde_json::to_string_pretty(p)?)
+            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display())),
+        None => match std::fs::remove_file(&path) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                Err(anyhow::anyhow!("cannot remove {}: {e}", path.display()))
+            }
+            _ => Ok(()),
+        },
+    }
+}
 
 /// The plan the launcher left in `out_dir` (`PLAN_FILE`), if any.
 pub fn read_plan(out_dir: &std::path::Path) -> anyhow::Result<Option<CompensationPlan>> {
@@ -1260,6 +1289,9 @@ mod tests {
         assert!(!guarded.is_stable(0.0, 1.0));
         let scan = p.scan.as_ref().unwrap();
         assert_eq!(scan.windows_us.len(), 24);
+        // The declared actuator is among those the lead is stable for, on the scan's grid.
+        let (a, b) = scan.windows_us[0].unwrap();
+        assert!(a <= p.lead_us && p.lead_us <= b && p.lead_us % scan.step_us == 0.0);
         assert_eq!(scan.starting_lead_stable_for, 0);
         let c = planned(&servo.compensation, Some(&p));
         assert!(c.adapt && !c.adapt_lead && !c.passivity_guard);
@@ -1272,6 +1304,21 @@ mod tests {
             p.lead_fixed && (lo * 1e6..hi * 1e6).contains(&p.lead_us),
             "{p:?}"
         );
+        // Left for the controller and read back bit for bit; a later run without a plan in
+        // the same directory removes it.
+        let dir = std::env::temp_dir().join(format!("fastemu-plan-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = compensation_plan(&servo).unwrap();
+        leave_plan(&dir, Some(&p)).unwrap();
+        assert_eq!(read_plan(&dir).unwrap(), Some(p.clone()));
+        assert_eq!(
+            planned(&servo.compensation, read_plan(&dir).unwrap().as_ref()),
+            planned(&servo.compensation, Some(&p))
+        );
+        leave_plan(&dir, None).unwrap();
+        assert_eq!(read_plan(&dir).unwrap(), None);
+        leave_plan(&dir, None).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
         let mut off = servo.clone();
         off.compensation.plan_from_actuator = false;
         assert_eq!(compensation_plan(&off), None);
