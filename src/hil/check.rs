@@ -33,7 +33,7 @@ pub fn nominal_plant(cfg: &HilConfig) -> ActuatorPlant {
     ActuatorPlant::new(&nominal, &nominal)
 }
 
-/// The step of the lead scans (`LinearLoop::stable_lead_map`), s.
+/// The step of `LinearLoop::stable_leads`' scan, s.
 pub const LEAD_STEP_S: f64 = 10e-6;
 
 /// How many actuators the plan and the check draw: the declared one and the others.
@@ -112,15 +112,8 @@ pub fn tolerance_scan(
     let n = (max / step_s).round() as usize;
     // (stable with the starting lead, stable with each lead of the scan), per draw.
     let scans = on_two_threads(&plants, |plant| {
-        let mut lin = LinearLoop::for_plant(cfg, plant, starting_lead_s, 1.0);
-        let starts = lin.is_stable(0.0, 1.0);
-        let map: Vec<bool> = (0..=n)
-            .map(|i| {
-                lin.lead_s = i as f64 * step_s;
-                lin.is_stable(0.0, 1.0)
-            })
-            .collect();
-        (starts, map)
+        let lin = LinearLoop::for_plant(cfg, plant, starting_lead_s, 1.0);
+        (lin.is_stable(0.0, 1.0), lin.stable_lead_map(max, step_s))
     });
     let draws = scans.len();
     let counts: Vec<usize> = (0..=n)
@@ -358,7 +351,7 @@ pub fn describe_plan(p: &CompensationPlan) -> String {
             "stable for all of them".to_string()
         } else {
             format!(
-                "unstable for {} of them, and no lead is stable for any",
+                "unstable for {} of them, and no lead is stable for the declared actuator",
                 p.destination_unstable_for
             )
         };
@@ -986,19 +979,19 @@ impl LinearLoop {
     /// The leads (10 us steps up to `max_lead_s`) with which the loop is stable, as the
     /// first and last of the stable range, or `None` when no lead makes it stable.
     pub fn stable_leads(&self, max_lead_s: f64) -> Option<(f64, f64)> {
-        let map = self.stable_lead_map(max_lead_s);
+        let map = self.stable_lead_map(max_lead_s, LEAD_STEP_S);
         let first = map.iter().position(|&s| s)?;
         let last = map.iter().rposition(|&s| s)?;
         Some((first as f64 * LEAD_STEP_S, last as f64 * LEAD_STEP_S))
     }
 
-    /// Whether the loop is stable with each lead `i * LEAD_STEP_S` up to `max_lead_s`.
-    pub fn stable_lead_map(&self, max_lead_s: f64) -> Vec<bool> {
+    /// Whether the loop is stable with each lead `i * step_s` up to `max_lead_s`.
+    pub fn stable_lead_map(&self, max_lead_s: f64, step_s: f64) -> Vec<bool> {
         let mut probe = self.clone();
-        let n = (max_lead_s / LEAD_STEP_S).round() as usize;
+        let n = (max_lead_s / step_s).round() as usize;
         (0..=n)
             .map(|i| {
-                probe.lead_s = i as f64 * LEAD_STEP_S;
+                probe.lead_s = i as f64 * step_s;
                 probe.is_stable(0.0, 1.0)
             })
             .collect()

@@ -576,6 +576,31 @@ fn stalls_bridged_by_the_controller_are_not_read_as_a_delay() {
     );
 }
 
+/// A run that went to its end (`duration_s`) without a fault and without the rig ever
+/// holding; returns the largest displacement error against the offline reference before
+/// 4 s (the passage) and in the last second, m, and the relative RMS error.
+fn ran_to_the_end_unheld(cfg: &HilConfig, run: &InProcessRun, label: &str) -> (f64, f64, f64) {
+    assert_eq!(run.rig.len(), 6 * RATE as usize, "{label}");
+    assert!(faults(run).is_empty(), "{label}: {:?}", faults(run));
+    assert!(
+        run.rig.iter().all(|r| r.state != rig_state::HOLD),
+        "{label}: the rig held"
+    );
+    let reference = reference_displacement_m(cfg, run.rig.len());
+    let worst = |from: f64, to: f64| {
+        run.rig
+            .iter()
+            .filter(|r| r.t_s >= from && r.t_s < to)
+            .map(|r| (r.x_m - reference[r.step_idx as usize]).abs())
+            .fold(0.0f64, f64::max)
+    };
+    (
+        worst(0.0, 4.0),
+        worst(5.0, 6.0),
+        displacement_error(cfg, run),
+    )
+}
+
 /// A servo controller without (or with half) the velocity compensation of the presets, as
 /// a lab's force loop may be tuned (the external servo-hydraulic rig): the piston's
 /// velocity reaches the oil column and the actuator damps the specimen, its rendered force
@@ -595,28 +620,13 @@ fn a_servo_hydraulic_force_loop_without_velocity_compensation_stays_stable_and_i
     for actuator in cases {
         let cfg = config_with_actuator(actuator, 252.0, true, true);
         let run = run_in_process(&cfg, &script(6.0));
-        assert_eq!(run.rig.len(), 6 * RATE as usize, "{actuator}");
-        assert!(faults(&run).is_empty(), "{actuator}: {:?}", faults(&run));
-        assert!(
-            run.rig.iter().all(|r| r.state != rig_state::HOLD),
-            "{actuator}: the rig held"
-        );
-        let reference = reference_displacement_m(&cfg, run.rig.len());
-        let worst = |from: f64, to: f64| {
-            run.rig
-                .iter()
-                .filter(|r| r.t_s >= from && r.t_s < to)
-                .map(|r| (r.x_m - reference[r.step_idx as usize]).abs())
-                .fold(0.0f64, f64::max)
-        };
-        let (during, after) = (worst(0.0, 4.0), worst(5.0, 6.0));
+        let (during, after, error) = ran_to_the_end_unheld(&cfg, &run, actuator);
         assert!(
             after < 0.2 * during,
             "{actuator}: error {:.1} um in the last second, {:.1} um before 4 s",
             after * 1e6,
             during * 1e6
         );
-        let error = displacement_error(&cfg, &run);
         assert!(error > 0.015, "{actuator}: {:.3} %", error * 100.0);
     }
 }
@@ -688,12 +698,7 @@ fn servo_hydraulic_presets_run_stable_on_the_planned_lead_and_are_not_clean() {
         assert!(plan.destination_unstable_for > 0);
         let run = run_in_process(&cfg, &script(6.0));
         assert_eq!(run.plan.as_ref(), Some(&plan), "{actuator}");
-        assert_eq!(run.rig.len(), 6 * RATE as usize, "{actuator}");
-        assert!(faults(&run).is_empty(), "{actuator}: {:?}", faults(&run));
-        assert!(
-            run.rig.iter().all(|r| r.state != rig_state::HOLD),
-            "{actuator}: the rig held"
-        );
+        let (during, after, error) = ran_to_the_end_unheld(&cfg, &run, actuator);
         let law: Vec<_> = run
             .controller
             .iter()
@@ -710,16 +715,6 @@ fn servo_hydraulic_presets_run_stable_on_the_planned_lead_and_are_not_clean() {
                 r.t_s
             );
         }
-        let reference = reference_displacement_m(&cfg, run.rig.len());
-        let worst = |from: f64, to: f64| {
-            run.rig
-                .iter()
-                .filter(|r| r.t_s >= from && r.t_s < to)
-                .map(|r| (r.x_m - reference[r.step_idx as usize]).abs())
-                .fold(0.0f64, f64::max)
-        };
-        let (during, after) = (worst(0.0, 4.0), worst(5.0, 6.0));
-        let error = displacement_error(&cfg, &run);
         eprintln!(
             "{actuator}: lead {:.0} us, error {:.2} %, worst {:.1} um before 4 s, {:.1} um in the last second",
             plan.lead_us,
