@@ -648,7 +648,8 @@ fn sigstop_of_300_ms_is_a_fault_with_a_hold_and_of_5_ms_is_ridden_through() {
         assert_hold_in_records(&report, AXLE_S, &format!("SIGSTOP {name}"));
         assert_nothing_left(&json);
     }
-    let (code, json, _, _dir) = signal_at_axle("stop-5ms", " emulator --config", libc::SIGSTOP, 5);
+    let (code, json, report, _dir) =
+        signal_at_axle("stop-5ms", " emulator --config", libc::SIGSTOP, 5);
     assert_eq!(code, 0, "a 5 ms stall is ridden through: {json}");
     let transient = json["largest_transient_um"].as_f64().unwrap();
     assert!(transient < 20.0, "largest transient {transient} um");
@@ -657,7 +658,42 @@ fn sigstop_of_300_ms_is_a_fault_with_a_hold_and_of_5_ms_is_ridden_through() {
         "the stall was not seen: {}",
         json["stalls"]
     );
-    assert!(json["stalls"]["longest_ms"].as_f64().unwrap() >= 4.0);
+    // The emulator's own clock saw the stop (its cycles jumped); the specimen felt it at
+    // its length unless the rig itself woke late within it: periods the rig ran in a
+    // catch-up let the resumed emulator answer inside the gap, so the law stood still
+    // for fewer of the rig's periods than the stop lasted.
+    let rig = rig_records(&report);
+    let dt = rig[1].t_s - rig[0].t_s;
+    let emulator = RecordSet::open(&report)
+        .unwrap()
+        .read_all::<EmulatorRecord>()
+        .unwrap();
+    let (stop_at_s, stop_periods) = emulator
+        .windows(2)
+        .filter(|w| (AXLE_S - 0.2..AXLE_S + 0.5).contains(&w[0].t_s))
+        .map(|w| (w[0].t_s, w[1].cycle_idx.saturating_sub(w[0].cycle_idx)))
+        .max_by_key(|g| g.1)
+        .unwrap();
+    let stop_s = stop_periods as f64 * dt;
+    assert!(stop_s >= 4e-3, "the emulator's cycles jumped {stop_s} s");
+    let rig_late = rig
+        .iter()
+        .filter(|r| {
+            r.catch_up == 1
+                && (stop_at_s - 2.0 * dt..stop_at_s + stop_s + 2.0 * dt).contains(&r.t_s)
+        })
+        .count();
+    let longest_ms = json["stalls"]["longest_ms"].as_f64().unwrap();
+    eprintln!(
+        "stop-5ms: the emulator stopped {:.2} ms at {stop_at_s:.4} s, felt as {longest_ms:.2} ms; \
+         the rig ran {rig_late} periods in it late",
+        stop_s * 1e3
+    );
+    assert!(
+        longest_ms >= 4.0 || rig_late > 0,
+        "a 5 ms stop felt as {longest_ms} ms, the rig on time: {}",
+        json["stalls"]
+    );
     assert_nothing_left(&json);
 }
 
