@@ -185,7 +185,9 @@ pub struct StabilityBounds {
     /// A bound must stay crossed this long to trip, s: a stall's ride-through or the
     /// ringing after an axle generates a burst of energy or a transient that decays
     /// within tens of ms; an unstable loop keeps generating. Beyond 10 times the energy
-    /// bound or 3 times the oscillation bound the monitor trips at once.
+    /// bound or 3 times the oscillation bound the monitor trips at once. An energy
+    /// crossing whose oscillation has fallen below half its peak in the crossing (a
+    /// lightly damped ring dying away) trips only at 4 times the persistence.
     pub persist_s: f64,
 }
 
@@ -204,6 +206,13 @@ impl StabilityBounds {
 /// persistence.
 const IMMEDIATE_FACTOR_ENERGY: f64 = 10.0;
 const IMMEDIATE_FACTOR_OSCILLATION: f64 = 3.0;
+/// A crossing of the energy bound past the persistence does not trip while the
+/// oscillation envelope has fallen below this fraction of its peak in the crossing: a
+/// ring dying away after a load transient (an axle through a lightly damped loop), which
+/// an unstable loop's oscillation never does (it grows, or holds as a limit cycle).
+const DECAYED_FRACTION: f64 = 0.5;
+/// ... and not beyond this multiple of the persistence, decaying or not.
+const DECAYING_PERSIST_FACTOR: u32 = 4;
 
 /// Which bound tripped the monitor.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -226,6 +235,8 @@ pub struct StabilityMonitor {
     /// Consecutive samples with a bound crossed, and how many make a trip.
     crossed_samples: u32,
     persist_samples: u32,
+    /// The largest envelope since the energy bound was crossed, m.
+    crossing_peak_m: f64,
     /// Largest values seen while running (for the report).
     pub peak_generated_j: f64,
     pub peak_oscillation_m: f64,
@@ -240,6 +251,7 @@ impl StabilityMonitor {
             envelope_decay: (-dt_s / 0.01).exp(),
             crossed_samples: 0,
             persist_samples: (bounds.persist_s / dt_s).round().max(1.0) as u32,
+            crossing_peak_m: 0.0,
             peak_generated_j: 0.0,
             peak_oscillation_m: 0.0,
         }
@@ -249,6 +261,7 @@ impl StabilityMonitor {
         self.observer.restart();
         self.envelope_m = 0.0;
         self.crossed_samples = 0;
+        self.crossing_peak_m = 0.0;
     }
 
     pub fn state(&self) -> EnergyState {
@@ -285,8 +298,10 @@ impl StabilityMonitor {
         };
         if crossed.is_some() {
             self.crossed_samples += 1;
+            self.crossing_peak_m = self.crossing_peak_m.max(self.envelope_m);
         } else {
             self.crossed_samples = 0;
+            self.crossing_peak_m = 0.0;
         }
         // A loop diverging within the persistence (an actuator far slower than the lead:
         // e-folding in a few ms) trips at once beyond a multiple of a bound.
@@ -296,7 +311,10 @@ impl StabilityMonitor {
         if self.envelope_m > IMMEDIATE_FACTOR_OSCILLATION * self.bounds.max_oscillation_m {
             return Some(InstabilityKind::Oscillation);
         }
-        crossed.filter(|_| self.crossed_samples >= self.persist_samples)
+        let dying_away = crossed == Some(InstabilityKind::GeneratedEnergy)
+            && self.envelope_m < DECAYED_FRACTION * self.crossing_peak_m
+            && self.crossed_samples < DECAYING_PERSIST_FACTOR * self.persist_samples;
+        crossed.filter(|_| self.crossed_samples >= self.persist_samples && !dying_away)
     }
 }
 
@@ -461,5 +479,62 @@ mod tests {
         assert_eq!(kind, InstabilityKind::Oscillation);
         // (e^0.2 past the bound, later where the envelope sags below it between peaks.)
         assert!((1e-4..2e-4).contains(&a), "{a}");
+    }
+
+    /// A 38 Hz ring after an axle, rendered 3 ms late (the force lags: energy is
+    /// generated), from `a0` with the envelope `a0 exp(-t / tau)` (`tau` infinite: held).
+    fn ring(a0: f64, tau_s: f64, seconds: f64) -> (Option<(InstabilityKind, f64)>, f64, u32) {
+        let k = 5.7e7;
+        let w = 2.0 * PI * 38.0;
+        let lag = 3e-3;
+        let mut m = StabilityMonitor::new(StabilityBounds::DEFAULT, DT);
+        let (mut longest, mut run) = (0u32, 0u32);
+        let mut peak_energy: f64 = 0.0;
+        for i in 0..(seconds / DT) as usize {
+            let t = i as f64 * DT;
+            let at = |t: f64| {
+                if t < 0.0 {
+                    0.0
+                } else {
+                    a0 * (-t / tau_s).exp() * (w * t).sin()
+                }
+            };
+            let tripped = m.update(at(t), k * at(t), k * at(t - lag));
+            let e = m.state().generated_high_j;
+            peak_energy = peak_energy.max(e);
+            run = if e > StabilityBounds::DEFAULT.max_generated_energy_j {
+                run + 1
+            } else {
+                0
+            };
+            longest = longest.max(run);
+            if let Some(kind) = tripped {
+                return (Some((kind, t)), peak_energy, longest);
+            }
+        }
+        (None, peak_energy, longest)
+    }
+
+    #[test]
+    fn a_ring_dying_away_past_the_persistence_does_not_trip_a_held_one_does() {
+        let persist = (StabilityBounds::DEFAULT.persist_s / DT) as u32;
+        // 80 um, e-folding in 60 ms (damping ratio 0.07): generates more than the bound
+        // for longer than the persistence, below the immediate multiple, and dies away.
+        let (tripped, peak, longest) = ring(80e-6, 0.06, 1.0);
+        assert!(peak > 0.05 && peak < 0.5, "peak {peak} J");
+        assert!(longest > persist, "crossed {longest} samples of {persist}");
+        assert_eq!(tripped, None, "a dying ring tripped");
+        // The same ring held (a limit cycle) trips on the energy after the persistence.
+        let (tripped, _, _) = ring(80e-6, f64::INFINITY, 1.0);
+        let (kind, t) = tripped.expect("a held ring trips");
+        assert_eq!(kind, InstabilityKind::GeneratedEnergy);
+        assert!(
+            t > StabilityBounds::DEFAULT.persist_s && t < 0.5,
+            "at {t} s"
+        );
+        // A ring dying too slowly to halve within the persistence (e-folding in 0.3 s)
+        // trips too.
+        let (tripped, _, _) = ring(80e-6, 0.3, 2.0);
+        assert!(tripped.is_some(), "a slowly decaying ring did not trip");
     }
 }
