@@ -684,6 +684,9 @@ fn not_clean_because(
                     cfg.safety.max_displacement_error * 100.0
                 ));
             }
+            if a.loop_energy.not_passive() {
+                why.push(a.loop_energy.describe());
+            }
             if a.largest_transient_m > cfg.safety.max_transient_m {
                 why.push(format!(
                     "largest resonant transient {:.1} um > [safety] max_transient_m = {:.1} um",
@@ -981,6 +984,7 @@ fn summarise(
         "operator_stop": outcome.operator_stop
             || analysis.is_some_and(|a| a.safety.operator_actions.iter().any(|x| x.ends_with("operator stop"))),
         "safety": value(analysis.map(|a| serde_json::to_value(&a.safety).unwrap_or_default())),
+        "loop_energy": value(analysis.map(|a| serde_json::to_value(a.loop_energy).unwrap_or_default())),
         "stalls": value(analysis.map(|a| json!({
             "count": a.stalls.count,
             "ended_in_hold": a.stalls.ended_in_hold,

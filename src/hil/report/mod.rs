@@ -77,6 +77,8 @@ pub struct Analysis {
     pub stability: Stability,
     pub latency_ns: Latency,
     pub safety: Safety,
+    /// The energy the loop generated in the stability monitor's band over the run.
+    pub loop_energy: safety::LoopEnergy,
     pub stalls: Stalls,
     pub programme: ProgrammeSummary,
     /// Largest resonant (>100 Hz) residual compared (no holds), m: the largest transient.
@@ -335,6 +337,7 @@ struct RigPass {
     residual: ResidualAnalyser,
     stalls: Stalls,
     safety: Safety,
+    loop_energy: safety::LoopEnergy,
     plots: RigPlots,
 }
 
@@ -481,8 +484,10 @@ fn read_rig_stream(
     ];
     let stalls = stalls.finish(&sources);
     let mut safety = safety.finish();
+    let loop_energy = instability.loop_energy();
     instability.attach(&mut safety);
     Ok(RigPass {
+        loop_energy,
         rig_steps,
         programme_at_end,
         residual,
@@ -595,6 +600,7 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
             external_rig_named(rig.safety)
         },
         stalls: rig.stalls,
+        loop_energy: rig.loop_energy,
         compensation: compensation_report,
         records: RecordsInfo {
             files: set.files.iter().map(|p| p.display().to_string()).collect(),

@@ -85,12 +85,54 @@ impl InstabilitySeen {
     }
 }
 
-/// Follows the emulator's records for the windows before its `loop-unstable` trips.
+/// The energy the loop generated over the whole run, as the stability monitor measured
+/// it (the emulator's records): its peak and the longest stretch above the bound. A
+/// stretch longer than the monitor's persistence that did not trip was a ring dying away
+/// (`StabilityMonitor`): stable, but the rendering was not passive there.
+#[derive(Debug, Clone, Copy, Serialize, PartialEq, Default)]
+pub struct LoopEnergy {
+    pub band_hz: (f64, f64),
+    pub peak_generated_energy_j: f64,
+    pub max_generated_energy_j: f64,
+    /// The longest stretch with the generated energy above `max_generated_energy_j`, s,
+    /// and where it began (0 and NaN: never above).
+    pub longest_above_bound_s: f64,
+    pub longest_above_bound_at_s: f64,
+    /// The monitor's persistence, s.
+    pub persist_s: f64,
+}
+
+impl LoopEnergy {
+    /// Above the bound for longer than the persistence: not passive (tripped or not).
+    pub fn not_passive(&self) -> bool {
+        self.longest_above_bound_s > self.persist_s
+    }
+
+    /// One clause for the console.
+    pub fn describe(&self) -> String {
+        format!(
+            "the loop generated up to {:.3} J in the {:.0}-{:.0} Hz band, above the {:.3} J bound for {:.2} s from {:.3} s (longer than the monitor's {:.2} s persistence; a ring dying away is not tripped, but it is not the passive element's)",
+            self.peak_generated_energy_j,
+            self.band_hz.0,
+            self.band_hz.1,
+            self.max_generated_energy_j,
+            self.longest_above_bound_s,
+            self.longest_above_bound_at_s,
+            self.persist_s
+        )
+    }
+}
+
+/// Follows the emulator's records for the windows before its `loop-unstable` trips, and
+/// the loop's energy over the whole run.
 #[derive(Debug, Clone)]
 pub struct InstabilityTracker {
     bounds: crate::hil::passivity::StabilityBounds,
     /// (detection time, what was seen).
     trips: Vec<(f64, InstabilitySeen)>,
+    energy: LoopEnergy,
+    /// The stretch above the bound in progress: (start s, last s).
+    above: Option<(f64, f64)>,
 }
 
 impl InstabilityTracker {
@@ -116,11 +158,41 @@ impl InstabilityTracker {
                 )
             })
             .collect();
-        InstabilityTracker { bounds, trips }
+        InstabilityTracker {
+            bounds,
+            trips,
+            energy: LoopEnergy {
+                band_hz: bounds.band_hz,
+                max_generated_energy_j: bounds.max_generated_energy_j,
+                longest_above_bound_at_s: f64::NAN,
+                persist_s: bounds.persist_s,
+                ..LoopEnergy::default()
+            },
+            above: None,
+        }
+    }
+
+    /// The loop's energy over the records pushed so far.
+    pub fn loop_energy(&self) -> LoopEnergy {
+        self.energy
     }
 
     /// One emulator record: `t_s`, the band's generated energy and oscillation.
     pub fn push(&mut self, t_s: f64, generated_energy_j: f64, oscillation_m: f64) {
+        if generated_energy_j.is_finite() {
+            let e = &mut self.energy;
+            e.peak_generated_energy_j = e.peak_generated_energy_j.max(generated_energy_j);
+            if generated_energy_j > e.max_generated_energy_j {
+                let (start, _) = self.above.unwrap_or((t_s, t_s));
+                self.above = Some((start, t_s));
+                if t_s - start > e.longest_above_bound_s {
+                    e.longest_above_bound_s = t_s - start;
+                    e.longest_above_bound_at_s = start;
+                }
+            } else {
+                self.above = None;
+            }
+        }
         let window = self.bounds.persist_s + 0.05;
         for (at, seen) in &mut self.trips {
             if t_s <= *at + 1e-9 && t_s >= *at - window {
@@ -356,6 +428,46 @@ impl SafetyTracker {
 mod tests {
     use super::*;
     use crate::records::event::action_code;
+
+    #[test]
+    fn the_loop_energy_keeps_the_longest_stretch_above_the_bound() {
+        let bounds = crate::hil::passivity::StabilityBounds::DEFAULT;
+        let dt = 1.0 / 4096.0;
+        let mut t = InstabilityTracker::new(&[], bounds);
+        // 50 ms above the bound at 1 s, 200 ms above it (peak 0.27 J) at 2 s.
+        for i in 0..(3 * 4096) {
+            let ts = i as f64 * dt;
+            let e = if (1.0..1.05).contains(&ts) {
+                0.08
+            } else if (2.0..2.2).contains(&ts) {
+                0.27 - (ts - 2.0)
+            } else {
+                0.01
+            };
+            t.push(ts, e, 0.0);
+        }
+        let e = t.loop_energy();
+        assert_eq!(e.peak_generated_energy_j, 0.27);
+        assert!((e.longest_above_bound_at_s - 2.0).abs() < 1e-12, "{e:?}");
+        assert!((e.longest_above_bound_s - 0.2).abs() <= dt, "{e:?}");
+        assert!(e.not_passive());
+        assert!(
+            e.describe().contains("0.20 s from 2.000 s"),
+            "{}",
+            e.describe()
+        );
+        // The short stretch alone is within the persistence: passive enough.
+        let mut t = InstabilityTracker::new(&[], bounds);
+        for i in 0..4096 {
+            let ts = 0.9 + i as f64 * dt;
+            t.push(ts, if (1.0..1.05).contains(&ts) { 0.08 } else { 0.0 }, 0.0);
+        }
+        let e = t.loop_energy();
+        assert!(
+            (e.longest_above_bound_s - 0.05).abs() <= dt && !e.not_passive(),
+            "{e:?}"
+        );
+    }
 
     const DT: f64 = 0.01;
 
