@@ -50,9 +50,11 @@ pub const HEARTBEAT_PERIOD_NS: u64 = 10_000_000;
 /// The emulator (controller) exits after this long without a sample (setpoint): its
 /// peers and the orchestrator are gone. Not a run length: holds last as long as needed.
 pub const IDLE_EXIT_S: f64 = 60.0;
-/// An injected kill waits this long after recording its event, so the record writer
-/// closes the chunk holding it (the loop is already silent, as after a real kill).
-const KILL_FLUSH_WAIT: Duration = Duration::from_millis(120);
+/// An injected kill waits until the record writer has closed the chunk holding its event
+/// (the loop is already silent, as after a real kill), at most this long. A fixed wait
+/// of 120 ms (the writer flushes every 80 ms) lost the event once in CI, on a loaded
+/// machine whose loops kept the writer thread off the CPU.
+const KILL_FLUSH_WAIT: Duration = Duration::from_secs(2);
 
 static TERMINATE: AtomicBool = AtomicBool::new(false);
 static TERMINATE_SIGNAL: AtomicI32 = AtomicI32::new(0);
@@ -321,7 +323,7 @@ impl Injector {
             }
             InjectKind::CpuStall { duration_s } => Some(Duration::from_secs_f64(duration_s)),
             _ => {
-                std::thread::sleep(KILL_FLUSH_WAIT);
+                events.wait_flushed(KILL_FLUSH_WAIT);
                 // SAFETY: raising a signal on ourselves; SIGKILL cannot be caught.
                 unsafe { libc::raise(libc::SIGKILL) };
                 None

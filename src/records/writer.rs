@@ -32,6 +32,8 @@ const POLL: Duration = Duration::from_millis(2);
 pub struct RecordSink<R: Record> {
     queue: Arc<ArrayQueue<R>>,
     dropped: Arc<AtomicU64>,
+    /// The writer's completed flushes (closed chunks on disk), counted.
+    flushes: Arc<AtomicU64>,
 }
 
 impl<R: Record> Clone for RecordSink<R> {
@@ -39,6 +41,7 @@ impl<R: Record> Clone for RecordSink<R> {
         RecordSink {
             queue: self.queue.clone(),
             dropped: self.dropped.clone(),
+            flushes: self.flushes.clone(),
         }
     }
 }
@@ -50,6 +53,29 @@ impl<R: Record> RecordSink<R> {
         if self.queue.push(record).is_err() {
             self.dropped.fetch_add(1, Ordering::Relaxed);
         }
+    }
+
+    /// Waits, up to `timeout`, until every record pushed to this sink before the call is
+    /// in a flushed chunk on disk (its queue drained, then a flush after that); whether it
+    /// is. For a process about to kill itself (an injected kill): not for a loop's turn.
+    pub fn wait_flushed(&self, timeout: std::time::Duration) -> bool {
+        let until = Instant::now() + timeout;
+        while !self.queue.is_empty() {
+            if Instant::now() >= until {
+                return false;
+            }
+            std::thread::sleep(POLL);
+        }
+        // The drain that emptied the queue wrote its records before the flush that
+        // follows it in the writer's turn: any flush counted from here on holds them.
+        let seen = self.flushes.load(Ordering::Acquire);
+        while self.flushes.load(Ordering::Acquire) <= seen {
+            if Instant::now() >= until {
+                return false;
+            }
+            std::thread::sleep(POLL);
+        }
+        true
     }
 
     /// Records dropped so far.
@@ -138,6 +164,7 @@ pub struct RecorderBuilder {
     parts_dir: PathBuf,
     process: String,
     drains: Vec<Box<dyn Drain>>,
+    flushes: Arc<AtomicU64>,
 }
 
 impl RecorderBuilder {
@@ -147,6 +174,7 @@ impl RecorderBuilder {
             parts_dir: report_dir.join("parts"),
             process: process.to_string(),
             drains: Vec::new(),
+            flushes: Arc::new(AtomicU64::new(0)),
         }
     }
 
@@ -162,24 +190,30 @@ impl RecorderBuilder {
             written: 0,
             buf: Vec::with_capacity(256),
         }));
-        RecordSink { queue, dropped }
+        RecordSink {
+            queue,
+            dropped,
+            flushes: self.flushes.clone(),
+        }
     }
 
     /// Creates the parts directory and starts the writer thread. It writes nothing until
     /// `Recorder::start` gives it the run's time base and metadata.
     pub fn spawn(self) -> std::io::Result<Recorder> {
         std::fs::create_dir_all(&self.parts_dir)?;
-        let shared = Arc::new(Shared {
-            stop: AtomicBool::new(false),
-            start_unix_ns: AtomicU64::new(u64::MAX),
-            meta_json: std::sync::Mutex::new(String::new()),
-        });
-        let thread_shared = shared.clone();
         let RecorderBuilder {
             parts_dir,
             process,
             drains,
+            flushes,
         } = self;
+        let shared = Arc::new(Shared {
+            stop: AtomicBool::new(false),
+            start_unix_ns: AtomicU64::new(u64::MAX),
+            meta_json: std::sync::Mutex::new(String::new()),
+            flushes,
+        });
+        let thread_shared = shared.clone();
         let label = format!("{}-records", process);
         let handle = std::thread::Builder::new()
             .name(label)
@@ -195,6 +229,8 @@ struct Shared {
     stop: AtomicBool,
     start_unix_ns: AtomicU64,
     meta_json: std::sync::Mutex<String>,
+    /// Completed flushes (`RecordSink::wait_flushed`).
+    flushes: Arc<AtomicU64>,
 }
 
 /// The running writer of one process.
@@ -363,8 +399,11 @@ fn write_loop(
             }
             if failed.is_none() && last_flush.elapsed() >= FLUSH_INTERVAL {
                 last_flush = Instant::now();
-                if let Err(e) = writer.flush() {
-                    failed = Some(e.to_string());
+                match writer.flush() {
+                    Ok(()) => {
+                        shared.flushes.fetch_add(1, Ordering::Release);
+                    }
+                    Err(e) => failed = Some(e.to_string()),
                 }
             }
             if let Some(e) = failed {

@@ -640,3 +640,44 @@ fn emulator_runs_model_effects_without_allocating() {
     }
     assert_eq!(records.len() as u64, n);
 }
+
+/// An injected kill waits for its event to reach the disk (`RecordSink::wait_flushed`):
+/// not before the writer has its time base (nothing is drained then), and once it runs,
+/// the event is readable from the part file while the writer still runs, as a killed
+/// process leaves it.
+#[test]
+fn a_record_waited_for_is_on_disk_before_the_writer_ends() {
+    use fastemu::records::event::event_kind;
+    use fastemu::records::{EventRecord, RecordSet};
+    use std::time::Duration;
+    let dir = crate::common::TempDir::new("flushed");
+    let mut builder = RecorderBuilder::new(&dir.path, "controller");
+    let events = builder.sink::<EventRecord>(64);
+    let recorder = builder.spawn().unwrap();
+    let event = EventRecord {
+        t_s: 1.25,
+        process: 2,
+        kind: event_kind::INJECTED,
+        fault_code: 3,
+        remote_fault_code: 0,
+        action: 0,
+        detection_latency_periods: 0,
+        step_idx: 5120,
+        value: 0.0,
+    };
+    events.push(event);
+    assert!(
+        !events.wait_flushed(Duration::from_millis(50)),
+        "flushed before the writer had its time base"
+    );
+    recorder.start(0, "{}".into());
+    assert!(events.wait_flushed(Duration::from_secs(5)), "never flushed");
+    let on_disk = RecordSet::open(&dir.path)
+        .unwrap()
+        .read_all::<EventRecord>()
+        .unwrap();
+    assert_eq!(on_disk.len(), 1, "{on_disk:?}");
+    assert_eq!(on_disk[0].step_idx, 5120);
+    let result = recorder.finish();
+    assert_eq!(result.counts_of("/events").written, 1);
+}
