@@ -514,6 +514,20 @@ fn frequent_stalls(seed: u64, until: u64) -> Vec<(u64, u64)> {
     stalls
 }
 
+/// `seconds` of the in-process loop with `frequent_stalls(seed)` of the emulator through
+/// all but its last 0.1 s; asserts it ran without a fault.
+fn run_unfaulted_under_frequent_stalls(cfg: &HilConfig, seed: u64, seconds: f64) -> InProcessRun {
+    let run = run_in_process(
+        cfg,
+        &InProcessScript {
+            emulator_stalls: frequent_stalls(seed, ((seconds - 0.1) * RATE) as u64),
+            ..script(seconds)
+        },
+    );
+    assert!(faults(&run).is_empty(), "seed {seed}: {:?}", faults(&run));
+    run
+}
+
 /// Bridged stretches are not evidence of a delay. Under emulator stalls of 1-8 periods
 /// every 4-16 ms (a loaded machine; a UDP-link run in CI met the like), the straight lines
 /// the controller bridges them with read, in the preload's near-static stretch, as a delay
@@ -527,14 +541,7 @@ fn stalls_bridged_by_the_controller_are_not_read_as_a_delay() {
     let cfg = default_hil_config().unwrap();
     let guess = cfg.compensation.initial_delay_s;
     for seed in [2, 3, 12] {
-        let run = run_in_process(
-            &cfg,
-            &InProcessScript {
-                emulator_stalls: frequent_stalls(seed, 12_000),
-                ..script(3.0)
-            },
-        );
-        assert!(faults(&run).is_empty(), "seed {seed}: {:?}", faults(&run));
+        let run = run_unfaulted_under_frequent_stalls(&cfg, seed, 3.0);
         let leads: Vec<f64> = run
             .controller
             .iter()
@@ -748,14 +755,7 @@ fn servo_hydraulic_presets_run_stable_on_the_planned_lead_and_are_not_clean() {
 fn the_safe_start_ends_under_frequent_emulator_stalls() {
     let cfg = default_hil_config().unwrap();
     for seed in [21, 22] {
-        let run = run_in_process(
-            &cfg,
-            &InProcessScript {
-                emulator_stalls: frequent_stalls(seed, 16_000),
-                ..script(4.0)
-            },
-        );
-        assert!(faults(&run).is_empty(), "seed {seed}: {:?}", faults(&run));
+        let run = run_unfaulted_under_frequent_stalls(&cfg, seed, 4.0);
         let law: Vec<_> = run
             .controller
             .iter()
