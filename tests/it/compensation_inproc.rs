@@ -206,6 +206,50 @@ fn a_guess_of_zero_before_a_slow_actuator_is_made_safe_from_the_start() {
     assert!(error < 1e-3, "displacement error {:.3} %", 100.0 * error);
 }
 
+/// 0.81 ms actuator (lag-delay 554 + 135 us, the truth `perturb = 0.3` drew for seed 17
+/// of 450 + 150 us). From a guess of 0 the resonance rings up faster than the safe start's
+/// damping holds it: before the oscillation estimate, `loop-unstable` tripped at 0.106 s,
+/// before the load band's estimator had warmed up. The ringing's own phase gives the lead:
+/// it comes within 15 % of the truth while the ring is young, the safe start ends there
+/// (its full damping at that lead would itself generate energy above 300 Hz), and the run
+/// is faithful.
+#[test]
+fn a_loop_ringing_from_a_guess_of_zero_finds_its_lead_in_the_ringing() {
+    let cfg = config_with_actuator(
+        "kind = \"lag-delay\"\ntransport_delay_us = 554.0\nlag_us = 135.0\nforce_max_n = 150000.0",
+        0.0,
+        true,
+        true,
+    );
+    let run = run_in_process(&cfg, &script(3.0));
+    assert!(faults(&run).is_empty(), "{:?}", faults(&run));
+    let truth = 0.5 / RATE + 554e-6 + 135e-6;
+    let (law, _) = safe_start(&run);
+    let reached = law
+        .iter()
+        .find(|r| (r.lead_s / truth - 1.0).abs() < 0.15)
+        .unwrap_or_else(|| panic!("the lead never came within 15 % of {} us", truth * 1e6));
+    assert!(
+        reached.t_s < 0.1,
+        "the lead came near the truth at {} s",
+        reached.t_s
+    );
+    // It got there on the ringing: the guard's observer saw energy generated before.
+    assert!(law
+        .iter()
+        .take_while(|r| r.t_s <= reached.t_s)
+        .any(|r| r.guard_generated_j > cfg.compensation.guard_onset_energy_j));
+    let (_, start) = safe_start(&run);
+    assert!(
+        law[start].t_s <= reached.t_s + 0.02,
+        "the safe start ended at {} s",
+        law[start].t_s
+    );
+    assert!((final_lead_s(&run) / truth - 1.0).abs() < 0.05);
+    let error = displacement_error(&cfg, &run);
+    assert!(error < 1e-3, "displacement error {:.3} %", 100.0 * error);
+}
+
 /// Same configuration, same input: the compensation (estimate, guard) is bit-identical.
 #[test]
 fn compensation_is_deterministic() {

@@ -14,10 +14,16 @@
 //!   starts armed (the safe start): full damping from the first command until the lead has
 //!   reached the delay the estimator resolved, because until then nobody knows whether the
 //!   loop is passive (a guess of 0 in front of a 722 us actuator rang the resonance up to
-//!   0.3 % error before the observer saw energy).
+//!   0.3 % error before the observer saw energy). A loop that rings anyway gives its lead:
+//!   the phase delay where it rings (`oscillation::OscillationDelay`), which ends the safe
+//!   start.
 //!
 //! Must not: allocate, lock, log, read a clock or do I/O (runs per setpoint in the
 //! controller's loop); same setpoint stream gives the same compensation bit for bit.
+
+mod oscillation;
+
+pub use oscillation::{OscillationDelay, OscillationEstimate};
 
 use super::passivity::{LowPass2, PassivityObserver};
 use crate::ipc::messages::Compensation;
@@ -432,6 +438,19 @@ pub struct Compensator {
     missing_share: f64,
     /// Per-sample decay of `missing_share` (`exp(-dt / estimator_memory)`).
     missing_decay: f64,
+    /// The safe start's estimate of the phase delay where the loop rings
+    /// (`follow_oscillation`), on the force the rig was asked for without its lead.
+    oscillation: OscillationDelay,
+    /// The rig's view of the guard's damping, replayed: the two previous displacements
+    /// and the low-passed velocity (`Servo::law_force_n`'s first-order high-pass).
+    replay_z_m: [f64; 2],
+    replay_velocity_lp: f64,
+    replay_samples: u32,
+    /// Samples fed since the oscillation estimate last moved the lead.
+    since_oscillation_move: u64,
+    /// The lead the oscillation estimate asked for, while the lead moves to it
+    /// (`follow_oscillation`).
+    oscillation_target: Option<f64>,
     /// The weights' sum since the first sample (`1 - decay^n`): `missing_share /
     /// missing_weight` is the share without the start's bias towards 0.
     missing_weight: f64,
@@ -580,6 +599,16 @@ const MAX_BRIDGED_GAP: u64 = 32;
 /// default runs on the loaded machine of the same day missed 1-4 % while they learned,
 /// with spikes to 10-37 % later).
 const MAX_MISSING_SHARE: f64 = 0.1;
+/// The oscillation estimate (`follow_oscillation`): its memory (about three periods of
+/// the specimen's resonance), the share of the band's power its fit must explain, and the
+/// rate at which the lead moves to its target (s of lead per s; 25 us per sample at 4096
+/// Hz: the force changes by the velocity times that times the stiffness, 0.14 kN per
+/// sample for 0.1 m/s on 57 MN/m).
+const OSCILLATION_MEMORY_S: f64 = 0.02;
+const OSCILLATION_MIN_FIT: f64 = 0.9;
+const OSCILLATION_MAX_RATE: f64 = 0.1;
+/// The lead has arrived at the oscillation's target within this, s.
+const OSCILLATION_ARRIVED_S: f64 = 2e-6;
 /// Independent residuals (`DelayEstimate::independent`) below which a delay estimate
 /// neither moves the lead nor ends the safe start: its standard error, from so few, is
 /// itself a guess. The first estimate after the warm-up rests on about one (70 samples
@@ -630,6 +659,16 @@ impl Compensator {
             missing_share: 0.0,
             missing_weight: 0.0,
             missing_decay: (-dt_s / cfg.estimator_memory_s.max(dt_s)).exp(),
+            oscillation: OscillationDelay::new(
+                (cfg.guard_band_hz, cfg.guard_band_top_hz),
+                OSCILLATION_MEMORY_S,
+                dt_s,
+            ),
+            replay_z_m: [0.0; 2],
+            replay_velocity_lp: 0.0,
+            replay_samples: 0,
+            since_oscillation_move: u64::MAX,
+            oscillation_target: None,
         }
     }
 
@@ -712,6 +751,9 @@ impl Compensator {
         if gap == u64::MAX || gap > MAX_BRIDGED_GAP {
             self.estimator.restart();
             self.guard.restart();
+            self.oscillation.restart();
+            self.oscillation_target = None;
+            self.replay_samples = 0;
             self.feed(now);
         } else {
             let (z0, e0, m0) = self.last_values;
@@ -745,6 +787,12 @@ impl Compensator {
             if let Some(gain) = self.contact.observe(own / element_force_n, element_force_n) {
                 self.gain = gain;
             }
+            if self.guard.armed() {
+                let asked = self.asked_without_lead(displacement_m, element_force_n);
+                let o = self.oscillation.update(asked, own, self.lead_s);
+                self.follow_oscillation(o);
+            }
+            self.since_oscillation_move = self.since_oscillation_move.saturating_add(1);
             // The rig divided by the gain in effect: the actuator's own force per command
             // is the measured force times that gain.
             if let Some(e) =
@@ -761,6 +809,79 @@ impl Compensator {
             GuardState::default()
         };
         self.status.guard = guard;
+    }
+
+    /// The force the rig was asked for, as it would be without the lead: the element's
+    /// force plus the guard's damping in effect times the velocity high-passed as the rig
+    /// does it (`Servo::law_force_n`: the second-order slope of the last three
+    /// displacements, less its first-order low-pass at the damping's corner). The damping
+    /// is a quarter period ahead of the displacement, so leaving it out of the reference
+    /// reads the safe start's full damping (0.7 of the element's force at 155 Hz) as a
+    /// phase lead of a third of a radian.
+    #[inline]
+    fn asked_without_lead(&mut self, displacement_m: f64, element_force_n: f64) -> f64 {
+        let [z1, z2] = self.replay_z_m;
+        self.replay_z_m = [displacement_m, z1];
+        if self.replay_samples < 2 {
+            self.replay_samples += 1;
+            self.replay_velocity_lp = 0.0;
+            return element_force_n;
+        }
+        let v = (3.0 * displacement_m - 4.0 * z1 + z2) / (2.0 * self.dt_s);
+        let corner = self.cfg.guard_band_hz;
+        let v_hp = v - self.replay_velocity_lp;
+        let a = 1.0 - (-2.0 * std::f64::consts::PI * corner * self.dt_s).exp();
+        self.replay_velocity_lp += a * (v - self.replay_velocity_lp);
+        element_force_n + self.status.guard.damping_ns_per_m * v_hp
+    }
+
+    /// The safe start's answer to a loop that rings: when the guard's observer sees the
+    /// loop generate energy above its onset in the guard's band and one oscillation
+    /// dominates the band over a full window (`OSCILLATION_MIN_FIT`), the phase delay at
+    /// that oscillation's frequency is taken as the lead's target, and the lead moves to
+    /// it fast (`OSCILLATION_MAX_RATE`): there the loop crosses over, and that phase is
+    /// what a lead must cancel for the loop to be passive (a guess of 0 before a 0.81 ms
+    /// lag-delay actuator rang the resonance past the monitor's bound in 0.1 s, before the
+    /// load band's estimator had warmed up). Measure, then move: once there, the window
+    /// starts afresh, so the next reading (if the loop still rings) is the new lead's alone
+    /// (followed continuously, the ring that grew under the old lead dominated the window
+    /// while it decayed under the new one, and the lead overshot to 0.95 ms and tripped).
+    /// The load band's estimator then takes the lead from there and ends the safe start.
+    #[inline]
+    fn follow_oscillation(&mut self, estimate: Option<OscillationEstimate>) {
+        if let Some(target) = self.oscillation_target {
+            let max_step = OSCILLATION_MAX_RATE * self.dt_s;
+            let step = (target - self.lead_s).clamp(-max_step, max_step);
+            self.lead_s = (self.lead_s + step).clamp(0.0, self.cfg.max_delay_s);
+            self.since_oscillation_move = 0;
+            // Near the target the lead cancels the actuator's phase where the loop crosses
+            // over: the safe start's precaution is answered, and kept it can itself be
+            // what generates energy (the lag turns the full damping into energy above 300
+            // Hz: a 0.81 ms actuator, lead 818 us, `loop-unstable` 50 ms later). The guard
+            // goes on answering energy seen.
+            if (target - self.lead_s).abs() <= SAFE_START_AGREEMENT * target {
+                self.guard.disarm();
+            }
+            if (target - self.lead_s).abs() <= OSCILLATION_ARRIVED_S {
+                self.oscillation_target = None;
+                self.oscillation.clear_window();
+            }
+            return;
+        }
+        let Some(o) = estimate else {
+            return;
+        };
+        if self.cfg.adapt_lead
+            && o.window_full
+            && self.status.guard.generated_j >= self.cfg.guard_onset_energy_j
+            && o.fit >= OSCILLATION_MIN_FIT
+            && (self.cfg.guard_band_hz..=self.cfg.guard_band_top_hz).contains(&o.frequency_hz)
+        {
+            let target = (o.window_lead_s + o.residual_s).clamp(0.0, self.cfg.max_delay_s);
+            if (target - self.lead_s).abs() > OSCILLATION_ARRIVED_S {
+                self.oscillation_target = Some(target);
+            }
+        }
     }
 
     /// Ends the safe start once the estimate is precise (standard error within
@@ -817,6 +938,11 @@ impl Compensator {
             && e.independent >= MIN_INDEPENDENT
             && (e.delay_sigma_s < 20e-6 || far_enough);
         if !resolved || !e.delay_s.is_finite() {
+            return;
+        }
+        // While the ringing moves the lead, the load band waits (its window still holds
+        // the ringing's samples).
+        if (self.since_oscillation_move as f64) < OSCILLATION_MEMORY_S / self.dt_s {
             return;
         }
         // At most 20 ms of lead per second (5 us per sample at 4096 Hz): a servo-hydraulic
