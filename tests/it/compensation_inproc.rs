@@ -250,6 +250,54 @@ fn a_loop_ringing_from_a_guess_of_zero_finds_its_lead_in_the_ringing() {
     assert!(error < 1e-3, "displacement error {:.3} %", 100.0 * error);
 }
 
+/// A servo-hydraulic force loop the launcher makes no plan for (an external rig's actuator
+/// is not declared: here `fatigue-150kn` with `plan_from_actuator = false`), from the
+/// shipped guess of 252 us: the loop rings at 30-40 Hz at once (its stable leads are
+/// 2220-3360 us) and tripped `loop-unstable` within 0.1 s before the lead was read from
+/// the ringing. Now the ringing's phase takes the lead past 1.5 ms within 0.15 s, the
+/// load band's estimator (which reads the 1-5 Hz delay, under 1 ms) moves it no further
+/// than 15 % below that, and the run is stable to its end. It is not faithful (a lead
+/// cannot make up a delay that varies with frequency): more than 1 % error, not clean.
+#[test]
+fn an_undeclared_servo_hydraulic_loop_takes_its_lead_from_the_ringing_and_stays_stable() {
+    let mut cfg = config_with_actuator("preset = \"fatigue-150kn\"", 252.0, true, true);
+    cfg.compensation.plan_from_actuator = false;
+    let run = run_in_process(&cfg, &script(6.0));
+    assert!(run.plan.is_none() || !run.plan.as_ref().unwrap().lead_fixed);
+    let (during, after, error) = ran_to_the_end_unheld(&cfg, &run, "fatigue-150kn, no plan");
+    // Stable: what the passage left dies away (measured: 287 um during, 41 um after).
+    assert!(
+        after < 0.2 * during,
+        "{} um after the passage, {} um during it",
+        after * 1e6,
+        during * 1e6
+    );
+    let law: Vec<_> = run
+        .controller
+        .iter()
+        .filter(|r| r.mode == command_mode::LAW)
+        .collect();
+    let early = law.iter().take_while(|r| r.t_s < 0.15).last().unwrap();
+    assert!(
+        early.lead_s > 1.5e-3,
+        "lead {} us at {} s",
+        early.lead_s * 1e6,
+        early.t_s
+    );
+    let lowest = law
+        .iter()
+        .filter(|r| r.t_s >= 0.15)
+        .map(|r| r.lead_s)
+        .fold(f64::INFINITY, f64::min);
+    assert!(
+        lowest >= 0.85 * early.lead_s - 1e-9,
+        "lead down to {} us from {} us",
+        lowest * 1e6,
+        early.lead_s * 1e6
+    );
+    assert!(error > 0.01, "displacement error {:.2} %", 100.0 * error);
+}
+
 /// Same configuration, same input: the compensation (estimate, guard) is bit-identical.
 #[test]
 fn compensation_is_deterministic() {
@@ -776,8 +824,15 @@ fn servo_hydraulic_presets_run_stable_on_the_planned_lead_and_are_not_clean() {
         assert!(after < 0.1 * during, "{actuator}");
         assert!(error > 0.01, "{actuator}: {:.3} %", error * 100.0);
     }
-    // The same first rig without the plan: the adaptation walks the lead out and it trips.
-    let mut cfg = config_with_actuator(cases[0], 252.0, true, true);
+    // A rig without the plan (seed 1: the lead read from the ringing, 2.19 ms, is not
+    // stable for it; seeds 3 and 6 now run to the end on it, not clean, see
+    // `an_undeclared_servo_hydraulic_loop_takes_its_lead_from_the_ringing_and_stays_stable`)
+    // trips; with the plan it runs.
+    let seed1 = "preset = \"fatigue-150kn\"\nperturb = 0.3\nperturb_seed = 1";
+    let planned = config_with_actuator(seed1, 252.0, true, true);
+    let run = run_in_process(&planned, &script(2.0));
+    assert!(faults(&run).is_empty(), "{:?}", faults(&run));
+    let mut cfg = planned.clone();
     cfg.compensation.plan_from_actuator = false;
     assert_eq!(fastemu::hil::check::compensation_plan(&cfg), None);
     let run = run_in_process(&cfg, &script(2.0));

@@ -451,6 +451,9 @@ pub struct Compensator {
     /// The lead the oscillation estimate asked for, while the lead moves to it
     /// (`follow_oscillation`).
     oscillation_target: Option<f64>,
+    /// The lead the last ringing gave: the load band's estimator moves the lead within
+    /// `RING_LEAD_RANGE` of it.
+    ring_lead: Option<f64>,
     /// The weights' sum since the first sample (`1 - decay^n`): `missing_share /
     /// missing_weight` is the share without the start's bias towards 0.
     missing_weight: f64,
@@ -599,14 +602,22 @@ const MAX_BRIDGED_GAP: u64 = 32;
 /// default runs on the loaded machine of the same day missed 1-4 % while they learned,
 /// with spikes to 10-37 % later).
 const MAX_MISSING_SHARE: f64 = 0.1;
-/// The oscillation estimate (`follow_oscillation`): its memory (about three periods of
-/// the specimen's resonance), the share of the band's power its fit must explain, and the
-/// rate at which the lead moves to its target (s of lead per s; 25 us per sample at 4096
-/// Hz: the force changes by the velocity times that times the stiffness, 0.14 kN per
-/// sample for 0.1 m/s on 57 MN/m).
-const OSCILLATION_MEMORY_S: f64 = 0.02;
-const OSCILLATION_MIN_FIT: f64 = 0.9;
+/// The oscillation estimate (`follow_oscillation`): its memory (two periods of the
+/// specimen's resonance on the element, half a period of a servo-hydraulic loop ringing at
+/// 35 Hz: a ring that grows by e in 20 ms leaves no time for more), the share of the
+/// band's power its fit must explain, the band's lower edge (a servo-hydraulic force loop
+/// with a lead too short rings at 17-55 Hz), and the rate at which the lead moves to its
+/// target (s of lead per s; 25 us per sample at 4096 Hz: the force changes by the velocity
+/// times that times the stiffness, 0.14 kN per sample for 0.1 m/s on 57 MN/m).
+const OSCILLATION_MEMORY_S: f64 = 0.015;
+const OSCILLATION_MIN_FIT: f64 = 0.8;
+const OSCILLATION_LOW_HZ: f64 = 10.0;
 const OSCILLATION_MAX_RATE: f64 = 0.1;
+/// Once a ringing has given the lead, the load band's estimator moves it within this
+/// fraction of it: a lag-and-delay actuator's delay is the same in both bands (the ring
+/// read 0.76 ms, the load band 0.81), a servo-hydraulic one's is not (the ring 2.2 ms, the
+/// load band under 1 ms, where `rths-fast-150kn` seed 2 rang again and tripped at 1.06 s).
+const RING_LEAD_RANGE: f64 = 0.15;
 /// The lead has arrived at the oscillation's target within this, s.
 const OSCILLATION_ARRIVED_S: f64 = 2e-6;
 /// Independent residuals (`DelayEstimate::independent`) below which a delay estimate
@@ -660,7 +671,7 @@ impl Compensator {
             missing_weight: 0.0,
             missing_decay: (-dt_s / cfg.estimator_memory_s.max(dt_s)).exp(),
             oscillation: OscillationDelay::new(
-                (cfg.guard_band_hz, cfg.guard_band_top_hz),
+                (OSCILLATION_LOW_HZ, cfg.guard_band_top_hz),
                 OSCILLATION_MEMORY_S,
                 dt_s,
             ),
@@ -669,6 +680,7 @@ impl Compensator {
             replay_samples: 0,
             since_oscillation_move: u64::MAX,
             oscillation_target: None,
+            ring_lead: None,
         }
     }
 
@@ -787,7 +799,7 @@ impl Compensator {
             if let Some(gain) = self.contact.observe(own / element_force_n, element_force_n) {
                 self.gain = gain;
             }
-            if self.guard.armed() {
+            if self.guard.armed() || self.oscillation_target.is_some() {
                 let asked = self.asked_without_lead(displacement_m, element_force_n);
                 let o = self.oscillation.update(asked, own, self.lead_s);
                 self.follow_oscillation(o);
@@ -836,17 +848,18 @@ impl Compensator {
     }
 
     /// The safe start's answer to a loop that rings: when the guard's observer sees the
-    /// loop generate energy above its onset in the guard's band and one oscillation
-    /// dominates the band over a full window (`OSCILLATION_MIN_FIT`), the phase delay at
-    /// that oscillation's frequency is taken as the lead's target, and the lead moves to
-    /// it fast (`OSCILLATION_MAX_RATE`): there the loop crosses over, and that phase is
-    /// what a lead must cancel for the loop to be passive (a guess of 0 before a 0.81 ms
-    /// lag-delay actuator rang the resonance past the monitor's bound in 0.1 s, before the
-    /// load band's estimator had warmed up). Measure, then move: once there, the window
-    /// starts afresh, so the next reading (if the loop still rings) is the new lead's alone
-    /// (followed continuously, the ring that grew under the old lead dominated the window
-    /// while it decayed under the new one, and the lead overshot to 0.95 ms and tripped).
-    /// The load band's estimator then takes the lead from there and ends the safe start.
+    /// loop generate energy above its onset and one oscillation in 10-400 Hz explains the
+    /// band over a full window (`OSCILLATION_MIN_FIT`), the phase delay at that
+    /// oscillation's frequency is taken as the lead's target, and the lead moves to it fast
+    /// (`OSCILLATION_MAX_RATE`): there the loop crosses over, and that phase is what a lead
+    /// must cancel for the loop to be passive (a guess of 0 before a 0.81 ms lag-delay
+    /// actuator rang the resonance past the monitor's bound in 0.1 s, before the load
+    /// band's estimator had warmed up). Within 10 % of the target the safe start ends
+    /// (its full damping at that lead can itself generate energy) and the lead goes on to
+    /// the target; there the window starts afresh, so a next reading is the new lead's
+    /// alone (followed continuously, the ring that grew under the old lead dominated the
+    /// window while it decayed under the new one, and the lead overshot to 0.95 ms and
+    /// tripped), and the load band's estimator takes the lead on within `RING_LEAD_RANGE`.
     #[inline]
     fn follow_oscillation(&mut self, estimate: Option<OscillationEstimate>) {
         if let Some(target) = self.oscillation_target {
@@ -863,6 +876,7 @@ impl Compensator {
                 self.guard.disarm();
             }
             if (target - self.lead_s).abs() <= OSCILLATION_ARRIVED_S {
+                self.ring_lead = Some(target);
                 self.oscillation_target = None;
                 self.oscillation.clear_window();
             }
@@ -875,7 +889,7 @@ impl Compensator {
             && o.window_full
             && self.status.guard.generated_j >= self.cfg.guard_onset_energy_j
             && o.fit >= OSCILLATION_MIN_FIT
-            && (self.cfg.guard_band_hz..=self.cfg.guard_band_top_hz).contains(&o.frequency_hz)
+            && (OSCILLATION_LOW_HZ..=self.cfg.guard_band_top_hz).contains(&o.frequency_hz)
         {
             let target = (o.window_lead_s + o.residual_s).clamp(0.0, self.cfg.max_delay_s);
             if (target - self.lead_s).abs() > OSCILLATION_ARRIVED_S {
@@ -949,7 +963,12 @@ impl Compensator {
         // actuator a few ms slower than the first guess is reached within the first second.
         let max_step = 20e-3 * self.dt_s;
         let step = (k * difference).clamp(-max_step, max_step);
-        self.lead_s = (self.lead_s + step).clamp(0.0, self.cfg.max_delay_s);
+        let (low, high) = match self.ring_lead {
+            Some(r) => ((1.0 - RING_LEAD_RANGE) * r, (1.0 + RING_LEAD_RANGE) * r),
+            None => (0.0, self.cfg.max_delay_s),
+        };
+        let lead = (self.lead_s + step).clamp(low, high);
+        self.lead_s = lead.clamp(0.0, self.cfg.max_delay_s);
     }
 }
 

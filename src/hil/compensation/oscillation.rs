@@ -1,6 +1,6 @@
 //! The actuator's phase delay at the frequency the loop oscillates at, from the ringing
-//! itself: the safe start's way to a lead when the starting guess leaves the resonance
-//! unstable. Owns only the band-passed regression; the compensator decides when to use it.
+//! itself: the safe start's way to a lead when the starting guess leaves the loop
+//! unstable (at the specimen's resonance, or at a servo-hydraulic loop's 30-40 Hz). Owns only the band-passed regression; the compensator decides when to use it.
 //!
 //! Must not: allocate, lock, log, read a clock or do I/O (runs per rig sample in the
 //! controller's loop); the same sample stream gives the same estimate bit for bit.
