@@ -255,9 +255,9 @@ fn a_loop_ringing_from_a_guess_of_zero_finds_its_lead_in_the_ringing() {
 /// shipped guess of 252 us: the loop rings at 30-40 Hz at once (its stable leads are
 /// 2220-3360 us) and tripped `loop-unstable` within 0.1 s before the lead was read from
 /// the ringing. Now the ringing's phase takes the lead past 1.5 ms within 0.15 s, the
-/// load band's estimator (which reads the 1-5 Hz delay, under 1 ms) moves it no further
-/// than 15 % below that, and the run is stable to its end. It is not faithful (a lead
-/// cannot make up a delay that varies with frequency): more than 1 % error, not clean.
+/// load band's estimator (which reads the 1-5 Hz delay, under 1 ms) may not lower it, and
+/// the run is stable to its end. It is not faithful (a lead cannot make up a delay that
+/// varies with frequency): more than 1 % error, not clean.
 #[test]
 fn an_undeclared_servo_hydraulic_loop_takes_its_lead_from_the_ringing_and_stays_stable() {
     let mut cfg = config_with_actuator("preset = \"fatigue-150kn\"", 252.0, true, true);
@@ -265,9 +265,11 @@ fn an_undeclared_servo_hydraulic_loop_takes_its_lead_from_the_ringing_and_stays_
     let run = run_in_process(&cfg, &script(6.0));
     assert!(run.plan.is_none() || !run.plan.as_ref().unwrap().lead_fixed);
     let (during, after, error) = ran_to_the_end_unheld(&cfg, &run, "fatigue-150kn, no plan");
-    // Stable: what the passage left dies away (measured: 287 um during, 41 um after).
+    // Stable: what the passage left dies away, and nothing grows at the end (measured: 287
+    // um before 4 s, 1.8 um in the last second; with the load band free to lower the lead
+    // by 15 %, 41 um there, a 35 Hz ring growing).
     assert!(
-        after < 0.2 * during,
+        after < 0.1 * during,
         "{} um after the passage, {} um during it",
         after * 1e6,
         during * 1e6
@@ -290,7 +292,7 @@ fn an_undeclared_servo_hydraulic_loop_takes_its_lead_from_the_ringing_and_stays_
         .map(|r| r.lead_s)
         .fold(f64::INFINITY, f64::min);
     assert!(
-        lowest >= 0.85 * early.lead_s - 1e-9,
+        lowest >= early.lead_s - 1e-9,
         "lead down to {} us from {} us",
         lowest * 1e6,
         early.lead_s * 1e6

@@ -451,8 +451,8 @@ pub struct Compensator {
     /// The lead the oscillation estimate asked for, while the lead moves to it
     /// (`follow_oscillation`).
     oscillation_target: Option<f64>,
-    /// The lead the last ringing gave: the load band's estimator moves the lead within
-    /// `RING_LEAD_RANGE` of it.
+    /// The lead the last ringing gave: the load band's estimator moves the lead between it
+    /// and `RING_LEAD_RANGE` above it.
     ring_lead: Option<f64>,
     /// The weights' sum since the first sample (`1 - decay^n`): `missing_share /
     /// missing_weight` is the share without the start's bias towards 0.
@@ -613,10 +613,12 @@ const OSCILLATION_MEMORY_S: f64 = 0.015;
 const OSCILLATION_MIN_FIT: f64 = 0.8;
 const OSCILLATION_LOW_HZ: f64 = 10.0;
 const OSCILLATION_MAX_RATE: f64 = 0.1;
-/// Once a ringing has given the lead, the load band's estimator moves it within this
-/// fraction of it: a lag-and-delay actuator's delay is the same in both bands (the ring
-/// read 0.76 ms, the load band 0.81), a servo-hydraulic one's is not (the ring 2.2 ms, the
-/// load band under 1 ms, where `rths-fast-150kn` seed 2 rang again and tripped at 1.06 s).
+/// Once a ringing has given the lead, the load band's estimator may raise it by up to
+/// this fraction and never lower it: a lag-and-delay actuator's delay is the same in both
+/// bands (the ring read 0.76 ms, the load band 0.81), a servo-hydraulic one's is not (the
+/// ring 2.2 ms, the load band under 1 ms), and a lead too short is where such a loop rings
+/// (`rths-fast-150kn` seed 2, its lead free, tripped at 1.06 s; nominal `fatigue-150kn`,
+/// its lead free to go 15 % lower, rang up again at 35 Hz over the last second).
 const RING_LEAD_RANGE: f64 = 0.15;
 /// The lead has arrived at the oscillation's target within this, s.
 const OSCILLATION_ARRIVED_S: f64 = 2e-6;
@@ -859,7 +861,8 @@ impl Compensator {
     /// the target; there the window starts afresh, so a next reading is the new lead's
     /// alone (followed continuously, the ring that grew under the old lead dominated the
     /// window while it decayed under the new one, and the lead overshot to 0.95 ms and
-    /// tripped), and the load band's estimator takes the lead on within `RING_LEAD_RANGE`.
+    /// tripped), and the load band's estimator takes the lead on, never below the ring's
+    /// lead and at most `RING_LEAD_RANGE` above it.
     #[inline]
     fn follow_oscillation(&mut self, estimate: Option<OscillationEstimate>) {
         if let Some(target) = self.oscillation_target {
@@ -964,7 +967,7 @@ impl Compensator {
         let max_step = 20e-3 * self.dt_s;
         let step = (k * difference).clamp(-max_step, max_step);
         let (low, high) = match self.ring_lead {
-            Some(r) => ((1.0 - RING_LEAD_RANGE) * r, (1.0 + RING_LEAD_RANGE) * r),
+            Some(r) => (r, (1.0 + RING_LEAD_RANGE) * r),
             None => (0.0, self.cfg.max_delay_s),
         };
         let lead = (self.lead_s + step).clamp(low, high);
