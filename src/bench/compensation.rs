@@ -59,6 +59,11 @@ pub struct FidelityCell {
     pub fault: Option<String>,
     pub displacement_error_pct: f64,
     pub identified_delay_us: Option<f64>,
+    /// The actuator's mean phase delay over 1-20 Hz as the record shows it
+    /// (`report::compensation::RecordDelay`), and the rig's truth of the same (its
+    /// `actuator_truth.effective_delay_s`), us.
+    pub record_delay_us: Option<f64>,
+    pub truth_delay_us: f64,
     pub final_lead_us: f64,
     pub settled_at_s: Option<f64>,
     pub faithful_band_hz: Option<f64>,
@@ -198,6 +203,15 @@ pub fn fidelity_cell(cfg: &HilConfig, actuator: &str, duration_s: f64) -> Fideli
             f64::NAN
         },
         identified_delay_us: c.identified_delay_us,
+        record_delay_us: c.record_delay.map(|d| d.mean_us),
+        truth_delay_us: {
+            let k = cfg
+                .model
+                .element
+                .high_frequency_stiffness_n_per_m(cfg.scenario.preload_n);
+            let plant = crate::rig::actuator::ActuatorPlant::from_config(&cfg.rig.actuator);
+            (plant.effective_delay(k).delay_s + 0.5 * cfg.loop_.dt_s()) * 1e6
+        },
         final_lead_us: c.final_lead_us,
         settled_at_s: c.settled_at_s,
         faithful_band_hz: c.faithful_band_hz,
@@ -210,13 +224,13 @@ pub fn fidelity_cell(cfg: &HilConfig, actuator: &str, duration_s: f64) -> Fideli
 /// The fidelity table as text.
 pub fn fidelity_table(cells: &[FidelityCell]) -> String {
     let mut s = String::from(
-        "| actuator | initial delay, us | fault | displacement error, % | identified delay, us | settled at, s | faithful band, Hz | after the safe start, Hz | guard active, s | guard max, kN s/m |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
+        "| actuator | initial delay, us | fault | displacement error, % | identified delay, us | the record's delay, us | truth, us | settled at, s | faithful band, Hz | after the safe start, Hz | guard active, s | guard max, kN s/m |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
     );
     let opt =
         |v: Option<f64>, digits: usize| v.map_or("-".to_string(), |x| format!("{x:.digits$}"));
     for c in cells {
         s.push_str(&format!(
-            "| {} | {} | {} | {:.3} | {} | {} | {} | {} | {:.2} | {:.1} |\n",
+            "| {} | {} | {} | {:.3} | {} | {} | {:.0} | {} | {} | {} | {:.2} | {:.1} |\n",
             c.actuator,
             match c.planned_lead_us {
                 Some(lead) => format!("{:.0} (planned: fixed {lead:.0})", c.initial_delay_us),
@@ -225,6 +239,8 @@ pub fn fidelity_table(cells: &[FidelityCell]) -> String {
             c.fault.as_deref().unwrap_or("none"),
             c.displacement_error_pct,
             opt(c.identified_delay_us, 0),
+            opt(c.record_delay_us, 0),
+            c.truth_delay_us,
             opt(c.settled_at_s, 2),
             opt(c.faithful_band_hz, 0),
             opt(c.faithful_band_after_safe_start_hz, 0),

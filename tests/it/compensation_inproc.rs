@@ -505,6 +505,43 @@ fn the_identified_delay_is_the_actuators_effective_delay() {
     }
 }
 
+/// A servo-hydraulic force loop's delay varies over the load band (`fatigue-150kn`: 0.7 ms
+/// at 1 Hz, 3.3 ms at 20 Hz), and the controller's estimator, weighing the band by the
+/// load's content, reads about a third of the truth's mean. The report's record delay (the
+/// lead less the rendered phase over the frequency, averaged over the excited bins of
+/// 1-20 Hz) is that mean within 25 %, as it is for the shipped actuator and a shaker
+/// (measured: 2586 against 2709 us, 2412 against 2520, 235 against 248).
+#[test]
+fn the_records_delay_is_the_truths_effective_delay_where_the_estimator_reads_the_load_band() {
+    for (actuator, planned) in [
+        ("preset = \"fatigue-150kn\"\nperturb = 0.3\nperturb_seed = 3", true),
+        ("preset = \"rths-fast-150kn\"\nperturb = 0.3\nperturb_seed = 2", true),
+        ("preset = \"shaker-150kn\"", false),
+        ("kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_us = 80.0\nforce_max_n = 150000.0", false),
+    ] {
+        let cfg = config_with_actuator(actuator, 252.0, true, true);
+        let cell = fastemu::bench::compensation::fidelity_cell(&cfg, actuator, 6.0);
+        assert_eq!(cell.fault, None, "{actuator}");
+        assert_eq!(cell.planned_lead_us.is_some(), planned, "{actuator}");
+        // The truth, independently: the plant's own response on the element.
+        let k = cfg
+            .model
+            .element
+            .high_frequency_stiffness_n_per_m(cfg.scenario.preload_n);
+        let plant = fastemu::rig::actuator::ActuatorPlant::from_config(&cfg.rig.actuator);
+        let truth_us = (plant.effective_delay(k).delay_s + 0.5 / RATE) * 1e6;
+        let record = cell.record_delay_us.expect("a record delay");
+        assert!(
+            (record / truth_us - 1.0).abs() < 0.25,
+            "{actuator}: the record's {record:.0} us against the truth's {truth_us:.0} us"
+        );
+        if planned {
+            let online = cell.identified_delay_us.unwrap();
+            assert!(online < 0.5 * truth_us, "{actuator}: online {online:.0} us");
+        }
+    }
+}
+
 /// A perturbed electrodynamic shaker renders 0.74 of its command (seed 2: force constant
 /// 222 N/A against 300). The simulated rig reports the force it commanded (rig ABI 4), so
 /// the controller reads the gain from the rig's own equilibrium before its first command

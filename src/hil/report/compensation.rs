@@ -89,6 +89,63 @@ pub struct RenderingPoint {
     pub coherence: f64,
 }
 
+/// The actuator's effective delay from the record: at each excited bin of 1-20 Hz, the
+/// lead in effect (its mean over force control) less the rendered force's phase against
+/// the element's over the frequency (the phase unwrapped from the lowest bin), and their
+/// mean: the same mean phase delay over 1-20 Hz as `actuator_truth.effective_delay_s`,
+/// where the online estimator weighs the band by the load's content (mostly below 5 Hz:
+/// a servo-hydraulic force loop, 0.7 ms at 1 Hz and 3.3 ms at 20 Hz, reads about 1 ms).
+#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+pub struct RecordDelay {
+    pub mean_us: f64,
+    /// The smallest and largest bin's delay: how far the delay varies over the band.
+    pub min_us: f64,
+    pub max_us: f64,
+    /// Excited bins it rests on, and the band they span, Hz.
+    pub bins: usize,
+    pub from_hz: f64,
+    pub to_hz: f64,
+    /// The lead it was read against (the mean over force control), us.
+    pub lead_us: f64,
+}
+
+/// Fewer excited bins in the load band than this leave the record's delay unread.
+const MIN_DELAY_BINS: usize = 5;
+
+/// `RecordDelay` from the rendering and the lead in effect.
+pub fn record_delay(rendering: &[RenderingPoint], lead_s: f64) -> Option<RecordDelay> {
+    let mut previous = 0.0;
+    let mut delays = Vec::new();
+    for p in rendering
+        .iter()
+        .filter(|p| (1.0..=LOAD_BAND_TOP_HZ).contains(&p.frequency_hz))
+    {
+        let mut phase = p.phase_deg.to_radians();
+        while phase - previous > std::f64::consts::PI {
+            phase -= 2.0 * std::f64::consts::PI;
+        }
+        while phase - previous < -std::f64::consts::PI {
+            phase += 2.0 * std::f64::consts::PI;
+        }
+        previous = phase;
+        let omega = 2.0 * std::f64::consts::PI * p.frequency_hz;
+        delays.push((p.frequency_hz, lead_s - phase / omega));
+    }
+    if delays.len() < MIN_DELAY_BINS || !lead_s.is_finite() {
+        return None;
+    }
+    let n = delays.len() as f64;
+    Some(RecordDelay {
+        mean_us: delays.iter().map(|d| d.1).sum::<f64>() / n * 1e6,
+        min_us: delays.iter().map(|d| d.1).fold(f64::INFINITY, f64::min) * 1e6,
+        max_us: delays.iter().map(|d| d.1).fold(f64::NEG_INFINITY, f64::max) * 1e6,
+        bins: delays.len(),
+        from_hz: delays[0].0,
+        to_hz: delays[delays.len() - 1].0,
+        lead_us: lead_s * 1e6,
+    })
+}
+
 /// The report's `compensation` object.
 #[derive(Debug, Clone, Serialize, Default)]
 pub struct CompensationReport {
@@ -120,6 +177,9 @@ pub struct CompensationReport {
     pub faithful_band_after_safe_start_limited_by: Option<String>,
     /// Rendering by frequency (excited bins up to 200 Hz).
     pub rendering: Vec<RenderingPoint>,
+    /// The actuator's delay as the record shows it over the load band (null: fewer than
+    /// `MIN_DELAY_BINS` excited bins there).
+    pub record_delay: Option<RecordDelay>,
     /// The estimate's trajectory (decimated to at most 400 points).
     pub trajectory: Vec<EstimatePoint>,
     /// Whether the law was left for a hold (a fault's, or an operator's hold never resumed)
@@ -191,6 +251,12 @@ impl CompensationReport {
             )),
             _ => {}
         }
+        if let Some(d) = &self.record_delay {
+            line.push_str(&format!(
+                "; the record's delay over {:.0}-{:.0} Hz {:.0} us ({:.0}-{:.0} us over {} bins)",
+                d.from_hz, d.to_hz, d.mean_us, d.min_us, d.max_us, d.bins
+            ));
+        }
         if let Some(d) = self
             .identified_delay_us
             .filter(|d| *d < 0.0 && self.identified_delay_sigma_us.is_none_or(|s| -d > 2.0 * s))
@@ -238,6 +304,8 @@ pub struct CompensationAnalyser {
     /// The last law command (not a repeat): the lead and gain the run ended with.
     last_law: Option<ControllerRecord>,
     force_control_s: f64,
+    /// The lead integrated over force control, s^2 (its mean: the lead the rendering had).
+    lead_time_s2: f64,
     active_s: f64,
     /// Time in force control with the guard armed, s, and whether it ever was.
     armed_s: f64,
@@ -268,6 +336,7 @@ impl CompensationAnalyser {
             last: None,
             last_law: None,
             force_control_s: 0.0,
+            lead_time_s2: 0.0,
             active_s: 0.0,
             max_damping: 0.0,
             max_generated: 0.0,
@@ -296,6 +365,7 @@ impl CompensationAnalyser {
             if prev.mode == command_mode::LAW {
                 let dt = (r.t_s - prev.t_s).clamp(0.0, 0.05);
                 self.force_control_s += dt;
+                self.lead_time_s2 += prev.lead_s * dt;
                 if prev.guard_damping_ns_per_m > 0.0 {
                     self.active_s += dt;
                 }
@@ -376,6 +446,12 @@ impl CompensationAnalyser {
         };
         // Rendering by frequency and the faithful band.
         let (rendering, faithful, limited_by) = self.whole.faithful_band(self.dt_s);
+        let mean_lead = if self.force_control_s > 0.0 {
+            self.lead_time_s2 / self.force_control_s
+        } else {
+            final_lead
+        };
+        let record_delay = record_delay(&rendering, mean_lead);
         CompensationReport {
             adapt: c.adapt,
             initial_delay_us: c.initial_delay_s * 1e6,
@@ -406,6 +482,7 @@ impl CompensationAnalyser {
             faithful_band_after_safe_start_hz: None,
             faithful_band_after_safe_start_limited_by: None,
             rendering,
+            record_delay,
             trajectory: self.trajectory,
             law_ended_in_hold: self.last_law.is_some()
                 && self.last.is_some_and(|l| {
@@ -660,6 +737,46 @@ impl Welch {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The record's delay is the mean over the load band's bins of the lead less the
+    /// rendered phase over the frequency: for a lag and a delay, `d + atan(w tau) / w` per
+    /// bin, also where the phase passes -180 degrees (30 ms at 20 Hz is 216 degrees, which
+    /// the rendering gives wrapped); bins above the band do not count, and too few bins
+    /// read nothing.
+    #[test]
+    fn the_records_delay_is_the_mean_phase_delay_over_the_load_band() {
+        for (delay, lag, lead) in [(2e-3, 3e-3, 0.3e-3), (30e-3, 1e-3, 0.0)] {
+            let mut rendering = Vec::new();
+            let mut expected = Vec::new();
+            for k in 1..=40 {
+                let f = k as f64;
+                let w = 2.0 * std::f64::consts::PI * f;
+                let phase = w * lead - w * delay - (w * lag).atan();
+                // As `faithful_band` gives it: `arg`, in (-180, 180].
+                let wrapped = Complex64::from_polar(1.0, phase).arg();
+                rendering.push(RenderingPoint {
+                    frequency_hz: f,
+                    amplitude_ratio: 1.0,
+                    phase_deg: wrapped.to_degrees(),
+                    coherence: 1.0,
+                });
+                if f <= LOAD_BAND_TOP_HZ {
+                    expected.push(delay + (w * lag).atan() / w);
+                }
+            }
+            let d = record_delay(&rendering, lead).unwrap();
+            let mean = expected.iter().sum::<f64>() / expected.len() as f64;
+            assert!(
+                (d.mean_us - mean * 1e6).abs() < 1e-6,
+                "{d:?} against {mean}"
+            );
+            assert_eq!(d.bins, 20);
+            assert_eq!((d.from_hz, d.to_hz), (1.0, 20.0));
+            let max = expected.iter().cloned().fold(f64::MIN, f64::max);
+            assert!((d.max_us - max * 1e6).abs() < 1e-6);
+            assert_eq!(record_delay(&rendering[..4], lead), None);
+        }
+    }
 
     /// The console line warns when the safe start never ended, and only then.
     #[test]
