@@ -211,13 +211,7 @@ impl DelayEstimator {
         let x = x + lead_s * d;
         let l = self.forget;
         let s = &mut self.s;
-        s[0] = l * s[0] + x * x;
-        s[1] = l * s[1] + x * d;
-        s[2] = l * s[2] + d * d;
-        s[3] = l * s[3] + x * y;
-        s[4] = l * s[4] + d * y;
-        s[5] = l * s[5] + y * y;
-        s[6] = l * s[6] + 1.0;
+        add_to_sums(s, l, x, d, y);
         s[7] = l * s[7] + x * c;
         s[8] = l * s[8] + d * c;
         s[9] = l * s[9] + c * c;
@@ -226,10 +220,7 @@ impl DelayEstimator {
             return Some(estimate);
         }
         let s = &self.s;
-        let det = s[0] * s[2] - s[1] * s[1];
-        // Determined: a determinant clear of rounding (false for NaN too).
-        let determined = det > 1e-12 * s[0] * s[2];
-        if !determined || s[2] <= 0.0 {
+        let Some((a, b, det)) = solve_two(s, 1e-12).filter(|_| s[2] > 0.0) else {
             // No rate in the data (a static load): the gain alone, `y = a x`.
             if s[0] > 0.0 && s[3].is_finite() {
                 return Some(DelayEstimate {
@@ -240,9 +231,7 @@ impl DelayEstimator {
                 });
             }
             return None;
-        }
-        let a = (s[2] * s[3] - s[1] * s[4]) / det;
-        let b = (s[0] * s[4] - s[1] * s[3]) / det;
+        };
         if a.abs() < 1e-6 {
             return None;
         }
@@ -298,6 +287,28 @@ impl DelayEstimator {
             independent: (w - 3.0).max(0.0) / self.correlation,
         })
     }
+}
+
+/// Adds a sample to the exponentially weighted sums of the regression `y ~ a x + b d`
+/// (both estimators'): `s[0..7]` are xx, xd, dd, xy, dy, yy and the weight, each decayed by
+/// `forget` first.
+#[inline]
+fn add_to_sums(s: &mut [f64], forget: f64, x: f64, d: f64, y: f64) {
+    for (sum, term) in s[..7]
+        .iter_mut()
+        .zip([x * x, x * d, d * d, x * y, d * y, y * y, 1.0])
+    {
+        *sum = forget * *sum + term;
+    }
+}
+
+/// `(a, b, det)` of `y ~ a x + b d` from `add_to_sums`' sums; `None` unless the
+/// determinant is clear of rounding by `tolerance` of `xx dd` (false for NaN too).
+#[inline]
+fn solve_two(s: &[f64], tolerance: f64) -> Option<(f64, f64, f64)> {
+    let (xx, xd, dd, xy, dy) = (s[0], s[1], s[2], s[3], s[4]);
+    let det = xx * dd - xd * xd;
+    (det > tolerance * xx * dd).then(|| ((dd * xy - xd * dy) / det, (xx * dy - xd * xy) / det, det))
 }
 
 /// The guard's state after a sample.

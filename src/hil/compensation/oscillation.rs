@@ -5,6 +5,7 @@
 //! Must not: allocate, lock, log, read a clock or do I/O (runs per rig sample in the
 //! controller's loop); the same sample stream gives the same estimate bit for bit.
 
+use super::{add_to_sums, solve_two};
 use crate::hil::passivity::{HighPass2, LowPass2};
 
 /// The estimate after a sample.
@@ -122,24 +123,12 @@ impl OscillationDelay {
         let (x, y) = (x1, y1);
         let l = self.forget;
         let s = &mut self.s;
-        s[0] = l * s[0] + x * x;
-        s[1] = l * s[1] + x * d;
-        s[2] = l * s[2] + d * d;
-        s[3] = l * s[3] + x * y;
-        s[4] = l * s[4] + d * y;
-        s[5] = l * s[5] + y * y;
-        s[6] = l * s[6] + 1.0;
+        add_to_sums(s, l, x, d, y);
         s[7] = l * s[7] + x * x * lead_s;
         s[8] = l * s[8] + x * c;
         self.window_samples = self.window_samples.saturating_add(1);
-        let (xx, xd, dd, xy, dy, yy) = (s[0], s[1], s[2], s[3], s[4], s[5]);
-        let det = xx * dd - xd * xd;
-        // Determined: a determinant clear of rounding (false for NaN too).
-        if !(det > 1e-9 * xx * dd && yy > 0.0) {
-            return None;
-        }
-        let a = (dd * xy - xd * dy) / det;
-        let b = (xx * dy - xd * xy) / det;
+        let (xx, xy, dy, yy) = (s[0], s[3], s[4], s[5]);
+        let (a, b, _) = solve_two(s, 1e-9).filter(|_| yy > 0.0)?;
         // The frequency from the second difference, which is `-(2 sin(w dt / 2) / dt)^2`
         // times a sinusoid at every sample (exact whatever the window's phase; the rate's
         // power over the force's swings by a few % with it). The central difference's
