@@ -58,7 +58,10 @@ pub struct FidelityCell {
     pub planned_lead_us: Option<f64>,
     pub fault: Option<String>,
     pub displacement_error_pct: f64,
+    /// The report's identified delay (over the load band when the load excited it) and the
+    /// lead's estimator's (`report::compensation::CompensationReport`), us.
     pub identified_delay_us: Option<f64>,
+    pub lead_estimate_us: Option<f64>,
     /// The actuator's mean phase delay over 1-20 Hz as the record shows it
     /// (`report::compensation::RecordDelay`), and the rig's truth of the same (its
     /// `actuator_truth.effective_delay_s`), us.
@@ -203,6 +206,7 @@ pub fn fidelity_cell(cfg: &HilConfig, actuator: &str, duration_s: f64) -> Fideli
             f64::NAN
         },
         identified_delay_us: c.identified_delay_us,
+        lead_estimate_us: c.lead_estimate_us,
         record_delay_us: c.record_delay.map(|d| d.mean_us),
         truth_delay_us: {
             let k = cfg
@@ -224,13 +228,13 @@ pub fn fidelity_cell(cfg: &HilConfig, actuator: &str, duration_s: f64) -> Fideli
 /// The fidelity table as text.
 pub fn fidelity_table(cells: &[FidelityCell]) -> String {
     let mut s = String::from(
-        "| actuator | initial delay, us | fault | displacement error, % | identified delay, us | the record's delay, us | truth, us | settled at, s | faithful band, Hz | after the safe start, Hz | guard active, s | guard max, kN s/m |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
+        "| actuator | initial delay, us | fault | displacement error, % | identified delay, us | the lead's estimate, us | the record's delay, us | truth, us | settled at, s | faithful band, Hz | after the safe start, Hz | guard active, s | guard max, kN s/m |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
     );
     let opt =
         |v: Option<f64>, digits: usize| v.map_or("-".to_string(), |x| format!("{x:.digits$}"));
     for c in cells {
         s.push_str(&format!(
-            "| {} | {} | {} | {:.3} | {} | {} | {:.0} | {} | {} | {} | {:.2} | {:.1} |\n",
+            "| {} | {} | {} | {:.3} | {} | {} | {} | {:.0} | {} | {} | {} | {:.2} | {:.1} |\n",
             c.actuator,
             match c.planned_lead_us {
                 Some(lead) => format!("{:.0} (planned: fixed {lead:.0})", c.initial_delay_us),
@@ -239,6 +243,7 @@ pub fn fidelity_table(cells: &[FidelityCell]) -> String {
             c.fault.as_deref().unwrap_or("none"),
             c.displacement_error_pct,
             opt(c.identified_delay_us, 0),
+            opt(c.lead_estimate_us, 0),
             opt(c.record_delay_us, 0),
             c.truth_delay_us,
             opt(c.settled_at_s, 2),

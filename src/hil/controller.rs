@@ -104,6 +104,14 @@ record_type! {
             identified_delay_s: f64,
             /// its standard error, s
             identified_delay_sigma_s: f64,
+            /// the actuator's effective delay over the load band (1-20 Hz bins), s (NaN: not yet)
+            load_band_delay_s: f64,
+            /// its standard error, s
+            load_band_delay_sigma_s: f64,
+            /// the excited, coherent bins it rests on (0: not yet), and the lowest and highest, Hz
+            load_band_bins: u32,
+            load_band_from_hz: f64,
+            load_band_to_hz: f64,
         }
     }
 }
@@ -407,6 +415,11 @@ impl ControllerCore {
             guard_armed: u8::from(mode == command_mode::LAW && status.guard.armed),
             identified_delay_s: status.identified_delay_s,
             identified_delay_sigma_s: status.identified_delay_sigma_s,
+            load_band_delay_s: status.load_band.map_or(f64::NAN, |e| e.delay_s),
+            load_band_delay_sigma_s: status.load_band.map_or(f64::NAN, |e| e.delay_sigma_s),
+            load_band_bins: status.load_band.map_or(0, |e| e.bins),
+            load_band_from_hz: status.load_band.map_or(f64::NAN, |e| e.from_hz),
+            load_band_to_hz: status.load_band.map_or(f64::NAN, |e| e.to_hz),
         };
         self.command_seq += 1;
         self.last_sent_ns = Some(now_ns);

@@ -458,8 +458,8 @@ fn a_servo_hydraulic_hold_and_resume_switch_control_without_a_bump() {
     assert!(worst_x < 2e-6, "moved {} um", worst_x * 1e6);
 }
 
-/// The delay the controller identifies is the actuator's effective delay as the rig's
-/// truth has it (its dynamics and transport over 1-20 Hz on the element, plus half a
+/// The delay the lead's estimator identifies (the regression the lead follows) is the
+/// actuator's effective delay as the rig's truth has it (its dynamics and transport over 1-20 Hz on the element, plus half a
 /// period of zero-order hold), within 25 %, for the shipped lag-delay actuator and for the
 /// electrodynamic shaker nominal and perturbed (the mass-like force its back-EMF puts in
 /// the measured force once biased the estimate 40 % high through the force's curvature).
@@ -506,16 +506,19 @@ fn the_identified_delay_is_the_actuators_effective_delay() {
 }
 
 /// A servo-hydraulic force loop's delay varies over the load band (`fatigue-150kn`: 0.7 ms
-/// at 1 Hz, 3.3 ms at 20 Hz), and the controller's estimator, weighing the band by the
-/// load's content, reads about a third of the truth's mean. The report's record delay (the
-/// lead less the rendered phase over the frequency, averaged over the excited bins of
-/// 1-20 Hz) is that mean within 25 %, as it is for the shipped actuator and a shaker
-/// (measured: 2586 against 2709 us, 2412 against 2520, 235 against 248).
+/// at 1 Hz, 3.3 ms at 20 Hz). The controller identifies it online as the truth defines it
+/// (`LoadBandDelay`: each excited bin's phase delay of 1-20 Hz, the lead taken out, and their
+/// mean), and the report's identified delay is that, within 25 % of the truth, for the
+/// servo-hydraulic presets, a shaker and the shipped actuator alike; so is the record's
+/// delay, read after the run from the emulator's records. The lead's own estimator, weighing
+/// the band by the load's content, reads less than half of a servo loop's truth (measured:
+/// identified 2656, 2487, 4242, 259 and 265 us against 2709, 2520, 4466, 248 and 252).
 #[test]
-fn the_records_delay_is_the_truths_effective_delay_where_the_estimator_reads_the_load_band() {
+fn the_identified_delay_is_the_truths_effective_delay_over_the_load_band() {
     for (actuator, planned) in [
         ("preset = \"fatigue-150kn\"\nperturb = 0.3\nperturb_seed = 3", true),
         ("preset = \"rths-fast-150kn\"\nperturb = 0.3\nperturb_seed = 2", true),
+        ("preset = \"slow-250kn\"", true),
         ("preset = \"shaker-150kn\"", false),
         ("kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_us = 80.0\nforce_max_n = 150000.0", false),
     ] {
@@ -530,14 +533,20 @@ fn the_records_delay_is_the_truths_effective_delay_where_the_estimator_reads_the
             .high_frequency_stiffness_n_per_m(cfg.scenario.preload_n);
         let plant = fastemu::rig::actuator::ActuatorPlant::from_config(&cfg.rig.actuator);
         let truth_us = (plant.effective_delay(k).delay_s + 0.5 / RATE) * 1e6;
+        let identified = cell.identified_delay_us.expect("an identified delay");
         let record = cell.record_delay_us.expect("a record delay");
-        assert!(
-            (record / truth_us - 1.0).abs() < 0.25,
-            "{actuator}: the record's {record:.0} us against the truth's {truth_us:.0} us"
-        );
+        for (what, value) in [("identified", identified), ("record's", record)] {
+            assert!(
+                (value / truth_us - 1.0).abs() < 0.25,
+                "{actuator}: the {what} {value:.0} us against the truth's {truth_us:.0} us"
+            );
+        }
+        let lead_estimate = cell.lead_estimate_us.unwrap();
         if planned {
-            let online = cell.identified_delay_us.unwrap();
-            assert!(online < 0.5 * truth_us, "{actuator}: online {online:.0} us");
+            assert!(
+                lead_estimate < 0.5 * truth_us,
+                "{actuator}: the lead's estimator {lead_estimate:.0} us"
+            );
         }
     }
 }

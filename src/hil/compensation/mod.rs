@@ -21,8 +21,10 @@
 //! Must not: allocate, lock, log, read a clock or do I/O (runs per setpoint in the
 //! controller's loop); same setpoint stream gives the same compensation bit for bit.
 
+mod load_band;
 mod oscillation;
 
+pub use load_band::{LoadBandDelay, LoadBandEstimate, LOAD_BAND_BINS};
 pub use oscillation::{OscillationDelay, OscillationEstimate};
 
 use super::passivity::{LowPass2, PassivityObserver};
@@ -426,6 +428,9 @@ pub struct CompensationStatus {
     /// The effective delay identified now (lead plus the residual), s; NaN before any.
     pub identified_delay_s: f64,
     pub identified_delay_sigma_s: f64,
+    /// The actuator's effective delay over the load band (`LoadBandDelay`), after the last
+    /// whole segment (None: not yet, or too few excited bins).
+    pub load_band: Option<LoadBandEstimate>,
     pub guard: GuardState,
 }
 
@@ -452,6 +457,8 @@ pub struct Compensator {
     /// The safe start's estimate of the phase delay where the loop rings
     /// (`follow_oscillation`), on the force the rig was asked for without its lead.
     oscillation: OscillationDelay,
+    /// The actuator's effective delay over the load band, for the report (moves no lead).
+    load_band: LoadBandDelay,
     /// The rig's view of the guard's damping, replayed: the two previous displacements
     /// and the low-passed velocity (`Servo::law_force_n`'s first-order high-pass).
     replay_z_m: [f64; 2],
@@ -677,6 +684,7 @@ impl Compensator {
                 compensation,
                 identified_delay_s: f64::NAN,
                 identified_delay_sigma_s: f64::NAN,
+                load_band: None,
                 guard,
             },
             contact: ContactGain::new(lead_s, dt_s),
@@ -688,6 +696,7 @@ impl Compensator {
                 OSCILLATION_MEMORY_S,
                 dt_s,
             ),
+            load_band: LoadBandDelay::new(dt_s),
             replay_z_m: [0.0; 2],
             replay_velocity_lp: 0.0,
             replay_samples: 0,
@@ -777,6 +786,7 @@ impl Compensator {
             self.estimator.restart();
             self.guard.restart();
             self.oscillation.restart();
+            self.load_band.restart();
             self.oscillation_target = None;
             self.replay_samples = 0;
             self.feed(now);
@@ -818,6 +828,9 @@ impl Compensator {
                 self.follow_oscillation(o);
             }
             self.since_oscillation_move = self.since_oscillation_move.saturating_add(1);
+            if let Some(e) = self.load_band.update(element_force_n, own, self.lead_s) {
+                self.status.load_band = Some(e);
+            }
             // The rig divided by the gain in effect: the actuator's own force per command
             // is the measured force times that gain.
             if let Some(e) =

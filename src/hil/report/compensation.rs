@@ -76,6 +76,8 @@ pub struct EstimatePoint {
     pub lead_us: f64,
     pub identified_delay_us: f64,
     pub identified_delay_sigma_us: f64,
+    /// The load band's delay (`compensation::LoadBandDelay`; NaN: not yet).
+    pub load_band_delay_us: f64,
     pub gain: f64,
     pub guard_damping_ns_per_m: f64,
 }
@@ -154,10 +156,18 @@ pub struct CompensationReport {
     /// The lead of the first law command, us: the guess, or less when it was capped
     /// (`check::starting_lead_cap_s`; null: no law command).
     pub starting_lead_us: Option<f64>,
-    /// The effective delay the controller identified at the end of force control, and
-    /// its standard error, us (null: never identified).
+    /// The actuator's effective delay the controller identified online by the end of force
+    /// control, and its standard error, us (null: never identified): the mean phase delay
+    /// over the excited bins of 1-20 Hz (`compensation::LoadBandDelay`, the truth's
+    /// definition) when the load excited enough of them, else the lead's estimator's.
     pub identified_delay_us: Option<f64>,
     pub identified_delay_sigma_us: Option<f64>,
+    /// Which: `"load-band"` or `"lead-estimator"` (null: never identified).
+    pub identified_from: Option<&'static str>,
+    /// The lead's estimator's delay at the end of force control (the regression the lead
+    /// follows, weighing the band by the load's content), and its standard error, us.
+    pub lead_estimate_us: Option<f64>,
+    pub lead_estimate_sigma_us: Option<f64>,
     /// The lead and gain sent last in force control.
     pub final_lead_us: f64,
     pub final_gain: f64,
@@ -193,12 +203,18 @@ impl CompensationReport {
     pub fn describe(&self) -> String {
         let us = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.0} us"));
         let mut line = format!(
-            "compensation: lead {} -> {:.0} us, identified {}{}, gain {:.3}, settled {}; guard: safe start {}, active {:.2} s, largest {:.1} kN s/m; faithful band {}",
+            "compensation: lead {} -> {:.0} us, identified {}{}{}, gain {:.3}, settled {}; guard: safe start {}, active {:.2} s, largest {:.1} kN s/m; faithful band {}",
             us(self.starting_lead_us),
             self.final_lead_us,
             us(self.identified_delay_us),
             self.identified_delay_sigma_us
                 .map_or(String::new(), |s| format!(" (+- {s:.1})")),
+            match (self.identified_from, self.lead_estimate_us) {
+                (Some("load-band"), Some(e)) => format!(" over 1-20 Hz (the lead's estimator: {e:.0} us)"),
+                (Some("load-band"), None) => " over 1-20 Hz".to_string(),
+                (Some(_), _) => " (the lead's estimator, weighing the load band by the load's content: too few bins of 1-20 Hz were excited coherently, or too short a run, to identify the delay over the band)".to_string(),
+                _ => String::new(),
+            },
             self.final_gain,
             self.settled_at_s
                 .map_or("never".to_string(), |t| format!("at {t:.2} s")),
@@ -315,6 +331,7 @@ pub struct CompensationAnalyser {
     max_damping: f64,
     max_generated: f64,
     identified: Option<(f64, f64)>,
+    load_band: Option<(f64, f64)>,
     trajectory: Vec<EstimatePoint>,
     stride_s: f64,
     next_point_s: f64,
@@ -344,6 +361,7 @@ impl CompensationAnalyser {
             armed_seen: false,
             armed_last: false,
             identified: None,
+            load_band: None,
             trajectory: Vec::new(),
             stride_s: (duration_s / 400.0).max(dt_s),
             next_point_s: 0.0,
@@ -386,6 +404,9 @@ impl CompensationAnalyser {
         if r.identified_delay_s.is_finite() {
             self.identified = Some((r.identified_delay_s, r.identified_delay_sigma_s));
         }
+        if r.load_band_delay_s.is_finite() {
+            self.load_band = Some((r.load_band_delay_s, r.load_band_delay_sigma_s));
+        }
         // The guard's dissipation: its damping on the velocity of the law's displacement.
         if let Some((t0, z0)) = self.last_guard {
             let dt = r.t_s - t0;
@@ -404,6 +425,7 @@ impl CompensationAnalyser {
                 lead_us: r.lead_s * 1e6,
                 identified_delay_us: r.identified_delay_s * 1e6,
                 identified_delay_sigma_us: r.identified_delay_sigma_s * 1e6,
+                load_band_delay_us: r.load_band_delay_s * 1e6,
                 gain: r.actuator_gain,
                 guard_damping_ns_per_m: r.guard_damping_ns_per_m,
             });
@@ -452,12 +474,20 @@ impl CompensationAnalyser {
             final_lead
         };
         let record_delay = record_delay(&rendering, mean_lead);
+        let (identified, identified_from) = match (self.load_band, self.identified) {
+            (Some(d), _) => (Some(d), Some("load-band")),
+            (None, Some(d)) => (Some(d), Some("lead-estimator")),
+            (None, None) => (None, None),
+        };
         CompensationReport {
             adapt: c.adapt,
             initial_delay_us: c.initial_delay_s * 1e6,
             starting_lead_us: self.lead_points.first().map(|p| p.1 * 1e6),
-            identified_delay_us: self.identified.map(|(d, _)| d * 1e6),
-            identified_delay_sigma_us: self.identified.map(|(_, s)| s * 1e6),
+            identified_delay_us: identified.map(|(d, _)| d * 1e6),
+            identified_delay_sigma_us: identified.map(|(_, s)| s * 1e6),
+            identified_from,
+            lead_estimate_us: self.identified.map(|(d, _)| d * 1e6),
+            lead_estimate_sigma_us: self.identified.map(|(_, s)| s * 1e6),
             final_lead_us: final_lead * 1e6,
             final_gain,
             settled_at_s,
@@ -504,6 +534,12 @@ pub fn draw(dir: &std::path::Path, r: &CompensationReport) -> anyhow::Result<()>
         .filter(|p| p.identified_delay_us.is_finite())
         .map(|p| (p.t_s, p.identified_delay_us))
         .unzip();
+    let (tb, band): (Vec<f64>, Vec<f64>) = r
+        .trajectory
+        .iter()
+        .filter(|p| p.load_band_delay_us.is_finite())
+        .map(|p| (p.t_s, p.load_band_delay_us))
+        .unzip();
     let gain: Vec<f64> = r
         .trajectory
         .iter()
@@ -516,7 +552,13 @@ pub fn draw(dir: &std::path::Path, r: &CompensationReport) -> anyhow::Result<()>
         .collect();
     let estimate = Panel::new("delay compensation over the run", "time, s", "us")
         .with(Series::line("lead sent", t.clone(), lead, 0))
-        .with(Series::points("identified delay", ti, id, 1));
+        .with(Series::points("the lead's estimator", ti, id, 1))
+        .with(Series::points(
+            "delay over 1-20 Hz (identified)",
+            tb,
+            band,
+            2,
+        ));
     let gain_panel = Panel::new(
         "identified actuator gain, departure from 1",
         "time, s",
@@ -967,6 +1009,11 @@ mod tests {
             guard_armed: 0,
             identified_delay_s: f64::NAN,
             identified_delay_sigma_s: f64::NAN,
+            load_band_delay_s: f64::NAN,
+            load_band_delay_sigma_s: f64::NAN,
+            load_band_bins: 0,
+            load_band_from_hz: f64::NAN,
+            load_band_to_hz: f64::NAN,
         }
     }
 
