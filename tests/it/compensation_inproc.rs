@@ -300,13 +300,16 @@ fn an_undeclared_servo_hydraulic_loop_takes_its_lead_from_the_ringing_and_stays_
     assert!(error > 0.01, "displacement error {:.2} %", 100.0 * error);
 }
 
-/// Same configuration, same input: the compensation (estimate, guard) is bit-identical.
+/// Same configuration, same input: the compensation (estimate, guard, the load band's
+/// delay) is bit-identical.
 #[test]
 fn compensation_is_deterministic() {
     let mut cfg = default_hil_config().unwrap();
     cfg.compensation.initial_delay_s = 0.0;
-    let a = run_in_process(&cfg, &script(1.5));
-    let b = run_in_process(&cfg, &script(1.5));
+    // 4 s: the load band's delay is identified from 3 s of force control on.
+    let a = run_in_process(&cfg, &script(4.0));
+    let b = run_in_process(&cfg, &script(4.0));
+    assert!(a.controller.last().unwrap().load_band_delay_s.is_finite());
     assert_eq!(a.controller.len(), b.controller.len());
     for (x, y) in a.controller.iter().zip(&b.controller) {
         assert_eq!(x.lead_s.to_bits(), y.lead_s.to_bits());
@@ -315,6 +318,7 @@ fn compensation_is_deterministic() {
             x.guard_damping_ns_per_m.to_bits(),
             y.guard_damping_ns_per_m.to_bits()
         );
+        assert_eq!(x.load_band_delay_s.to_bits(), y.load_band_delay_s.to_bits());
     }
 }
 
