@@ -61,6 +61,8 @@ pub struct FidelityCell {
     /// The report's identified delay (over the load band when the load excited it) and the
     /// lead's estimator's (`report::compensation::CompensationReport`), us.
     pub identified_delay_us: Option<f64>,
+    /// `"load-band"` or `"lead-estimator"` (the report's `identified_from`).
+    pub identified_from: Option<&'static str>,
     pub lead_estimate_us: Option<f64>,
     /// The actuator's mean phase delay over 1-20 Hz as the record shows it
     /// (`report::compensation::RecordDelay`), and the rig's truth of the same (its
@@ -206,6 +208,7 @@ pub fn fidelity_cell(cfg: &HilConfig, actuator: &str, duration_s: f64) -> Fideli
             f64::NAN
         },
         identified_delay_us: c.identified_delay_us,
+        identified_from: c.identified_from,
         lead_estimate_us: c.lead_estimate_us,
         record_delay_us: c.record_delay.map(|d| d.mean_us),
         truth_delay_us: {
@@ -242,7 +245,10 @@ pub fn fidelity_table(cells: &[FidelityCell]) -> String {
             },
             c.fault.as_deref().unwrap_or("none"),
             c.displacement_error_pct,
-            opt(c.identified_delay_us, 0),
+            match (c.identified_delay_us, c.identified_from) {
+                (Some(d), Some("lead-estimator")) => format!("{d:.0} (the lead's: no load band)"),
+                (d, _) => opt(d, 0),
+            },
             opt(c.lead_estimate_us, 0),
             opt(c.record_delay_us, 0),
             c.truth_delay_us,

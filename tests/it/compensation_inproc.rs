@@ -538,6 +538,7 @@ fn the_identified_delay_is_the_truths_effective_delay_over_the_load_band() {
         let plant = fastemu::rig::actuator::ActuatorPlant::from_config(&cfg.rig.actuator);
         let truth_us = (plant.effective_delay(k).delay_s + 0.5 / RATE) * 1e6;
         let identified = cell.identified_delay_us.expect("an identified delay");
+        assert_eq!(cell.identified_from, Some("load-band"), "{actuator}");
         let record = cell.record_delay_us.expect("a record delay");
         for (what, value) in [("identified", identified), ("record's", record)] {
             assert!(
@@ -928,34 +929,4 @@ fn the_safe_start_ends_under_frequent_emulator_stalls() {
         let e = displacement_error(&cfg, &run);
         assert!(e < 0.001, "seed {seed}: displacement error {e}");
     }
-}
-
-#[test]
-#[ignore]
-fn exp_undeclared_sweep() {
-    let presets: Vec<String> = std::env::var("EXP_PRESETS").unwrap().split(',').map(|s| s.to_string()).collect();
-    let extra = std::env::var("EXP_EXTRA").unwrap_or_default().replace("\\n", "\n");
-    let seeds: u64 = std::env::var("EXP_SEEDS").map(|v| v.parse().unwrap()).unwrap_or(7);
-    let guesses: Vec<f64> = std::env::var("EXP_GUESS").unwrap_or("252".into()).split(',').map(|v| v.parse().unwrap()).collect();
-    let plan = std::env::var("EXP_PLAN").is_ok();
-    let kind = std::env::var("EXP_KIND").is_ok();
-    let (mut ran, mut total) = (0, 0);
-    for p in &presets {
-        for s in 0..=seeds {
-            for &guess in &guesses {
-                let mut a = if kind { p.replace("\\n", "\n") } else { format!("preset = \"{p}\"") };
-                if s > 0 { a.push_str(&format!("\nperturb = 0.3\nperturb_seed = {s}")); }
-                if !extra.is_empty() { a.push('\n'); a.push_str(&extra); }
-                let mut cfg = config_with_actuator(&a, guess, true, true);
-                cfg.compensation.plan_from_actuator = plan;
-                let run = run_in_process(&cfg, &script(6.0));
-                let f: Vec<_> = faults(&run).into_iter().map(|(p, f, t)| format!("{p}:{}@{t:.3}", f.name())).collect();
-                let err = displacement_error(&cfg, &run);
-                total += 1;
-                if f.is_empty() { ran += 1; }
-                eprintln!("{:16} s{s} g{guess}: err {:6.3} % lead {:5.0} us faults {f:?}", &p[..p.len().min(16)], err * 100.0, final_lead_s(&run) * 1e6);
-            }
-        }
-    }
-    eprintln!("RAN {ran} of {total}");
 }

@@ -24,7 +24,7 @@
 mod load_band;
 mod oscillation;
 
-pub use load_band::{LoadBandDelay, LoadBandEstimate, LOAD_BAND_BINS};
+pub use load_band::{LoadBandDelay, LoadBandEstimate};
 pub use oscillation::{OscillationDelay, OscillationEstimate};
 
 use super::passivity::{LowPass2, PassivityObserver};
@@ -828,8 +828,10 @@ impl Compensator {
                 self.follow_oscillation(o);
             }
             self.since_oscillation_move = self.since_oscillation_move.saturating_add(1);
-            if let Some(e) = self.load_band.update(element_force_n, own, self.lead_s) {
-                self.status.load_band = Some(e);
+            // The estimate after the last whole segment: None again when the load stops
+            // exciting enough bins coherently (never an old estimate kept as the current).
+            if self.load_band.update(element_force_n, own, self.lead_s) {
+                self.status.load_band = self.load_band.estimate();
             }
             // The rig divided by the gain in effect: the actuator's own force per command
             // is the measured force times that gain.

@@ -74,10 +74,14 @@ pub struct GuardReport {
 pub struct EstimatePoint {
     pub t_s: f64,
     pub lead_us: f64,
-    pub identified_delay_us: f64,
-    pub identified_delay_sigma_us: f64,
-    /// The load band's delay (`compensation::LoadBandDelay`; NaN: not yet).
+    /// The lead's estimator (`compensation::DelayEstimator`) and its standard error (NaN:
+    /// not yet).
+    pub lead_estimate_us: f64,
+    pub lead_estimate_sigma_us: f64,
+    /// The delay over the load band (`compensation::LoadBandDelay`) and its standard
+    /// error (NaN: not identified).
     pub load_band_delay_us: f64,
+    pub load_band_delay_sigma_us: f64,
     pub gain: f64,
     pub guard_damping_ns_per_m: f64,
 }
@@ -164,6 +168,11 @@ pub struct CompensationReport {
     pub identified_delay_sigma_us: Option<f64>,
     /// Which: `"load-band"` or `"lead-estimator"` (null: never identified).
     pub identified_from: Option<&'static str>,
+    /// For `"load-band"`: the excited, coherent bins the mean rests on, and the lowest and
+    /// highest, Hz (the mean is over those bins, not the whole of 1-20 Hz).
+    pub identified_bins: Option<u32>,
+    pub identified_from_hz: Option<f64>,
+    pub identified_to_hz: Option<f64>,
     /// The lead's estimator's delay at the end of force control (the regression the lead
     /// follows, weighing the band by the load's content), and its standard error, us.
     pub lead_estimate_us: Option<f64>,
@@ -210,8 +219,13 @@ impl CompensationReport {
             self.identified_delay_sigma_us
                 .map_or(String::new(), |s| format!(" (+- {s:.1})")),
             match (self.identified_from, self.lead_estimate_us) {
-                (Some("load-band"), Some(e)) => format!(" over 1-20 Hz (the lead's estimator: {e:.0} us)"),
-                (Some("load-band"), None) => " over 1-20 Hz".to_string(),
+                (Some("load-band"), lead) => format!(
+                    " over {:.0}-{:.0} Hz ({} bins){}",
+                    self.identified_from_hz.unwrap_or(f64::NAN),
+                    self.identified_to_hz.unwrap_or(f64::NAN),
+                    self.identified_bins.unwrap_or(0),
+                    lead.map_or(String::new(), |e| format!(" (the lead's estimator: {e:.0} us)"))
+                ),
                 (Some(_), _) => " (the lead's estimator, weighing the load band by the load's content: too few bins of 1-20 Hz were excited coherently, or too short a run, to identify the delay over the band)".to_string(),
                 _ => String::new(),
             },
@@ -331,7 +345,9 @@ pub struct CompensationAnalyser {
     max_damping: f64,
     max_generated: f64,
     identified: Option<(f64, f64)>,
-    load_band: Option<(f64, f64)>,
+    /// The last law command's delay over the load band, sigma, bins, from and to (None
+    /// when it had none: not yet, or no longer, identified).
+    load_band: Option<(f64, f64, u32, f64, f64)>,
     trajectory: Vec<EstimatePoint>,
     stride_s: f64,
     next_point_s: f64,
@@ -404,9 +420,13 @@ impl CompensationAnalyser {
         if r.identified_delay_s.is_finite() {
             self.identified = Some((r.identified_delay_s, r.identified_delay_sigma_s));
         }
-        if r.load_band_delay_s.is_finite() {
-            self.load_band = Some((r.load_band_delay_s, r.load_band_delay_sigma_s));
-        }
+        self.load_band = r.load_band_delay_s.is_finite().then_some((
+            r.load_band_delay_s,
+            r.load_band_delay_sigma_s,
+            r.load_band_bins,
+            r.load_band_from_hz,
+            r.load_band_to_hz,
+        ));
         // The guard's dissipation: its damping on the velocity of the law's displacement.
         if let Some((t0, z0)) = self.last_guard {
             let dt = r.t_s - t0;
@@ -423,9 +443,10 @@ impl CompensationAnalyser {
             self.trajectory.push(EstimatePoint {
                 t_s: r.t_s,
                 lead_us: r.lead_s * 1e6,
-                identified_delay_us: r.identified_delay_s * 1e6,
-                identified_delay_sigma_us: r.identified_delay_sigma_s * 1e6,
+                lead_estimate_us: r.identified_delay_s * 1e6,
+                lead_estimate_sigma_us: r.identified_delay_sigma_s * 1e6,
                 load_band_delay_us: r.load_band_delay_s * 1e6,
+                load_band_delay_sigma_us: r.load_band_delay_sigma_s * 1e6,
                 gain: r.actuator_gain,
                 guard_damping_ns_per_m: r.guard_damping_ns_per_m,
             });
@@ -475,10 +496,14 @@ impl CompensationAnalyser {
         };
         let record_delay = record_delay(&rendering, mean_lead);
         let (identified, identified_from) = match (self.load_band, self.identified) {
-            (Some(d), _) => (Some(d), Some("load-band")),
+            (Some((d, s, ..)), _) => (Some((d, s)), Some("load-band")),
             (None, Some(d)) => (Some(d), Some("lead-estimator")),
             (None, None) => (None, None),
         };
+        // Whole-hertz bins: the loop's period is whole nanoseconds, so they read 0.9999985.
+        let span = self
+            .load_band
+            .map(|(_, _, n, from, to)| (n, from.round(), to.round()));
         CompensationReport {
             adapt: c.adapt,
             initial_delay_us: c.initial_delay_s * 1e6,
@@ -486,6 +511,9 @@ impl CompensationAnalyser {
             identified_delay_us: identified.map(|(d, _)| d * 1e6),
             identified_delay_sigma_us: identified.map(|(_, s)| s * 1e6),
             identified_from,
+            identified_bins: span.map(|s| s.0),
+            identified_from_hz: span.map(|s| s.1),
+            identified_to_hz: span.map(|s| s.2),
             lead_estimate_us: self.identified.map(|(d, _)| d * 1e6),
             lead_estimate_sigma_us: self.identified.map(|(_, s)| s * 1e6),
             final_lead_us: final_lead * 1e6,
@@ -531,8 +559,8 @@ pub fn draw(dir: &std::path::Path, r: &CompensationReport) -> anyhow::Result<()>
     let (ti, id): (Vec<f64>, Vec<f64>) = r
         .trajectory
         .iter()
-        .filter(|p| p.identified_delay_us.is_finite())
-        .map(|p| (p.t_s, p.identified_delay_us))
+        .filter(|p| p.lead_estimate_us.is_finite())
+        .map(|p| (p.t_s, p.lead_estimate_us))
         .unzip();
     let (tb, band): (Vec<f64>, Vec<f64>) = r
         .trajectory
@@ -1147,5 +1175,50 @@ mod tests {
         let r = b.finish(&cfg);
         assert!((r.final_lead_us - 900.0).abs() < 1e-6);
         assert!(!r.law_ended_in_hold);
+    }
+    /// The identified delay is the load band's when the last law command carried one, with
+    /// its bins and span on the console; a run whose load band was never (or is no longer)
+    /// identified falls back to the lead's estimator, and the JSON and the console say so.
+    #[test]
+    fn the_identified_delay_is_the_load_bands_and_the_fallback_says_so() {
+        let cfg = crate::hil::config::default_hil_config().expect("embedded config");
+        let with = |band: Option<f64>| {
+            let mut a = CompensationAnalyser::new(1.0 / 4096.0, 1.0);
+            let mut r = command(0.0, command_mode::LAW, 252e-6);
+            r.identified_delay_s = 914e-6;
+            r.identified_delay_sigma_s = 3e-6;
+            a.controller(&r);
+            let mut r = command(1.0, command_mode::LAW, 252e-6);
+            r.identified_delay_s = 914e-6;
+            r.identified_delay_sigma_s = 3e-6;
+            if let Some(d) = band {
+                r.load_band_delay_s = d;
+                r.load_band_delay_sigma_s = 15e-6;
+                r.load_band_bins = 18;
+                r.load_band_from_hz = 0.9999985;
+                r.load_band_to_hz = 18.9999716;
+            }
+            a.controller(&r);
+            a.finish(&cfg)
+        };
+        let r = with(Some(2565e-6));
+        assert_eq!(r.identified_from, Some("load-band"));
+        assert!((r.identified_delay_us.unwrap() - 2565.0).abs() < 1e-9);
+        assert!((r.lead_estimate_us.unwrap() - 914.0).abs() < 1e-9);
+        let line = r.describe();
+        assert!(
+            line.contains("identified 2565 us (+- 15.0) over 1-19 Hz (18 bins) (the lead's estimator: 914 us)"),
+            "{line}"
+        );
+        let r = with(None);
+        assert_eq!(r.identified_from, Some("lead-estimator"));
+        assert!((r.identified_delay_us.unwrap() - 914.0).abs() < 1e-9);
+        assert_eq!(r.identified_bins, None);
+        assert!(
+            r.describe()
+                .contains("identified 914 us (+- 3.0) (the lead's estimator, weighing"),
+            "{}",
+            r.describe()
+        );
     }
 }
