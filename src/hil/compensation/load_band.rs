@@ -277,6 +277,16 @@ mod tests {
 
     const DT: f64 = 1.0 / 4096.0;
 
+    /// Seeded uniform white noise in [-0.5, 0.5) (xorshift64).
+    fn white_noise(mut state: u64) -> impl FnMut() -> f64 {
+        move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        }
+    }
+
     /// A broadband load (a preload and seeded white noise) rendered with a lead of 2
     /// samples through a transport delay of 4 samples and a first-order lag `tau` (Tustin):
     /// each bin's delay is the lag's `atan(w tau) / w` plus the net 2 samples, and the
@@ -290,13 +300,7 @@ mod tests {
         let (lead_samples, delay_samples) = (2usize, 4usize);
         let lead = lead_samples as f64 * DT;
         let net = (delay_samples - lead_samples) as f64 * DT;
-        let mut state: u64 = 0x2545_f491_4f6c_dd1d;
-        let mut noise = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut noise = white_noise(0x2545_f491_4f6c_dd1d);
         let n: usize = 20 * 4096;
         let element: Vec<f64> = (0..n).map(|_| 20e3 + 4e3 * noise()).collect();
         // Tustin lag: y_k = a (x_k + x_(k-1)) + b y_(k-1).
@@ -406,13 +410,7 @@ mod tests {
         let dt = 1.0 / 4095.0;
         let delay_samples = 8usize;
         let delay = delay_samples as f64 * dt;
-        let mut state: u64 = 0x9e37_79b9_7f4a_7c15;
-        let mut noise = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut noise = white_noise(0x9e37_79b9_7f4a_7c15);
         let n: usize = 20 * 4095;
         let element: Vec<f64> = (0..n).map(|_| 20e3 + 4e3 * noise()).collect();
         let mut est = LoadBandDelay::new(dt);
