@@ -772,7 +772,7 @@ impl Welch {
                     continue;
                 }
                 let coherence = self.sxy[k].norm_sqr() / (self.sxx[k] * self.syy[k]);
-                if coherence < MIN_COHERENCE {
+                if coherence.is_nan() || coherence < MIN_COHERENCE {
                     continue;
                 }
                 let h = self.sxy[k] / self.sxx[k];
