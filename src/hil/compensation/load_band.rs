@@ -17,14 +17,16 @@ pub const LOAD_BAND_BINS: usize = 20;
 /// Rectangular bins accumulated: 1-21 Hz (the Hann window's bin `k` takes `k - 1`, `k` and
 /// `k + 1`; bin 0, the mean, is removed).
 const RECT: usize = LOAD_BAND_BINS + 1;
-/// As the report's Welch estimate (`report::compensation`): bins below this coherence, or
-/// whose element force lies more than 80 dB below the band's strongest bin, carry too little
-/// of the load; fewer than 5 segments (3 s of force control) judge nothing.
-const MIN_COHERENCE: f64 = 0.98;
-const MIN_RELATIVE_EXCITATION: f64 = 1e-8;
-const MIN_SEGMENTS: u32 = 5;
-/// Fewer excited bins than this leave the delay unread.
-const MIN_BINS: usize = 5;
+/// The rules this estimate and the report's Welch estimate of the record
+/// (`report::compensation`: the faithful band and the record's delay) share, so the two
+/// read the same bins: bins below this coherence, or whose element force lies more than
+/// 80 dB below the strongest bin, carry too little of the load; fewer than 5 segments (3 s
+/// of force control) judge nothing.
+pub const MIN_COHERENCE: f64 = 0.98;
+pub const MIN_RELATIVE_EXCITATION: f64 = 1e-8;
+pub const MIN_SEGMENTS: u32 = 5;
+/// Fewer excited bins of the load band than this leave the delay unread.
+pub const MIN_BINS: usize = 5;
 /// The spectra forget with a memory of this many segments (half-overlapping 1 s segments:
 /// 30 s), so a run of hours follows an actuator whose delay moves with its oil.
 const MEMORY_SEGMENTS: f64 = 60.0;

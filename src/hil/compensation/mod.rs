@@ -25,6 +25,10 @@ mod load_band;
 mod oscillation;
 
 pub use load_band::{LoadBandDelay, LoadBandEstimate};
+/// The Welch rules the report's record estimates share with `LoadBandDelay`.
+pub mod welch_rules {
+    pub use super::load_band::{MIN_BINS, MIN_COHERENCE, MIN_RELATIVE_EXCITATION, MIN_SEGMENTS};
+}
 pub use oscillation::{OscillationDelay, OscillationEstimate};
 
 use super::passivity::{LowPass2, PassivityObserver};

@@ -18,22 +18,23 @@ use crate::ipc::messages::{command_mode, rig_state};
 const SEGMENT: usize = 4096;
 /// Highest frequency the faithful band is looked for up to, Hz.
 const BAND_TOP_HZ: f64 = 200.0;
-/// Bins whose coherence is below this carry too little of the load to judge.
-const MIN_COHERENCE: f64 = 0.98;
+// Bins whose coherence is below this carry too little of the load to judge (the rules are
+// shared with the controller's `LoadBandDelay`).
+use crate::hil::compensation::welch_rules::MIN_COHERENCE;
 /// Fewest Welch segments (1 s, half overlapping: 3 s of force control) to judge a band.
 /// With one segment every bin's coherence is 1 whatever the two forces hold, with two or
 /// three overlapping ones nearly so (2026-11-27: a 2 s run killed at 1.5 s reported
 /// "faithful band 3 Hz ... limited at 4 Hz: amplitude -99.52 %" from 1.55 s of force
 /// control, two segments).
-const MIN_SEGMENTS: u64 = 5;
-/// Bins where the element's force spectrum lies more than 80 dB below its strongest bin
-/// in the band are not judged either: what is there is the loop's noise, not load, and
-/// the two forces' noise can be coherent without being a rendering (an external rig's run
-/// with the emulator's samples often stale: the element's force 90 dB down at 8-60 Hz,
-/// the measured force 130 dB down, coherence 0.99, so "amplitude -99.6 %" was reported at
-/// 8 Hz of a run whose load was 1-3 Hz). The default run's passages reach 200 Hz at
-/// 70-80 dB down.
-const MIN_RELATIVE_EXCITATION: f64 = 1e-8;
+const MIN_SEGMENTS: u64 = crate::hil::compensation::welch_rules::MIN_SEGMENTS as u64;
+// Bins where the element's force spectrum lies more than 80 dB below its strongest bin
+// in the band are not judged either: what is there is the loop's noise, not load, and
+// the two forces' noise can be coherent without being a rendering (an external rig's run
+// with the emulator's samples often stale: the element's force 90 dB down at 8-60 Hz,
+// the measured force 130 dB down, coherence 0.99, so "amplitude -99.6 %" was reported at
+// 8 Hz of a run whose load was 1-3 Hz). The default run's passages reach 200 Hz at
+// 70-80 dB down.
+use crate::hil::compensation::welch_rules::MIN_RELATIVE_EXCITATION;
 /// Faithful: amplitude within 1 %, phase within 2 degrees.
 const AMPLITUDE_TOL: f64 = 0.01;
 const PHASE_TOL_DEG: f64 = 2.0;
@@ -115,8 +116,8 @@ pub struct RecordDelay {
     pub lead_us: f64,
 }
 
-/// Fewer excited bins in the load band than this leave the record's delay unread.
-const MIN_DELAY_BINS: usize = 5;
+// Fewer excited bins in the load band than this leave the record's delay unread.
+use crate::hil::compensation::welch_rules::MIN_BINS as MIN_DELAY_BINS;
 
 /// `RecordDelay` from the rendering and the lead in effect.
 pub fn record_delay(rendering: &[RenderingPoint], lead_s: f64) -> Option<RecordDelay> {
