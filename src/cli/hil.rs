@@ -436,11 +436,8 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
         cfg.origin
     );
     // The plan for the simulated rig's declared actuator; the rest is judged as planned.
-    let plan = if args.rig.external() {
-        None
-    } else {
-        crate::hil::check::compensation_plan(cfg)
-    };
+    let declared = crate::hil::check::declares_the_rig(cfg, args.rig.external());
+    let plan = crate::hil::check::plan_for_rig(cfg, args.rig.external());
     let original_lead_s = cfg
         .compensation
         .initial_delay_s
@@ -469,10 +466,10 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     // The actuator must carry the programme's peak load, or a fault's hold cannot hold.
     let cannot_hold = crate::hil::check::actuator_cannot_hold(cfg);
     // hil refuses a loop no lead makes stable on the simulated rig (unless --run-unstable).
-    let no_stable_lead = if args.rig.external() {
-        None
-    } else {
+    let no_stable_lead = if declared {
         crate::hil::check::no_stable_lead(cfg)
+    } else {
+        None
     };
     let [(delay_1_s, amplitude_1, _), (delay_20_s, amplitude_20, velocity_20)] =
         [1.0, 20.0].map(|f| lin.actuator_at(f));
@@ -512,8 +509,13 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
         cfg.emulator.law_frequency_hz
     );
     eprintln!(
-        "  actuator: {} (the simulated rig's [rig.actuator]; a rig of its own is unknown to fastemu, which learns it with adapt = true)",
-        describe_actuator(cfg)
+        "  actuator: {} ({})",
+        describe_actuator(cfg),
+        match (args.rig.external(), declared) {
+            (false, _) => "the simulated rig's [rig.actuator]; a rig of its own is unknown to fastemu, which learns it with adapt = true, unless [compensation] plan_for_external_rig declares it",
+            (true, true) => "the external rig's actuator as [rig.actuator] declares it, with [compensation] plan_for_external_rig; [rig] gives its specimen",
+            (true, false) => "[rig.actuator], which describes the simulated rig, not this external one: fastemu learns the external rig's actuator with adapt = true ([compensation] plan_for_external_rig = true declares it)",
+        }
     );
     if let Some(why) = &cannot_hold {
         eprintln!("  ERROR: {why}");
@@ -577,7 +579,7 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
             crate::hil::check::why_no_stable_lead(cfg),
             if no_stable_lead.is_some() {
                 "`fastemu hil` refuses to run it (--run-unstable runs it anyway: expect loop-unstable and a hold that may move the specimen by millimetres)"
-            } else if args.rig.external() {
+            } else if !declared {
                 "with this actuator, expect loop-unstable and a hold"
             } else {
                 "the passivity guard's damping could make it stable, so `fastemu hil` runs it; expect loop-unstable and a hold if it does not"
@@ -791,8 +793,9 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
     if args.check {
         return check(&args, &cfg);
     }
-    // The simulated rig's actuator must be able to hold what the programme loads it with.
-    if !args.rig.external() {
+    // The rig's actuator (the simulated one, or an external one the configuration
+    // declares) must be able to hold what the programme loads it with.
+    if crate::hil::check::declares_the_rig(&cfg, args.rig.external()) {
         if let Some(why) = crate::hil::check::actuator_cannot_hold(&cfg) {
             anyhow::bail!("{why} (fastemu hil --check)");
         }
@@ -853,11 +856,7 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
     print_rig_instructions(&run_id, &rig_setup);
     // The plan for the simulated rig's declared actuator, left for the controller; the
     // report judges the run as planned.
-    let compensation_plan = if args.rig.external() {
-        None
-    } else {
-        crate::hil::check::compensation_plan(&cfg)
-    };
+    let compensation_plan = crate::hil::check::plan_for_rig(&cfg, args.rig.external());
     let cfg = planned_config(&cfg, compensation_plan.as_ref());
     // The controller reads the plan from the report directory: one left there by an
     // earlier run in the same directory must not stand for this one.
@@ -865,7 +864,7 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         eprintln!("hil: {}", crate::hil::check::describe_plan(p));
     }
     crate::hil::check::leave_plan(&out_dir, compensation_plan.as_ref())?;
-    if !args.rig.external() {
+    if crate::hil::check::declares_the_rig(&cfg, args.rig.external()) {
         if let Some(warning) = stability_warning(&cfg) {
             eprintln!("hil: WARNING: {warning}");
         }

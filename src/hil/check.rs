@@ -288,6 +288,24 @@ pub fn compensation_plan(cfg: &HilConfig) -> Option<CompensationPlan> {
     Some(plan)
 }
 
+/// Whether `[rig.actuator]` and `[rig]` describe the run's rig: always for the simulated
+/// rig (they configure it); for an external rig only with `[compensation]
+/// plan_for_external_rig`, by which the lab declares its actuator and specimen. Where they
+/// do, the launcher refuses, warns and plans (`compensation_plan`) from them.
+pub fn declares_the_rig(cfg: &HilConfig, external_rig: bool) -> bool {
+    !external_rig || cfg.compensation.plan_for_external_rig
+}
+
+/// `compensation_plan` for the run's rig: `None` where the configuration does not declare
+/// it (`declares_the_rig`).
+pub fn plan_for_rig(cfg: &HilConfig, external_rig: bool) -> Option<CompensationPlan> {
+    if declares_the_rig(cfg, external_rig) {
+        compensation_plan(cfg)
+    } else {
+        None
+    }
+}
+
 /// `cfg`'s `[compensation]` as the plan (`compensation_plan`) sets it.
 pub fn planned(
     cfg: &crate::hil::compensation::CompensationConfig,
@@ -1318,6 +1336,22 @@ mod tests {
         off.compensation.plan_from_actuator = true;
         off.compensation.adapt = false;
         assert_eq!(compensation_plan(&off), None);
+        // An external rig gets the plan only when the configuration declares it; the
+        // simulated rig always.
+        assert!(!servo.compensation.plan_for_external_rig);
+        assert_eq!(plan_for_rig(&servo, true), None);
+        assert_eq!(plan_for_rig(&servo, false), compensation_plan(&servo));
+        let declared = crate::hil::config::parse_hil_config(
+            &text.replace(
+                "plan_for_external_rig = false",
+                "plan_for_external_rig = true",
+            ),
+            "declared.toml",
+            None,
+        )
+        .unwrap();
+        assert!(declares_the_rig(&declared, true));
+        assert_eq!(plan_for_rig(&declared, true), compensation_plan(&servo));
     }
 
     #[test]

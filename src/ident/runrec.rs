@@ -404,11 +404,7 @@ fn uniform_series(
 pub fn delay_knob_advice(config: &HilConfig, force_lag_s: f64, external_rig: bool) -> String {
     let us = (force_lag_s * 1e6).abs();
     // The launcher's plan is a function of the configuration: a lead it fixed is the knob.
-    let planned = if external_rig {
-        None
-    } else {
-        crate::hil::check::compensation_plan(config).filter(|p| p.lead_fixed)
-    };
+    let planned = crate::hil::check::plan_for_rig(config, external_rig).filter(|p| p.lead_fixed);
     let knob = match config.controller.command_mode {
         CommandMode::Law if planned.is_some() => format!(
             "the lead the launcher fixed from the declared actuator ({:.0} us; [compensation] plan_from_actuator and actuator_tolerance, the report's compensation.plan)",

@@ -54,6 +54,10 @@ pub struct CompensationConfig {
     /// Let `check::compensation_plan` choose the lead (and whether it adapts and the
     /// guard acts) from the simulated rig's declared actuator within `actuator_tolerance`.
     pub plan_from_actuator: bool,
+    /// With `--rig external`: the external rig's actuator and specimen are the ones
+    /// `[rig.actuator]` and `[rig]` declare, so the launcher judges and plans for them as
+    /// for the simulated rig (`check::declares_the_rig`). Off: nothing is known of them.
+    pub plan_for_external_rig: bool,
     /// How far the hardware may be from the declared actuator: each parameter within
     /// this fraction (the plan's draws).
     pub actuator_tolerance: f64,
@@ -92,6 +96,7 @@ impl CompensationConfig {
             adapt: true,
             adapt_lead: true,
             plan_from_actuator: true,
+            plan_for_external_rig: false,
             actuator_tolerance: 0.3,
             passivity_guard: true,
             max_delay_s: 0.01,

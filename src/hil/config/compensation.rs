@@ -38,6 +38,8 @@ pub(super) struct RawCompensation {
     #[serde(default = "yes")]
     plan_from_actuator: bool,
     #[serde(default)]
+    plan_for_external_rig: bool,
+    #[serde(default)]
     actuator_tolerance: Option<f64>,
 }
 
@@ -80,6 +82,7 @@ pub(super) fn parse_compensation(
     out.adapt = c.adapt;
     out.passivity_guard = c.passivity_guard;
     out.plan_from_actuator = c.plan_from_actuator;
+    out.plan_for_external_rig = c.plan_for_external_rig;
     if let Some(t) = c.actuator_tolerance {
         if !(0.0..=0.9).contains(&t) {
             return Err(check.err(

@@ -232,7 +232,12 @@ impl ActuatorPlant {
     }
 
     /// Force per command with the specimen on an element of stiffness `k` (quasi-static:
-    /// `v = j w F / K`): `H_u / (1 - j w H_v / K)`.
+    /// `v = j w F / K`): `H_u / (1 - j w H_v / K)`. This is the delay a lead must make up
+    /// for: with the element rendered faithfully the actuator's force is the element's,
+    /// `F = K z`, and the rendering `H_u e^(j w L) + j w H_v / K` is 1 exactly when
+    /// `e^(j w L) = (1 - j w H_v / K) / H_u`. (At another lead the force per command
+    /// differs: the velocity term answers the displacement, not the command; at no lead it
+    /// is `H_u + j w H_v / K`.)
     pub fn response_on_element(&self, omega: f64, element_stiffness_n_per_m: f64) -> Complex64 {
         let (h_u, h_v) = self.response(omega);
         h_u / (1.0 - Complex64::new(0.0, omega) * h_v / element_stiffness_n_per_m)
