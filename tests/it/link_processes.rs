@@ -30,7 +30,7 @@ use fastemu::rt::CycleStats;
 
 use super::hil_processes::{
     assert_hold_in_records, assert_nothing_left, export_csv, faults, scratch_dir, spawn_hil_with,
-    the_child, write_config, Hil, Scratch, AXLE_S, FASTEMU, SERIAL,
+    the_child, write_config, Hil, Scratch, AXLE_S, FASTEMU, LOCK_WAIT, SERIAL,
 };
 
 const EXAMPLE_RIG: &str = env!("CARGO_BIN_EXE_example_rig");
@@ -758,9 +758,9 @@ const BENCH_RIG: &str = env!("CARGO_BIN_EXE_bench_rig");
 
 /// fastemu's simulated rig started by hand as an external rig over iceoryx2 with the
 /// `slow-250kn` servo-hydraulic preset (the rig draws nothing: `perturb = 0`), and `hil
-/// --rig external` on the same configuration, `extra` appended to it; hil's exit code and
-/// JSON.
-fn external_servo_session(name: &str, extra: &str, duration_s: f64) -> (i32, serde_json::Value) {
+/// --rig external` on the same configuration, which declares the rig with `declared`
+/// (`[compensation] plan_for_external_rig`); hil's exit code and JSON.
+fn external_servo_session(name: &str, declared: bool, duration_s: f64) -> (i32, serde_json::Value) {
     let dir = scratch_dir(name);
     let report = dir.join("report");
     let config = write_config(
@@ -770,7 +770,10 @@ fn external_servo_session(name: &str, extra: &str, duration_s: f64) -> (i32, ser
                 "kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_us = 80.0\nforce_max_n = 150000.0",
                 "preset = \"slow-250kn\"",
             ),
-            ("plan_from_actuator = true", extra),
+            (
+                "plan_for_external_rig = false",
+                &format!("plan_for_external_rig = {declared}"),
+            ),
         ],
         "",
     );
@@ -787,17 +790,26 @@ fn external_servo_session(name: &str, extra: &str, duration_s: f64) -> (i32, ser
         .arg("--config")
         .arg(&config)
         .args(["--duration-s", &duration_s.to_string()])
+        // hil may wait for the machine's lock (another test's run) before it starts.
+        .args([
+            "--start-timeout-s",
+            &(LOCK_WAIT + Duration::from_secs(60)).as_secs().to_string(),
+        ])
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
     let status = ChildGuard::new(rig)
-        .wait_timeout(Duration::from_secs(90))
+        .wait_timeout(LOCK_WAIT + Duration::from_secs(120))
         .unwrap();
     assert!(status.is_some(), "{name}: the rig did not end");
     let (code, json) = hil.finish(Duration::from_secs(60));
-    assert!(json["rig"]["kind"] == "external", "{json}");
+    assert!(
+        json["rig"]["kind"] == "external",
+        "{name}: exit {code}, {json}\n{}",
+        hil.stderr()
+    );
     assert_nothing_left(&json);
     (code, json)
 }
@@ -813,7 +825,7 @@ fn external_servo_session(name: &str, extra: &str, duration_s: f64) -> (i32, ser
 #[test]
 fn an_external_rigs_declared_actuator_is_planned_for_and_runs_stable() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let (code, json) = external_servo_session("ext-undeclared", "plan_from_actuator = true", 3.0);
+    let (code, json) = external_servo_session("ext-undeclared", false, 3.0);
     assert_ne!(code, 0, "{json}");
     assert!(
         json["compensation"]["plan"].is_null(),
@@ -838,11 +850,7 @@ fn an_external_rigs_declared_actuator_is_planned_for_and_runs_stable() {
         "{trip}"
     );
 
-    let (code, json) = external_servo_session(
-        "ext-declared",
-        "plan_from_actuator = true\nplan_for_external_rig = true",
-        3.0,
-    );
+    let (code, json) = external_servo_session("ext-declared", true, 3.0);
     let c = &json["compensation"];
     let plan = &c["plan"];
     assert_eq!(plan["lead_fixed"], true, "{plan}");
