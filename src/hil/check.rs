@@ -1065,7 +1065,63 @@ impl LinearLoop {
                 3,
             ))
             .with(Series::points("-1", vec![-1.0], vec![0.0], 2));
-        draw_png(path, 1000, 1200, 1, &[bode_mag, bode_phase, nyquist])
+        // The rendering the faithful band judges, from 1 Hz to its top, and its limits.
+        let (mut fr, mut amp, mut ph) = (Vec::new(), Vec::new(), Vec::new());
+        for i in 0..self.omega.len() {
+            let hz = self.omega[i] / (2.0 * PI);
+            if !(1.0 - 1e-9..=FAITHFUL_TOP_HZ).contains(&hz) {
+                continue;
+            }
+            let r = self.rendering(i, &weights);
+            fr.push(hz);
+            amp.push(100.0 * (r.norm() - 1.0));
+            ph.push(r.arg().to_degrees());
+        }
+        let limits = |panel: Panel, limit: f64, unit: &str| {
+            let ends = vec![1.0, FAITHFUL_TOP_HZ];
+            panel
+                .with(Series::dashed(
+                    format!("faithful: within +-{limit} {unit}"),
+                    ends.clone(),
+                    vec![limit, limit],
+                    3,
+                ))
+                .with(Series::dashed("", ends, vec![-limit, -limit], 3))
+        };
+        let band = self.faithful_band_hz();
+        let rendered_amp = limits(
+            Panel::new(
+                format!(
+                    "rendered force per element force: amplitude (faithful up to {band:.1} Hz; clipped at +-10 %)"
+                ),
+                "frequency, Hz",
+                "amplitude error, %",
+            )
+            .log_x()
+            .y_range(-10.0, 10.0)
+            .with(Series::line("|F/F_element| - 1", fr.clone(), amp, 0)),
+            100.0 * FAITHFUL_AMPLITUDE,
+            "%",
+        );
+        let rendered_phase = limits(
+            Panel::new(
+                "rendered force per element force: phase (clipped at +-20 degrees)",
+                "frequency, Hz",
+                "phase error, degrees",
+            )
+            .log_x()
+            .y_range(-20.0, 20.0)
+            .with(Series::line("arg F/F_element", fr, ph, 1)),
+            FAITHFUL_PHASE_DEG,
+            "degrees",
+        );
+        draw_png(
+            path,
+            1000,
+            1900,
+            1,
+            &[bode_mag, bode_phase, nyquist, rendered_amp, rendered_phase],
+        )
     }
 }
 
