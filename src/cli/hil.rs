@@ -861,7 +861,14 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
     // The controller reads the plan from the report directory: one left there by an
     // earlier run in the same directory must not stand for this one.
     if let Some(p) = &compensation_plan {
-        eprintln!("hil: {}", crate::hil::check::describe_plan(p));
+        let whose = if args.rig.external() {
+            "for the external rig's actuator as [rig.actuator] declares it ([compensation] plan_for_external_rig): "
+        } else {
+            ""
+        };
+        eprintln!("hil: {whose}{}", crate::hil::check::describe_plan(p));
+    } else if args.rig.external() && !cfg.compensation.plan_for_external_rig {
+        eprintln!("hil: the external rig's actuator is unknown to fastemu, which learns its delay and gain during the run (adapt); a lab that knows its actuator and specimen can declare them in [rig.actuator] and [rig] with [compensation] plan_for_external_rig = true, and the launcher plans the compensation for them (docs/compensation.md, \"An external rig's declared actuator\")");
     }
     crate::hil::check::leave_plan(&out_dir, compensation_plan.as_ref())?;
     if crate::hil::check::declares_the_rig(&cfg, args.rig.external()) {

@@ -343,7 +343,7 @@ pub fn describe_tolerance(t: &ToleranceScan, starting_lead_s: f64) -> String {
         (None, None) => "no lead is stable for any of them".into(),
     };
     format!(
-        "over the declared actuator and {} others within [compensation] actuator_tolerance = {} (a seed stream of the check's own, not the rig's draw), stable leads in {:.0} us steps: {}; {common}; the starting lead ({:.0} us) is stable for {} of {draws}",
+        "over the declared actuator and {} others within [compensation] actuator_tolerance = {} (a seed stream of the check's own, not the rig's draw), stable leads in {:.0} us steps: {}; {common}; the configured starting lead ({:.0} us, [compensation] initial_delay_us) is stable for {} of {draws}",
         draws - 1,
         t.tolerance,
         t.step_us,
@@ -369,7 +369,7 @@ pub fn describe_plan(p: &CompensationPlan) -> String {
             "stable for all of them".to_string()
         } else {
             format!(
-                "unstable for {} of them, and no lead is stable for the declared actuator",
+                "unstable somewhere for {} of them, and no lead is stable for the declared actuator",
                 p.destination_unstable_for
             )
         };
@@ -379,7 +379,7 @@ pub fn describe_plan(p: &CompensationPlan) -> String {
         );
     }
     format!(
-        "compensation planned from the declared actuator: over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are unstable for {} of them, so the lead is fixed at {:.0} us, stable for {} of {} (the adaptation learns the gain only){}; such an actuator is rendered stable but not faithful (a lead does not make up for a delay that varies with frequency: expect a run that is not clean); [compensation] plan_from_actuator = false runs as configured",
+        "compensation planned from the declared actuator: over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are unstable somewhere for {} of them, so the lead is fixed at {:.0} us, stable for {} of {} (the adaptation learns the gain only){}; such an actuator is rendered stable but not faithful (a lead does not make up for a delay that varies with frequency: expect a run that is not clean); [compensation] plan_from_actuator = false (with an external rig, also plan_for_external_rig = false) runs as configured",
         p.destinations_us.0,
         p.destinations_us.1,
         p.destination_unstable_for,

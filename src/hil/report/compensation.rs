@@ -208,12 +208,26 @@ pub struct CompensationReport {
 }
 
 impl CompensationReport {
+    /// Why an identified delay below zero (by more than two standard errors) is not a
+    /// delay: the actuator's force leads its command, as a servo-hydraulic force loop's
+    /// uncompensated velocity feedback through the oil's flow makes it; no lead (which
+    /// cannot be negative) makes up for it, and read at the lead in effect the force per
+    /// command is not the delay a lead would have to make up for (docs/compensation.md).
+    fn negative_delay_note(&self) -> &'static str {
+        match (self.identified_delay_us, self.identified_delay_sigma_us) {
+            (Some(d), sigma) if d < -2.0 * sigma.unwrap_or(0.0) && d < 0.0 => {
+                " (negative: the actuator's force leads its command, as a force loop's velocity feedback through the oil does when its servo controller does not compensate it; a lead cannot make up for that, and the delay read is only roughly the actuator's)"
+            }
+            _ => "",
+        }
+    }
+
     /// One line for the console: the lead from start to end, what was identified, the
     /// guard and the faithful band; a warning when the safe start never ended.
     pub fn describe(&self) -> String {
         let us = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.0} us"));
         let mut line = format!(
-            "compensation: lead {} -> {:.0} us, identified {}{}{}, gain {:.3}, settled {}; guard: safe start {}, active {:.2} s, largest {:.1} kN s/m; faithful band {}",
+            "compensation: lead {} -> {:.0} us, identified {}{}{}{}, gain {:.3}, settled {}; guard: safe start {}, active {:.2} s, largest {:.1} kN s/m; faithful band {}",
             us(self.starting_lead_us),
             self.final_lead_us,
             us(self.identified_delay_us),
@@ -230,6 +244,7 @@ impl CompensationReport {
                 (Some(_), _) => " (the lead's estimator, weighing the load band by the load's content: too few bins of 1-20 Hz were excited coherently, or too short a run, to identify the delay over the band)".to_string(),
                 _ => String::new(),
             },
+            self.negative_delay_note(),
             self.final_gain,
             self.settled_at_s
                 .map_or("never".to_string(), |t| format!("at {t:.2} s")),
@@ -1210,6 +1225,15 @@ mod tests {
         assert!(
             line.contains("identified 2565 us (+- 15.0) over 1-19 Hz (18 bins) (the lead's estimator: 914 us)"),
             "{line}"
+        );
+        assert!(!line.contains("negative"), "{line}");
+        // A delay below zero is said to be no delay.
+        let r = with(Some(-2582e-6));
+        assert!(
+            r.describe()
+                .contains("identified -2582 us (+- 15.0) over 1-19 Hz (18 bins) (the lead's estimator: 914 us) (negative: the actuator's force leads its command"),
+            "{}",
+            r.describe()
         );
         let r = with(None);
         assert_eq!(r.identified_from, Some("lead-estimator"));
