@@ -1045,6 +1045,17 @@ fn summarise(
         .and_then(|c| c.as_object_mut())
     {
         let plan = crate::hil::check::read_plan(out_dir).unwrap_or(None);
+        // The declaration against what the load band identified (not the lead's own
+        // estimator, which reads a servo loop short).
+        let identified = analysis
+            .map(|a| &a.compensation)
+            .filter(|c| c.identified_from == Some("load-band"))
+            .and_then(|c| c.identified_delay_us);
+        let warning = plan
+            .as_ref()
+            .zip(identified)
+            .and_then(|(p, d)| crate::hil::check::declaration_check(p, d));
+        c.insert("declaration_warning".into(), warning.into());
         c.insert("plan".into(), serde_json::to_value(plan)?);
     }
     summary["link"] = link_report(out_dir, rig_setup);
@@ -1112,6 +1123,9 @@ fn summarise(
         }
         if cfg.controller.command_mode == crate::hil::config::CommandMode::Law {
             eprintln!("hil: {}", a.compensation.describe());
+            if let Some(w) = summary["compensation"]["declaration_warning"].as_str() {
+                eprintln!("hil: {w}");
+            }
         }
         if let Some(e) = &a.element_thermal {
             eprintln!("hil: {}", e.describe());

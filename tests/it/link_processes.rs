@@ -756,20 +756,29 @@ fn a_rig_of_the_previous_link_protocol_is_named_with_its_version() {
 
 const BENCH_RIG: &str = env!("CARGO_BIN_EXE_bench_rig");
 
+const LAG_DELAY_LINES: &str =
+    "kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_us = 80.0\nforce_max_n = 150000.0";
+
 /// fastemu's simulated rig started by hand as an external rig over iceoryx2 with the
-/// `slow-250kn` servo-hydraulic preset (the rig draws nothing: `perturb = 0`), and `hil
-/// --rig external` on the same configuration, which declares the rig with `declared`
-/// (`[compensation] plan_for_external_rig`); hil's exit code and JSON.
-fn external_servo_session(name: &str, declared: bool, duration_s: f64) -> (i32, serde_json::Value) {
+/// preset `rig_preset` (the rig draws nothing: `perturb = 0`), and `hil --rig external` on
+/// a configuration whose `[rig.actuator]` is `declared_preset` (the shipped lag-delay when
+/// `None`) and which declares it for the external rig with `declared` (`[compensation]
+/// plan_for_external_rig`); hil's exit code and JSON.
+fn external_servo_session(
+    name: &str,
+    declared_preset: Option<&str>,
+    rig_preset: &str,
+    declared: bool,
+    duration_s: f64,
+) -> (i32, serde_json::Value) {
     let dir = scratch_dir(name);
     let report = dir.join("report");
+    let preset_line = |p: &str| format!("preset = \"{p}\"");
+    let actuator = declared_preset.map_or(LAG_DELAY_LINES.to_string(), preset_line);
     let config = write_config(
         &dir,
         &[
-            (
-                "kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_us = 80.0\nforce_max_n = 150000.0",
-                "preset = \"slow-250kn\"",
-            ),
+            (LAG_DELAY_LINES, actuator.as_str()),
             (
                 "plan_for_external_rig = false",
                 &format!("plan_for_external_rig = {declared}"),
@@ -777,6 +786,14 @@ fn external_servo_session(name: &str, declared: bool, duration_s: f64) -> (i32, 
         ],
         "",
     );
+    let rig_config = dir.join("rig.toml");
+    std::fs::write(
+        &rig_config,
+        std::fs::read_to_string(&config)
+            .unwrap()
+            .replace(&actuator, &preset_line(rig_preset)),
+    )
+    .unwrap();
     let run_id = format!("feit{}{name}", std::process::id());
     let mut hil = spawn_hil_with(
         &config,
@@ -788,7 +805,7 @@ fn external_servo_session(name: &str, declared: bool, duration_s: f64) -> (i32, 
         .args(["--run-id", &run_id, "--out"])
         .arg(&report)
         .arg("--config")
-        .arg(&config)
+        .arg(&rig_config)
         .args(["--duration-s", &duration_s.to_string()])
         // hil may wait for the machine's lock (another test's run) before it starts.
         .args([
@@ -825,7 +842,13 @@ fn external_servo_session(name: &str, declared: bool, duration_s: f64) -> (i32, 
 #[test]
 fn an_external_rigs_declared_actuator_is_planned_for_and_runs_stable() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let (code, json) = external_servo_session("ext-undeclared", false, 3.0);
+    let (code, json) = external_servo_session(
+        "ext-undeclared",
+        Some("slow-250kn"),
+        "slow-250kn",
+        false,
+        3.0,
+    );
     assert_ne!(code, 0, "{json}");
     assert!(
         json["compensation"]["plan"].is_null(),
@@ -850,7 +873,8 @@ fn an_external_rigs_declared_actuator_is_planned_for_and_runs_stable() {
         "{trip}"
     );
 
-    let (code, json) = external_servo_session("ext-declared", true, 3.0);
+    let (code, json) =
+        external_servo_session("ext-declared", Some("slow-250kn"), "slow-250kn", true, 3.0);
     let c = &json["compensation"];
     let plan = &c["plan"];
     assert_eq!(plan["lead_fixed"], true, "{plan}");
@@ -859,6 +883,8 @@ fn an_external_rigs_declared_actuator_is_planned_for_and_runs_stable() {
     assert!((3000.0..8000.0).contains(&lead_us), "{plan}");
     assert_eq!(c["starting_lead_us"].as_f64(), Some(lead_us), "{c}");
     assert_eq!(c["final_lead_us"].as_f64(), Some(lead_us), "{c}");
+    // The rig is the declared actuator: nothing to warn about.
+    assert!(c["declaration_warning"].is_null(), "{c}");
     assert!(faults(&json).is_empty(), "{:?}", faults(&json));
     assert_eq!(
         json["safety"]["final_state"], "finished",
@@ -870,4 +896,34 @@ fn an_external_rigs_declared_actuator_is_planned_for_and_runs_stable() {
     assert_eq!(code, 1, "{json}");
     let steps = json["steps"].as_u64().unwrap();
     assert!(steps >= (3.0 * 4096.0 * 0.99) as u64, "{steps} steps");
+}
+
+/// A declaration the hardware does not match is said: the shipped lag-delay actuator
+/// declared (about 0.25 ms of effective delay), a `fatigue-150kn` servo-hydraulic force
+/// loop on the external rig (2.6 ms). The plan keeps the compensation as configured (the
+/// declared actuator's adaptation is stable), the loop takes its lead from the ringing
+/// and runs, and the report warns that the delay identified over the load band lies far
+/// outside what the declared actuator within its tolerance could have.
+#[test]
+fn an_external_rig_that_does_not_match_its_declaration_is_warned_about() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let (_, json) = external_servo_session("ext-mismatch", None, "fatigue-150kn", true, 5.0);
+    let c = &json["compensation"];
+    assert_eq!(c["plan"]["lead_fixed"], false, "{}", c["plan"]);
+    let (lo, hi) = (
+        c["plan"]["effective_delays_us"][0].as_f64().unwrap(),
+        c["plan"]["effective_delays_us"][1].as_f64().unwrap(),
+    );
+    assert!(lo > 100.0 && hi < 500.0, "{}", c["plan"]);
+    assert_eq!(c["identified_from"], "load-band", "{c}");
+    let identified = c["identified_delay_us"].as_f64().unwrap();
+    assert!(identified > 2.0 * hi, "{identified} against {lo}-{hi}");
+    let warning = c["declaration_warning"]
+        .as_str()
+        .unwrap_or_else(|| panic!("{c}"));
+    assert!(
+        warning.contains("does not behave as declared")
+            && warning.contains(&format!("{identified:.0} us")),
+        "{warning}"
+    );
 }
