@@ -854,8 +854,8 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         out_dir.display()
     );
     print_rig_instructions(&run_id, &rig_setup);
-    // The plan for the simulated rig's declared actuator, left for the controller; the
-    // report judges the run as planned.
+    // The plan for the declared actuator (the simulated rig's, or an external rig's with
+    // plan_for_external_rig), left for the controller; the report judges the run as planned.
     let compensation_plan = crate::hil::check::plan_for_rig(&cfg, args.rig.external());
     let cfg = planned_config(&cfg, compensation_plan.as_ref());
     // The controller reads the plan from the report directory: one left there by an
@@ -1039,7 +1039,7 @@ fn summarise(
         "report_dir": out_dir.display().to_string(),
     });
     summary["rig"] = json!({"kind": args.rig.kind, "link": args.rig.link});
-    // The launcher's plan for the simulated rig's declared actuator (none: as configured).
+    // The launcher's plan for the declared actuator (none: as configured).
     if let Some(c) = summary
         .get_mut("compensation")
         .and_then(|c| c.as_object_mut())
