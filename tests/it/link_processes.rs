@@ -758,16 +758,19 @@ const BENCH_RIG: &str = env!("CARGO_BIN_EXE_bench_rig");
 
 const LAG_DELAY_LINES: &str =
     "kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_us = 80.0\nforce_max_n = 150000.0";
+const SLOW_LAG_DELAY_LINES: &str =
+    "kind = \"lag-delay\"\ntransport_delay_us = 450.0\nlag_us = 150.0\nforce_max_n = 150000.0";
 
 /// fastemu's simulated rig started by hand as an external rig over iceoryx2 with the
-/// preset `rig_preset` (the rig draws nothing: `perturb = 0`), and `hil --rig external` on
+/// `[rig.actuator]` lines `rig_actuator` (the rig draws nothing: `perturb = 0`), and
+/// `hil --rig external` on
 /// a configuration whose `[rig.actuator]` is `declared_preset` (the shipped lag-delay when
 /// `None`) and which declares it for the external rig with `declared` (`[compensation]
 /// plan_for_external_rig`); hil's exit code and JSON.
 fn external_servo_session(
     name: &str,
     declared_preset: Option<&str>,
-    rig_preset: &str,
+    rig_actuator: &str,
     declared: bool,
     duration_s: f64,
 ) -> (i32, serde_json::Value) {
@@ -791,7 +794,7 @@ fn external_servo_session(
         &rig_config,
         std::fs::read_to_string(&config)
             .unwrap()
-            .replace(&actuator, &preset_line(rig_preset)),
+            .replace(&actuator, rig_actuator),
     )
     .unwrap();
     let run_id = format!("feit{}{name}", std::process::id());
@@ -845,7 +848,7 @@ fn an_external_rigs_declared_actuator_is_planned_for_and_runs_stable() {
     let (code, json) = external_servo_session(
         "ext-undeclared",
         Some("slow-250kn"),
-        "slow-250kn",
+        "preset = \"slow-250kn\"",
         false,
         3.0,
     );
@@ -873,8 +876,13 @@ fn an_external_rigs_declared_actuator_is_planned_for_and_runs_stable() {
         "{trip}"
     );
 
-    let (code, json) =
-        external_servo_session("ext-declared", Some("slow-250kn"), "slow-250kn", true, 3.0);
+    let (code, json) = external_servo_session(
+        "ext-declared",
+        Some("slow-250kn"),
+        "preset = \"slow-250kn\"",
+        true,
+        3.0,
+    );
     let c = &json["compensation"];
     let plan = &c["plan"];
     assert_eq!(plan["lead_fixed"], true, "{plan}");
@@ -899,15 +907,20 @@ fn an_external_rigs_declared_actuator_is_planned_for_and_runs_stable() {
 }
 
 /// A declaration the hardware does not match is said: the shipped lag-delay actuator
-/// declared (about 0.25 ms of effective delay), a `fatigue-150kn` servo-hydraulic force
-/// loop on the external rig (2.6 ms). The plan keeps the compensation as configured (the
-/// declared actuator's adaptation is stable), the loop takes its lead from the ringing
-/// and runs, and the report warns that the delay identified over the load band lies far
-/// outside what the declared actuator within its tolerance could have.
+/// declared (about 0.25 ms of effective delay), a slower one on the external rig (450 us
+/// transport delay and a 150 us lag, about 0.8 ms). The plan keeps the compensation as
+/// configured (the declared actuator's adaptation is stable), the loop adapts its lead
+/// and runs to the end, and the report warns that the delay identified over the load band
+/// lies far outside what the declared actuator within its tolerance could have.
+///
+/// (A servo-hydraulic rig behind this declaration is no test of the warning: from the
+/// declared 252 us lead, `fatigue-150kn` sometimes rings up before the lead has adapted and
+/// trips `loop-unstable`, as an undeclared one may, and a run that ends in the hold
+/// identifies nothing over the load band.)
 #[test]
 fn an_external_rig_that_does_not_match_its_declaration_is_warned_about() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let (_, json) = external_servo_session("ext-mismatch", None, "fatigue-150kn", true, 5.0);
+    let (_, json) = external_servo_session("ext-mismatch", None, SLOW_LAG_DELAY_LINES, true, 5.0);
     let c = &json["compensation"];
     assert_eq!(c["plan"]["lead_fixed"], false, "{}", c["plan"]);
     let (lo, hi) = (
@@ -915,6 +928,7 @@ fn an_external_rig_that_does_not_match_its_declaration_is_warned_about() {
         c["plan"]["effective_delays_us"][1].as_f64().unwrap(),
     );
     assert!(lo > 100.0 && hi < 500.0, "{}", c["plan"]);
+    assert!(faults(&json).is_empty(), "{:?}", faults(&json));
     assert_eq!(c["identified_from"], "load-band", "{c}");
     let identified = c["identified_delay_us"].as_f64().unwrap();
     assert!(identified > 2.0 * hi, "{identified} against {lo}-{hi}");
