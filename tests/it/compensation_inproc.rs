@@ -639,6 +639,43 @@ fn a_guess_twice_a_slow_actuators_delay_starts_capped_and_is_learned() {
     assert!(error < 0.005, "displacement error {:.3} %", 100.0 * error);
 }
 
+/// A transport delay of 500 us and a lag of 80 us (702 us of effective delay) from a guess
+/// of 1160 us, capped to a starting lead of 742 us (`hil --check`: stable with 580-1280
+/// us). Under the safe start's full damping the guard's band held little more than the
+/// sensor's noise, the observer saw its onset energy (0.5 mJ) generated, and the ring
+/// estimate read that noise as a phase delay of 1.85 ms (fit 0.99 at 70-100 Hz): the lead
+/// went to 1.5 ms within 8 ms and the loop tripped `loop-unstable` at 0.18 s (2026-11-28).
+/// A ring now moves the lead only beyond four times the onset: the lead stays inside the
+/// stable range, is learned, and the run is faithful, without a fault.
+#[test]
+fn noise_under_the_safe_starts_damping_is_no_ring_to_take_a_lead_from() {
+    let cfg = config_with_actuator(
+        "kind = \"lag-delay\"\ntransport_delay_us = 500.0\nlag_us = 80.0\nforce_max_n = 150000.0",
+        1160.0,
+        true,
+        true,
+    );
+    let run = run_in_process(&cfg, &script(3.0));
+    assert!(faults(&run).is_empty(), "{:?}", faults(&run));
+    let highest = run
+        .controller
+        .iter()
+        .filter(|r| r.mode == command_mode::LAW)
+        .map(|r| r.lead_s)
+        .fold(0.0, f64::max);
+    assert!(highest < 1280e-6, "the lead went to {} us", highest * 1e6);
+    let truth = 0.5 / RATE + 500e-6 + 80e-6;
+    let lead = final_lead_s(&run);
+    assert!(
+        (lead / truth - 1.0).abs() < 0.1,
+        "final lead {} us against {} us",
+        lead * 1e6,
+        truth * 1e6
+    );
+    let error = displacement_error(&cfg, &run);
+    assert!(error < 0.005, "displacement error {:.3} %", 100.0 * error);
+}
+
 /// Emulator stalls of 1-8 periods, every 4-16 ms from 50 ms on (xorshift `seed`): the
 /// controller bridges each gap for the guard, and `(first period, length)` per stall.
 fn frequent_stalls(seed: u64, until: u64) -> Vec<(u64, u64)> {
@@ -877,12 +914,12 @@ fn servo_hydraulic_presets_run_stable_on_the_planned_lead_and_are_not_clean() {
         assert!(after < 0.1 * during, "{actuator}");
         assert!(error > 0.01, "{actuator}: {:.3} %", error * 100.0);
     }
-    // A rig without the plan (seed 1: the lead read from the ringing, 2.19 ms, is not
-    // stable for it; seeds 3 and 6 now run to the end on it, not clean, see
-    // `an_undeclared_servo_hydraulic_loop_takes_its_lead_from_the_ringing_and_stays_stable`)
-    // trips; with the plan it runs.
-    let seed1 = "preset = \"fatigue-150kn\"\nperturb = 0.3\nperturb_seed = 1";
-    let planned = config_with_actuator(seed1, 252.0, true, true);
+    // A rig without the plan (seed 9, not one the ring's constants were chosen on: the
+    // lead read from the ringing is not stable for it; seeds 1, 2 and 3, which tripped
+    // here until 2026-11-28, now run to the end on theirs, not clean: `RING_PERIODS_AVERAGED`
+    // in `hil::compensation`) trips; with the plan it runs.
+    let seed9 = "preset = \"fatigue-150kn\"\nperturb = 0.3\nperturb_seed = 9";
+    let planned = config_with_actuator(seed9, 252.0, true, true);
     let run = run_in_process(&planned, &script(2.0));
     assert!(faults(&run).is_empty(), "{:?}", faults(&run));
     let mut cfg = planned.clone();

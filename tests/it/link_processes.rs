@@ -837,8 +837,10 @@ fn external_servo_session(
 /// An external rig whose actuator the configuration declares (`[compensation]
 /// plan_for_external_rig = true`: `[rig.actuator]` and `[rig]` describe it) is planned for
 /// as the simulated rig is. Undeclared, `slow-250kn` from the shipped guess (252 us; the
-/// linearised loop is stable only from about 3.7 ms) rings up and trips `loop-unstable`
-/// into the hold within the first second, its excursion bounded; declared, the launcher
+/// linearised loop is stable only from about 3.7 ms) rings up and trips into the hold
+/// within the first second (`loop-unstable` at 0.25 s until 2026-11-28, since
+/// `displacement-out-of-range` at 0.21 s: 0.22-0.24 mm, then 0.35-0.36 mm beyond the
+/// range the run had kept, three runs each), its excursion bounded; declared, the launcher
 /// fixes the lead at the plan's (stable for all 24 actuators it judged), the loop is stable
 /// to the end without a fault, and, since a lead does not render this actuator within 1 %,
 /// the run is not clean.
@@ -858,18 +860,14 @@ fn an_external_rigs_declared_actuator_is_planned_for_and_runs_stable() {
         "{}",
         json["compensation"]
     );
-    let names = faults(&json);
-    assert!(
-        names.iter().any(|f| f == "emulator: loop-unstable"),
-        "{names:?}"
-    );
+    // It rings below 27 Hz, where no lead is read from the ringing (`OSCILLATION_LOW_HZ`):
+    // the safe start's damping alone, and the trip.
     assert_eq!(json["safety"]["final_state"], "hold", "{}", json["safety"]);
-    let trip = json["safety"]["faults"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|f| f["fault"] == "loop-unstable")
-        .unwrap();
+    let trip = &json["safety"]["faults"][0];
+    assert!(
+        ["loop-unstable", "displacement-out-of-range"].contains(&trip["fault"].as_str().unwrap()),
+        "{trip}"
+    );
     assert!(trip["detected_at_s"].as_f64().unwrap() < 1.0, "{trip}");
     assert!(
         trip["largest_excursion_m"].as_f64().unwrap() < 0.5e-3,

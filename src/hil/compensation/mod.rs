@@ -481,6 +481,9 @@ pub struct Compensator {
     /// The lead the last ringing gave: the load band's estimator moves the lead between it
     /// and `RING_LEAD_RANGE` above it.
     ring_lead: Option<f64>,
+    /// The oscillation estimate's target averaged over about a period of the ring
+    /// (`RING_PERIODS_AVERAGED`); NaN before the window is full.
+    ring_target_avg: f64,
     /// The weights' sum since the first sample (`1 - decay^n`): `missing_share /
     /// missing_weight` is the share without the start's bias towards 0.
     missing_weight: f64,
@@ -633,12 +636,17 @@ const MAX_MISSING_SHARE: f64 = 0.1;
 /// specimen's resonance on the element, half a period of a servo-hydraulic loop ringing at
 /// 35 Hz: a ring that grows by e in 20 ms leaves no time for more), the share of the
 /// band's power its fit must explain, the band's lower edge (a servo-hydraulic force loop
-/// with a lead too short rings at 17-55 Hz), and the rate at which the lead moves to its
+/// with a lead too short rings at 17-55 Hz; below 27 Hz the window holds less than 0.4 of
+/// a period and the reading is noise: `slow-250kn`, ringing at about 20 Hz, took leads
+/// from it that held it at the edge of its stable range, swinging 2 mm at 10-40 Hz around
+/// the axles with 16-98 % displacement error (2026-11-28), where without a reading it trips
+/// within 0.3 s and holds; the band was 10-400 Hz until then), and the rate at which the
+/// lead moves to its
 /// target (s of lead per s; 25 us per sample at 4096 Hz: the force changes by the velocity
 /// times that times the stiffness, 0.14 kN per sample for 0.1 m/s on 57 MN/m).
 const OSCILLATION_MEMORY_S: f64 = 0.015;
 const OSCILLATION_MIN_FIT: f64 = 0.8;
-const OSCILLATION_LOW_HZ: f64 = 10.0;
+const OSCILLATION_LOW_HZ: f64 = 27.0;
 const OSCILLATION_MAX_RATE: f64 = 0.1;
 /// Once a ringing has given the lead, the load band's estimator may raise it by up to
 /// this fraction and never lower it: a lag-and-delay actuator's delay is the same in both
@@ -647,6 +655,20 @@ const OSCILLATION_MAX_RATE: f64 = 0.1;
 /// (`rths-fast-150kn` seed 2, its lead free, tripped at 1.06 s; nominal `fatigue-150kn`,
 /// its lead free to go 15 % lower, rang up again at 35 Hz over the last second).
 const RING_LEAD_RANGE: f64 = 0.15;
+/// The ring's target is the estimate averaged over about one period of the ring
+/// (exponentially, time constant `1 / (RING_PERIODS_AVERAGED f)`): the estimate's memory
+/// (`OSCILLATION_MEMORY_S`) is half a period of a servo-hydraulic loop ringing at 37 Hz,
+/// and over a period it swings by +-1 ms around its mean (`fatigue-150kn`, 2026-11-28:
+/// 2.3-4.5 ms, so the target taken was where the swing happened to be when the ring
+/// qualified: 2413 us in one run and 3845 us, beyond the stable leads' 3360 us, in another
+/// that a loaded machine had shifted by a few ms; that one tripped `loop-unstable`).
+const RING_PERIODS_AVERAGED: f64 = 1.0;
+/// A ring moves the lead only once the guard's observer has seen this many times its
+/// onset energy generated: at the onset itself (0.5 mJ) the band holds little more than
+/// the sensor's noise through the safe start's damping, whose reading (1.85 ms, fit 0.99,
+/// at 70-100 Hz, in front of a 0.58 ms `lag-delay` started at 742 us) took the lead to
+/// 1.5 ms and the loop into `loop-unstable` within 10 ms.
+const RING_MIN_ENERGY_ONSETS: f64 = 4.0;
 /// The lead has arrived at the oscillation's target within this, s.
 const OSCILLATION_ARRIVED_S: f64 = 2e-6;
 /// Independent residuals (`DelayEstimate::independent`) below which a delay estimate
@@ -712,6 +734,7 @@ impl Compensator {
             since_oscillation_move: u64::MAX,
             oscillation_target: None,
             ring_lead: None,
+            ring_target_avg: f64::NAN,
         }
     }
 
@@ -797,6 +820,7 @@ impl Compensator {
             self.oscillation.restart();
             self.load_band.restart();
             self.oscillation_target = None;
+            self.ring_target_avg = f64::NAN;
             self.replay_samples = 0;
             self.feed(now);
         } else {
@@ -885,9 +909,10 @@ impl Compensator {
     }
 
     /// The safe start's answer to a loop that rings: when the guard's observer sees the
-    /// loop generate energy above its onset and one oscillation in 10-400 Hz explains the
-    /// band over a full window (`OSCILLATION_MIN_FIT`), the phase delay at that
-    /// oscillation's frequency is taken as the lead's target, and the lead moves to it fast
+    /// loop generate energy beyond `RING_MIN_ENERGY_ONSETS` times its onset and one
+    /// oscillation in 10-400 Hz explains the band over a full window
+    /// (`OSCILLATION_MIN_FIT`), the phase delay at that oscillation's frequency, averaged
+    /// over about a period of it (`RING_PERIODS_AVERAGED`), is taken as the lead's target, and the lead moves to it fast
     /// (`OSCILLATION_MAX_RATE`): there the loop crosses over, and that phase is what a lead
     /// must cancel for the loop to be passive (a guess of 0 before a 0.81 ms lag-delay
     /// actuator rang the resonance past the monitor's bound in 0.1 s, before the load
@@ -917,19 +942,30 @@ impl Compensator {
                 self.ring_lead = Some(target);
                 self.oscillation_target = None;
                 self.oscillation.clear_window();
+                self.ring_target_avg = f64::NAN;
             }
             return;
         }
         let Some(o) = estimate else {
             return;
         };
+        let target_now = (o.window_lead_s + o.residual_s).clamp(0.0, self.cfg.max_delay_s);
+        if o.window_full && target_now.is_finite() && o.frequency_hz.is_finite() {
+            let a = (self.dt_s * o.frequency_hz * RING_PERIODS_AVERAGED).min(1.0);
+            self.ring_target_avg = if self.ring_target_avg.is_finite() {
+                self.ring_target_avg + a * (target_now - self.ring_target_avg)
+            } else {
+                target_now
+            };
+        }
         if self.cfg.adapt_lead
             && o.window_full
-            && self.status.guard.generated_j >= self.cfg.guard_onset_energy_j
+            && self.status.guard.generated_j
+                >= RING_MIN_ENERGY_ONSETS * self.cfg.guard_onset_energy_j
             && o.fit >= OSCILLATION_MIN_FIT
             && (OSCILLATION_LOW_HZ..=self.cfg.guard_band_top_hz).contains(&o.frequency_hz)
         {
-            let target = (o.window_lead_s + o.residual_s).clamp(0.0, self.cfg.max_delay_s);
+            let target = self.ring_target_avg;
             if (target - self.lead_s).abs() > OSCILLATION_ARRIVED_S {
                 self.oscillation_target = Some(target);
             }
