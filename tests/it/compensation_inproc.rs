@@ -971,3 +971,88 @@ fn the_safe_start_ends_under_frequent_emulator_stalls() {
         assert!(e < 0.001, "seed {seed}: displacement error {e}");
     }
 }
+
+/// A perturbed lag-delay actuator (`perturb = 0.3`, `seed`) from `guess_us`, 3 s in
+/// process: no fault, and the run's configuration, record and truth (effective delay with
+/// half a period of hold).
+fn perturbed_lag_delay_run(
+    transport_us: f64,
+    lag_us: f64,
+    seed: u64,
+    guess_us: f64,
+) -> (HilConfig, InProcessRun, f64) {
+    let cfg = config_with_actuator(
+        &format!(
+            "kind = \"lag-delay\"\ntransport_delay_us = {transport_us:.1}\nlag_us = {lag_us:.1}\nforce_max_n = 150000.0\nperturb = 0.3\nperturb_seed = {seed}"
+        ),
+        guess_us,
+        true,
+        true,
+    );
+    let run = run_in_process(&cfg, &script(3.0));
+    assert!(faults(&run).is_empty(), "seed {seed}: {:?}", faults(&run));
+    let k = cfg
+        .model
+        .element
+        .high_frequency_stiffness_n_per_m(cfg.scenario.preload_n);
+    let plant = fastemu::rig::actuator::ActuatorPlant::from_config(&cfg.rig.actuator);
+    let truth_s = plant.effective_delay(k).delay_s + 0.5 / RATE;
+    (cfg, run, truth_s)
+}
+
+/// The time the safe start ended (the guard's last armed command), s.
+fn safe_start_end_s(run: &InProcessRun) -> f64 {
+    run.controller
+        .iter()
+        .filter(|r| r.mode == command_mode::LAW && r.guard_armed == 1)
+        .map(|r| r.t_s)
+        .fold(0.0, f64::max)
+}
+
+/// The safe start's full damping, on a lead a little shorter than the actuator's delay,
+/// is itself what makes the loop ring: a `lag-delay` of 500 + 80 us drawn by seed 41
+/// (815 us effective) from a guess of 1160 us, capped at 742 us (`hil --check`: stable at
+/// that lead without the damping, unstable with any above ~5 kN s/m). A 400 Hz oscillation
+/// grew under the damping while the observers read the loop as absorbing, and the
+/// specimen left its range at 0.27-0.29 s (2026-11-28, in process and in one of two
+/// `fastemu hil` runs). The guard now sees an oscillation grow under its own damping and
+/// ends the safe start: no fault, the safe start over before the specimen could leave
+/// its range, the lead learned and the run faithful.
+#[test]
+fn a_safe_start_whose_own_damping_rings_ends() {
+    let (cfg, run, truth_s) = perturbed_lag_delay_run(500.0, 80.0, 41, 1160.0);
+    let ended = safe_start_end_s(&run);
+    assert!(ended > 0.0 && ended < 0.25, "safe start ended at {ended} s");
+    assert_learned_and_faithful(&cfg, &run, truth_s, 0.1);
+}
+
+/// A lead a little too long under the safe start: a `lag-delay` of 300 + 100 us from a
+/// guess of 800 us. The estimator read the delay precisely (445-545 us) by 0.15-0.3 s
+/// while the lead crept down from 800 us at `adapt_time`'s pace under the full damping; a
+/// 398-399 Hz ring then read 1.05-1.06 ms, the lead went there and seeds 9, 13 and 14
+/// tripped `loop-unstable` (2026-11-28). Under the safe start the lead now goes to a
+/// precise estimate near it at once, and a ring reading on the other side of such an
+/// estimate is not taken: each runs faithfully, the safe start over within 0.5 s.
+#[test]
+fn a_lead_too_long_under_the_safe_start_goes_to_a_precise_estimate() {
+    for seed in [9, 13, 14] {
+        let (cfg, run, truth_s) = perturbed_lag_delay_run(300.0, 100.0, seed, 800.0);
+        let ended = safe_start_end_s(&run);
+        assert!(
+            ended > 0.0 && ended < 0.5,
+            "seed {seed}: safe start ended at {ended} s"
+        );
+        let highest = run
+            .controller
+            .iter()
+            .filter(|r| r.mode == command_mode::LAW)
+            .map(|r| r.lead_s)
+            .fold(0.0, f64::max);
+        assert!(
+            highest <= 800e-6 + 1e-9,
+            "seed {seed}: the lead went to {} us",
+            highest * 1e6
+        );
+        assert_learned_and_faithful(&cfg, &run, truth_s, 0.1);
+    }
+}

@@ -359,8 +359,42 @@ pub struct PassivityGuard {
     dt_s: f64,
     /// The safe start (`disarm`).
     armed: bool,
+    /// The safe start's ring check (`SAFE_START_RING_*`): the largest band displacement
+    /// in the block being filled and in the last whole one, m; samples in the block; whole
+    /// blocks in a row each beyond `SAFE_START_RING_GROWTH` times the one before.
+    block_peak_m: f64,
+    last_block_peak_m: f64,
+    block_samples: u32,
+    growing_blocks: u32,
     pub activity: GuardActivity,
 }
+
+/// The safe start's full damping can itself be what makes the loop ring. It acts on the
+/// displacement predicted over the lead, whose prediction amplifies the band's top (twice
+/// at 400 Hz over 742 us, order 2), so an actuator a little slower than the lead turns it
+/// into energy there: `lag-delay` 630 + 63 us (`perturb = 0.3` seed 41 of 500 + 80 us)
+/// started at its capped 742 us is stable without the damping and unstable with any
+/// above about 5 kN s/m (`hil --check`), and a 400 Hz oscillation grew from the first 20
+/// ms by about 1.5 times per 16 ms while both observers read the loop as absorbing (at
+/// the band's top a fraction of a sample's skew between force and displacement flips the
+/// sign of their work), until the specimen left its range at 0.27 s (2026-11-28). A
+/// damping that answers energy it generated would never do that: under the safe start,
+/// an oscillation in the guard's band growing by `SAFE_START_RING_GROWTH` per block of
+/// `SAFE_START_RING_BLOCK` samples (16 ms at 4096 Hz) for `SAFE_START_RING_BLOCKS` blocks
+/// in a row, beyond `SAFE_START_RING_FLOOR_M` (well above the sensor's noise), while the
+/// observer reads no energy generated beyond its onset, ends the safe start: from then on
+/// the damping follows the energy generated, as after any safe start. In-process,
+/// `perturb = 0.3` seeds 1-20, 2026-11-28: `lag-delay` 500 + 80 us from a guess of 1160 us
+/// (capped at 742 us), seeds 11, 15 and 17 tripped `displacement-out-of-range` at 0.28-0.31
+/// s (now 0.09-0.15 %, no fault) and seed 3 ran at 0.21 % (now 0.08 %); 300 + 100 us from
+/// 800 us, seeds 11, 15 and 17 ran at 0.9-3.2 % with the damping on for 2-4.6 s (now
+/// 0.10-0.11 %, 0.1 s). (A lead too short
+/// rings at the specimen's resonance, where the observer reads the energy generated and
+/// the ring's own reading moves the lead: `follow_oscillation`.)
+const SAFE_START_RING_BLOCK: u32 = 64;
+const SAFE_START_RING_BLOCKS: u32 = 3;
+const SAFE_START_RING_GROWTH: f64 = 1.2;
+const SAFE_START_RING_FLOOR_M: f64 = 3e-6;
 
 impl PassivityGuard {
     pub fn new(cfg: &CompensationConfig, dt_s: f64) -> PassivityGuard {
@@ -374,8 +408,33 @@ impl PassivityGuard {
             last_z_hp_m: 0.0,
             dt_s,
             armed: cfg.adapt && cfg.adapt_lead && cfg.passivity_guard,
+            block_peak_m: 0.0,
+            last_block_peak_m: f64::INFINITY,
+            block_samples: 0,
+            growing_blocks: 0,
             activity: GuardActivity::default(),
         }
+    }
+
+    /// The safe start's ring check (`SAFE_START_RING_BLOCK`): true when its damping rings.
+    #[inline]
+    fn damping_rings(&mut self, s: &crate::hil::passivity::EnergyState) -> bool {
+        self.block_peak_m = self.block_peak_m.max(s.oscillation_m.abs());
+        self.block_samples += 1;
+        if self.block_samples < SAFE_START_RING_BLOCK {
+            return false;
+        }
+        if self.block_peak_m >= SAFE_START_RING_GROWTH * self.last_block_peak_m {
+            self.growing_blocks += 1;
+        } else {
+            self.growing_blocks = 0;
+        }
+        self.last_block_peak_m = self.block_peak_m;
+        self.block_peak_m = 0.0;
+        self.block_samples = 0;
+        self.growing_blocks >= SAFE_START_RING_BLOCKS
+            && self.last_block_peak_m >= SAFE_START_RING_FLOOR_M
+            && s.generated_high_j <= self.onset_energy_j
     }
 
     /// Ends the safe start: from the next sample on, the damping follows the energy
@@ -395,12 +454,19 @@ impl PassivityGuard {
 
     pub fn restart(&mut self) {
         self.observer.restart();
+        self.block_peak_m = 0.0;
+        self.last_block_peak_m = f64::INFINITY;
+        self.block_samples = 0;
+        self.growing_blocks = 0;
     }
 
     /// One consecutive rig sample in force control.
     #[inline]
     pub fn update(&mut self, z_m: f64, element_force_n: f64, measured_force_n: f64) -> GuardState {
         let s = self.observer.update(z_m, element_force_n, measured_force_n);
+        if self.armed && self.damping_rings(&s) {
+            self.disarm();
+        }
         // Damping in proportion to the energy generated (none while the loop absorbs it),
         // at once when it rises, released slowly when it falls.
         let span = (self.full_energy_j - self.onset_energy_j).max(1e-12);
@@ -484,6 +550,8 @@ pub struct Compensator {
     /// The oscillation estimate's target averaged over about a period of the ring
     /// (`RING_PERIODS_AVERAGED`); NaN before the window is full.
     ring_target_avg: f64,
+    /// The delay estimator's latest estimate (`adapt`).
+    last_estimate: Option<DelayEstimate>,
     /// The weights' sum since the first sample (`1 - decay^n`): `missing_share /
     /// missing_weight` is the share without the start's bias towards 0.
     missing_weight: f64,
@@ -615,6 +683,39 @@ impl ContactGain {
 /// The lead agrees with a resolved delay within this fraction: the safe start ends.
 const SAFE_START_AGREEMENT: f64 = 0.1;
 
+/// The tolerance of `SAFE_START_AGREEMENT` around a delay `target_s`, never under 20 us.
+#[inline]
+fn safe_start_tolerance(target_s: f64) -> f64 {
+    (SAFE_START_AGREEMENT * target_s).max(20e-6)
+}
+
+/// An estimate precise enough to end the safe start: its standard error within
+/// `safe_start_tolerance` of the delay (clamped to the lead's bounds), from at least
+/// `MIN_INDEPENDENT` residuals.
+#[inline]
+fn safe_start_precise(e: DelayEstimate, max_delay_s: f64) -> bool {
+    let target = e.delay_s.clamp(0.0, max_delay_s);
+    e.independent >= MIN_INDEPENDENT
+        && e.delay_sigma_s.is_finite()
+        && e.delay_sigma_s <= safe_start_tolerance(target)
+}
+
+/// Under the safe start, a precise delay estimate (`safe_start_precise`) within this
+/// fraction of the lead is reached at the ring's rate (`OSCILLATION_MAX_RATE`), not at
+/// `adapt_time`'s, so that the safe start ends as soon as the estimate is in; and a ring
+/// reading that would move the lead away from such an estimate (longer when it says
+/// shorter, or the reverse) is not taken. The safe start's full damping is a precaution
+/// for a lead too short; kept on a lead a little too long it is itself what generates
+/// energy at the band's top, and the ring read there points the wrong way. In-process,
+/// `perturb = 0.3` seeds 1-20 (2026-11-28): `lag-delay` 300 + 100 us from a guess of
+/// 800 us read 445-545 us precisely by 0.15-0.3 s while the lead crept down from 800 us
+/// at `adapt_time`'s pace; a 398-399 Hz ring then read 1054-1062 us, the lead went there
+/// and seeds 9, 13 and 14 tripped `loop-unstable` (now 0.08-0.09 %, no fault). Within
+/// the fraction only: a servo-hydraulic force loop's precise estimate is its load band's
+/// delay, not the lead its loop needs (`slow-250kn` read 4.2 ms against the 252 us guess
+/// and, moved there at once, swung 1.3-1.5 mm for 3 s instead of tripping at 0.28 s).
+const SAFE_START_FAST_RANGE: f64 = 0.5;
+
 /// Longest run of samples without a setpoint that the compensator bridges (8 ms at
 /// 4096 Hz); a longer gap restarts the estimator, whose warm-up is 133 ms. Under emulator
 /// stalls of 1-8 periods every 4-16 ms (a loaded machine) a limit of 8 restarted it more
@@ -735,6 +836,7 @@ impl Compensator {
             oscillation_target: None,
             ring_lead: None,
             ring_target_avg: f64::NAN,
+            last_estimate: None,
         }
     }
 
@@ -966,6 +1068,16 @@ impl Compensator {
             && (OSCILLATION_LOW_HZ..=self.cfg.guard_band_top_hz).contains(&o.frequency_hz)
         {
             let target = self.ring_target_avg;
+            // Under the safe start a precise delay estimate on the other side of the lead
+            // overrules the ring (`SAFE_START_FAST_RANGE`).
+            let contradicted = self.guard.armed()
+                && self.last_estimate.is_some_and(|e| {
+                    safe_start_precise(e, self.cfg.max_delay_s)
+                        && (target - self.lead_s) * (e.delay_s - self.lead_s) < 0.0
+                });
+            if contradicted {
+                return;
+            }
             if (target - self.lead_s).abs() > OSCILLATION_ARRIVED_S {
                 self.oscillation_target = Some(target);
             }
@@ -986,10 +1098,9 @@ impl Compensator {
             return;
         }
         let target = e.delay_s.clamp(0.0, self.cfg.max_delay_s);
-        let tolerance = (SAFE_START_AGREEMENT * target).max(20e-6);
-        let precise = e.delay_sigma_s <= tolerance;
-        let agrees = (target - self.lead_s).abs() <= tolerance.max(2.0 * e.delay_sigma_s);
-        if precise && agrees {
+        let agrees =
+            (target - self.lead_s).abs() <= safe_start_tolerance(target).max(2.0 * e.delay_sigma_s);
+        if safe_start_precise(e, self.cfg.max_delay_s) && agrees {
             self.guard.disarm();
         }
     }
@@ -1003,6 +1114,7 @@ impl Compensator {
     /// actuator keeps the damping).
     #[inline]
     fn adapt(&mut self, e: DelayEstimate) {
+        self.last_estimate = Some(e);
         self.status.identified_delay_s = e.delay_s;
         self.status.identified_delay_sigma_s = e.delay_sigma_s;
         if !(0.5..=2.0).contains(&e.residual_gain) {
@@ -1035,8 +1147,18 @@ impl Compensator {
         }
         // At most 20 ms of lead per second (5 us per sample at 4096 Hz): a servo-hydraulic
         // actuator a few ms slower than the first guess is reached within the first second.
+        // Under the safe start a precise estimate near the lead is reached at the ring's
+        // rate instead (`SAFE_START_FAST_RANGE`).
         let max_step = 20e-3 * self.dt_s;
-        let step = (k * difference).clamp(-max_step, max_step);
+        let step = if self.guard.armed()
+            && safe_start_precise(e, self.cfg.max_delay_s)
+            && difference.abs() <= SAFE_START_FAST_RANGE * self.lead_s
+        {
+            let fast = OSCILLATION_MAX_RATE * self.dt_s;
+            difference.clamp(-fast, fast)
+        } else {
+            (k * difference).clamp(-max_step, max_step)
+        };
         let (low, high) = match self.ring_lead {
             Some(r) => (r, (1.0 + RING_LEAD_RANGE) * r),
             None => (0.0, self.cfg.max_delay_s),
