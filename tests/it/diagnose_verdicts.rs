@@ -956,6 +956,28 @@ fn a_channel_skew_beside_a_resonance_or_self_heating_is_named_with_it() {
         &long_records(),
     );
     assert_named_set(&d, &["channel-delay", "self-heating"]);
+
+    // The force channel late instead, by more than the element's loss angle at the top
+    // of the band (0.3 ms is 2.2 degrees at 20 Hz): those records show a negative loop
+    // area, which was clamped to zero before the lag's correction, so the model heated by
+    // the correction alone and self-heating was never named beside it (2026-11-28, a
+    // helper's blind campaigns and `synth-campaign --hidden self-heating+channel-delay`).
+    let heating = Truth {
+        force_lag_s: 0.3e-3,
+        ..heating
+    };
+    let d = diagnose_case_with(
+        "heating-lag",
+        &heating,
+        &standard_design(),
+        &[],
+        &Noise::typical(),
+        33,
+        &long_records(),
+    );
+    assert_named_set(&d, &["channel-delay", "self-heating"]);
+    let lag = final_param(&d, EffectKind::ChannelDelay, "force_lag_s");
+    assert!((lag - 0.3e-3).abs() < 0.03e-3, "force lag {lag}");
 }
 
 /// A moving mass beside a load-train resonance: below the mode both add a force rising

@@ -205,13 +205,19 @@ pub fn assign_campaign_time(data: &mut [CycleData], campaign: &Campaign) {
     for (test, d) in campaign.tests.iter().zip(data.iter()) {
         let n = test.displacement_m.len();
         let duration_s = (n.max(1) as f64) * test.dt_s;
+        // The energy the record shows dissipated, not clamped here: a force channel late
+        // by more than the element's loss angle shows a negative one (0.3 ms at 20 Hz is
+        // 2.2 degrees against about 0.8), and only with the lag's correction below
+        // (`campaign_temperature_rise_k`) is it the element's. Clamped before the
+        // correction, such tests heated the model by the correction alone: self-heating
+        // beside a 0.3 ms lag was never named (2026-11-28). The drift's energy clock
+        // takes it clamped, as before.
         let energy_j: f64 = test
             .displacement_m
             .windows(2)
             .zip(test.force_n.windows(2))
             .map(|(z, f)| 0.5 * (f[0] + f[1]) * (z[1] - z[0]))
-            .sum::<f64>()
-            .max(0.0);
+            .sum::<f64>();
         // sum dF/dt dz: the energy's change per second of force lag corrected.
         let energy_per_lag_j_per_s: f64 = test
             .displacement_m
@@ -237,7 +243,7 @@ pub fn assign_campaign_time(data: &mut [CycleData], campaign: &Campaign) {
             probe_s,
             power_per_lag_w_per_s: energy_per_lag_j_per_s / duration_s.max(1e-300),
         });
-        energies.push(energy_j);
+        energies.push(energy_j.max(0.0));
     }
     let mut order: Vec<usize> = (0..data.len()).collect();
     order.sort_by(|&a, &b| intervals[a].start_s.total_cmp(&intervals[b].start_s));
