@@ -347,6 +347,10 @@ pub(super) fn springpot_check(
     )
 }
 
+/// A rival's corner above this many times the highest harmonic test frequency is a
+/// dashpot to every test (its loss within 1 % of `k tau omega` up to 1/10 of the corner).
+const DASHPOT_CORNER_FACTOR: f64 = 10.0;
+
 /// A force channel's delay is named only if it beats its discrete rival: a lead of the
 /// force channel adds loss rising with frequency, as a second Maxwell branch (a relaxation
 /// beyond the library) does below its corner. `rival_check` for `channel-delay`.
@@ -400,13 +404,12 @@ fn rival_check(
         EffectKind::ChannelDelay => "a channel delay",
         _ => kind.name(),
     };
-    let corner_hz = 1.0 / (2.0 * std::f64::consts::PI * r.tau_s);
-    let branch = format!(
-        "a second Maxwell branch ({:.3e} N/m, {:.3} ms, corner {:.0} Hz) in its place",
-        r.stiffness_n_per_m,
-        r.tau_s * 1e3,
-        corner_hz
-    );
+    let f_hi = data
+        .iter()
+        .filter(|d| !d.is_history())
+        .map(|d| d.frequency_hz)
+        .fold(0.0, f64::max);
+    let (branch, telling) = rival_branch_text(r.stiffness_n_per_m, r.tau_s, f_hi);
     if r.advantage < -RIVAL_ADVANTAGE || (r.advantage < 0.0 && r.expected_advantage >= power) {
         return (Some(format!(
             "is a discrete relaxation rather (beyond the library): {branch} fits the harmonic tests better by {:.1} residual variances, where {what} would have fitted them better by about {:.1}",
@@ -416,14 +419,44 @@ fn rival_check(
     }
     let note = (r.advantage < RIVAL_ADVANTAGE).then(|| {
         format!(
-            "not told from a discrete relaxation by these tests: {branch} fits the harmonic tests about as well ({} by {:.1} residual variances; 9 is 3 standard errors); tests from {:.0} to {:.0} Hz, around that corner, would tell them apart",
+            "not told from a discrete relaxation by these tests: {branch} fits the harmonic tests about as well ({} by {:.1} residual variances; 9 is 3 standard errors); {telling}",
             if r.advantage < 0.0 { "the branch better".to_string() } else { format!("{what} better") },
             r.advantage.abs(),
-            0.5 * corner_hz,
-            2.0 * corner_hz
         )
     });
     (None, note)
+}
+
+/// How a fitted rival branch (`stiffness`, `tau`) is described, and which tests would tell
+/// it from the effect, given the highest harmonic test frequency `f_hi`. A corner far above
+/// every test (the fit ran its relaxation time towards zero) leaves a plain dashpot `k tau`:
+/// no test "around the corner" can be proposed (a helper's blind campaigns, 2026-11-28:
+/// "corner 298146968 Hz", tests "from 149073484 Hz").
+fn rival_branch_text(stiffness_n_per_m: f64, tau_s: f64, f_hi: f64) -> (String, String) {
+    let corner_hz = 1.0 / (2.0 * std::f64::consts::PI * tau_s);
+    if corner_hz > DASHPOT_CORNER_FACTOR * f_hi {
+        (
+            format!(
+                "a dashpot of {:.3e} N s/m beside the element (a second Maxwell branch whose corner ran far above every test) in its place",
+                stiffness_n_per_m * tau_s
+            ),
+            "tests where the element's stiffness differs most (preloads, temperatures: a channel's lead adds loss in proportion to the element's stiffness, a dashpot the same at every operating point) would tell them apart".to_string(),
+        )
+    } else {
+        (
+            format!(
+                "a second Maxwell branch ({:.3e} N/m, {:.3} ms, corner {:.0} Hz) in its place",
+                stiffness_n_per_m,
+                tau_s * 1e3,
+                corner_hz
+            ),
+            format!(
+                "tests from {:.0} to {:.0} Hz, around that corner, would tell them apart",
+                0.5 * corner_hz,
+                2.0 * corner_hz
+            ),
+        )
+    }
 }
 
 /// What a named force lag `tau` beside a named moving mass `m` cannot rule out: within
@@ -654,3 +687,22 @@ const CHANNEL_DELAY_RIVAL_POWER: f64 = 16.0;
 const SPRINGPOT_ORDER_COST: f64 = 9.0;
 /// Smallest difference of the band orders that counts (a tenth of the order's range).
 const SPRINGPOT_ORDER_MATERIAL: f64 = 0.1;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A branch with its corner near the tests is named by its corner and the band that
+    /// would tell it apart; one whose corner ran far above every test (0.5 ns: 318 MHz) is
+    /// the dashpot `k tau` it is to every test, with no band beyond them proposed.
+    #[test]
+    fn a_rival_whose_corner_ran_away_is_described_as_the_dashpot_it_is() {
+        let (branch, telling) = rival_branch_text(2e6, 2e-3, 20.0);
+        assert!(branch.contains("corner 80 Hz"), "{branch}");
+        assert!(telling.contains("from 40 to 159 Hz"), "{telling}");
+        let (branch, telling) = rival_branch_text(3.2e13, 0.5e-9, 20.0);
+        assert!(branch.contains("dashpot of 1.600e4 N s/m"), "{branch}");
+        assert!(!telling.contains("Hz"), "{telling}");
+        assert!(!branch.contains("Hz"), "{branch}");
+    }
+}
