@@ -930,6 +930,15 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
             None
         }
     };
+    // An external rig says it finished in its heartbeat (or the link's finished
+    // datagrams), not in the samples the report reads: a session it ended at the
+    // programme's end while running says "finished", as the simulated rig's does.
+    let analysis = analysis.map(|mut a| {
+        if args.rig.external() && outcome.rig_finished && a.safety.final_state == "running" {
+            a.safety.final_state = "finished".into();
+        }
+        a
+    });
     summarise(
         &cfg,
         &args,
