@@ -245,7 +245,7 @@ impl Ipc {
                     .map_err(|x| err($name, x))?
             };
         }
-        let samples = service!(Sample, "displacement", 0, 256, 1, 4)
+        let samples = service!(Sample, "displacement", 0, 4096, 1, 4)
             .publisher_builder()
             .create()
             .map_err(|x| err("displacement publisher", x))?;

@@ -25,8 +25,8 @@
  * hil creates these services before it waits for the rig: open them. A rig that starts
  * before hil and creates them must use these settings (history size, subscriber buffer,
  * max publishers, max subscribers; every service: safe overflow on, max 8 nodes):
- *   displacement 0, 256, 1, 4    command 0, 8, 1, 4    heartbeat 0, 64, 4, 6
- *   control      1, 8,   4, 4
+ *   displacement 0, 4096, 1, 4   command 0, 8, 1, 4    heartbeat 0, 64, 4, 6
+ *   control      1, 8,    4, 4
  *
  * Start handshake: the rig publishes a heartbeat {process 0, state FASTEMU_HEARTBEAT_READY}
  * every 5-10 ms until a run control START arrives. START.start_time_ns is the

@@ -410,10 +410,14 @@ pub struct RigServices {
 /// (it starts before `hil`) must use these (README "Connecting a rig").
 pub fn service_settings(stream: Stream) -> (usize, usize, usize, usize) {
     match stream {
-        // The displacement stream holds 256 samples (62 ms at 4096 Hz): a reader stalled
+        // The displacement stream holds 4096 samples (1 s at 4096 Hz): a reader stalled
         // by the OS for milliseconds still drains and validates every sample it missed,
-        // so a single bad sample cannot be overwritten unseen.
-        Stream::Displacement => (0, 256, 1, 4),
+        // so a single bad sample cannot be overwritten unseen; and an external rig's
+        // samples, which are its only record, survive an emulator stall long enough to
+        // trip the loop. With 256 (62 ms), a 300 ms emulator stall in front of an external
+        // rig lost 974 samples, among them the rig's hold, which the report then dated at
+        // the first sample after the gap, 187 ms late (2026-11-28).
+        Stream::Displacement => (0, 4096, 1, 4),
         Stream::Setpoint | Stream::Command => (0, 8, 1, 4),
         // Heartbeats and control messages are rarer; control keeps its last message for
         // late subscribers.
