@@ -390,9 +390,10 @@ pub struct PassivityGuard {
 /// 100 us from 800 us, seeds 11, 15 and 17 ran at 0.9-3.2 % with the damping on for 2-4.6
 /// s (now 0.05-0.06 %). The block peaks of seed 41's ring: 0.35, 0.52, 1.05, 1.83, 2.03,
 /// 3.17 um (the sensor's noise alone about 0.35 um); with 1.2 per block and 3 um the check
-/// caught it at 0.14 s, 25-32 um, beyond `max_transient_m` (`fastemu hil`: not clean). (A lead too short
-/// rings at the specimen's resonance, where the observer reads the energy generated and
-/// the ring's own reading moves the lead: `follow_oscillation`.)
+/// caught it at 0.14 s, 25-32 um, beyond `max_transient_m` (`fastemu hil`: not clean);
+/// with 1.1 and 1.5 um at 0.078 s (clean, 0.06 %). (A lead too short rings at the
+/// specimen's resonance, where the observer reads the energy generated and the ring's
+/// own reading moves the lead: `follow_oscillation`.)
 const SAFE_START_RING_BLOCK: u32 = 64;
 const SAFE_START_RING_BLOCKS: u32 = 3;
 const SAFE_START_RING_GROWTH: f64 = 1.1;
