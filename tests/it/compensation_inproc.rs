@@ -42,6 +42,18 @@ fn faults(run: &InProcessRun) -> Vec<(u32, Fault, f64)> {
         .collect()
 }
 
+/// The rig's true actuator's effective delay on the element (its dynamics and transport
+/// over 1-20 Hz, `ActuatorPlant::effective_delay`) plus half a period of hold, s: the
+/// truth the identified delay is checked against, from the plant, not the controller.
+fn truth_delay_s(cfg: &HilConfig) -> f64 {
+    let k = cfg
+        .model
+        .element
+        .high_frequency_stiffness_n_per_m(cfg.scenario.preload_n);
+    let plant = fastemu::rig::actuator::ActuatorPlant::from_config(&cfg.rig.actuator);
+    plant.effective_delay(k).delay_s + 0.5 / RATE
+}
+
 /// The lead the controller sent last, s.
 fn final_lead_s(run: &InProcessRun) -> f64 {
     run.controller
@@ -482,12 +494,7 @@ fn the_identified_delay_is_the_actuators_effective_delay() {
         irregular.emulator_stalls = (1..20).map(|i| (i * 819, 1)).collect();
         let run = run_in_process(&cfg, &irregular);
         assert!(faults(&run).is_empty(), "{name}: {:?}", faults(&run));
-        let k = cfg
-            .model
-            .element
-            .high_frequency_stiffness_n_per_m(cfg.scenario.preload_n);
-        let plant = fastemu::rig::actuator::ActuatorPlant::from_config(&cfg.rig.actuator);
-        let truth_s = plant.effective_delay(k).delay_s + 0.5 / RATE;
+        let truth_s = truth_delay_s(&cfg);
         let identified_s = run
             .controller
             .iter()
@@ -531,12 +538,7 @@ fn the_identified_delay_is_the_truths_effective_delay_over_the_load_band() {
         assert_eq!(cell.fault, None, "{actuator}");
         assert_eq!(cell.planned_lead_us.is_some(), planned, "{actuator}");
         // The truth, independently: the plant's own response on the element.
-        let k = cfg
-            .model
-            .element
-            .high_frequency_stiffness_n_per_m(cfg.scenario.preload_n);
-        let plant = fastemu::rig::actuator::ActuatorPlant::from_config(&cfg.rig.actuator);
-        let truth_us = (plant.effective_delay(k).delay_s + 0.5 / RATE) * 1e6;
+        let truth_us = truth_delay_s(&cfg) * 1e6;
         let identified = cell.identified_delay_us.expect("an identified delay");
         assert_eq!(cell.identified_from, Some("load-band"), "{actuator}");
         let record = cell.record_delay_us.expect("a record delay");
@@ -973,8 +975,7 @@ fn the_safe_start_ends_under_frequent_emulator_stalls() {
 }
 
 /// A perturbed lag-delay actuator (`perturb = 0.3`, `seed`) from `guess_us`, 3 s in
-/// process: no fault, and the run's configuration, record and truth (effective delay with
-/// half a period of hold).
+/// process: no fault, and the run's configuration, record and truth (`truth_delay_s`).
 fn perturbed_lag_delay_run(
     transport_us: f64,
     lag_us: f64,
@@ -991,12 +992,7 @@ fn perturbed_lag_delay_run(
     );
     let run = run_in_process(&cfg, &script(3.0));
     assert!(faults(&run).is_empty(), "seed {seed}: {:?}", faults(&run));
-    let k = cfg
-        .model
-        .element
-        .high_frequency_stiffness_n_per_m(cfg.scenario.preload_n);
-    let plant = fastemu::rig::actuator::ActuatorPlant::from_config(&cfg.rig.actuator);
-    let truth_s = plant.effective_delay(k).delay_s + 0.5 / RATE;
+    let truth_s = truth_delay_s(&cfg);
     (cfg, run, truth_s)
 }
 
