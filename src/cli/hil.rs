@@ -939,6 +939,9 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         }
         a
     });
+    if let Some(a) = &analysis {
+        order_faults(&mut outcome.faults, &a.safety.faults);
+    }
     summarise(
         &cfg,
         &args,
@@ -950,6 +953,32 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         &effect_names,
         &rig_setup,
     )
+}
+
+/// Orders the faults the processes reported (in the order their heartbeats or exits
+/// reached `hil`, which varies between runs) as they happened: process deaths first (the
+/// cause), then by when the records say each was detected (`safety.faults`), a fault the
+/// records do not date last; ties keep their order. Deterministic for the same run.
+fn order_faults(faults: &mut [String], dated: &[crate::hil::report::safety::FaultReport]) {
+    let when = |f: &String| -> f64 {
+        // "process: fault (detail)"; an external rig's own faults are labelled likewise.
+        let (process, rest) = f.split_once(": ").unwrap_or(("", f.as_str()));
+        let name = rest.split([' ', '(']).next().unwrap_or(rest);
+        let earliest = |same_process: bool| {
+            dated
+                .iter()
+                .filter(|d| d.fault == name && (!same_process || d.process == process))
+                .map(|d| d.detected_at_s)
+                .fold(None, |m: Option<f64>, t| Some(m.map_or(t, |m| m.min(t))))
+        };
+        earliest(true)
+            .or_else(|| earliest(false))
+            .unwrap_or(f64::INFINITY)
+    };
+    faults.sort_by(|a, b| {
+        let death = |f: &String| !f.contains("process (pid");
+        death(a).cmp(&death(b)).then(when(a).total_cmp(&when(b)))
+    });
 }
 
 /// Writes `summary.json`, prints the one-line result (and `--json`), returns the exit code.
@@ -1218,6 +1247,47 @@ fn micrometres(m: Option<f64>) -> String {
 
 #[cfg(test)]
 mod tests {
+    /// The faults as reported in any order come out deaths first, then by when the
+    /// records dated them; an undated one last.
+    #[test]
+    fn faults_are_ordered_as_they_happened() {
+        let dated = |process: &str, fault: &str, at: f64| crate::hil::report::safety::FaultReport {
+            process: process.into(),
+            fault: fault.into(),
+            cause: None,
+            detected_at_s: at,
+            detection_latency_periods: 0,
+            action: None,
+            hold_started_at_s: None,
+            position_at_fault_m: None,
+            largest_excursion_m: None,
+            prefault_range_m: [0.0; 2],
+            beyond_prefault_range_m: None,
+            time_to_rest_s: None,
+            already_held_since_s: None,
+            instability: None,
+        };
+        let records = [
+            dated("emulator", "emulator-stalled", 2.4),
+            dated("controller", "setpoints-stale", 2.1005),
+            dated("bench_rig", "commands-stale", 2.3),
+        ];
+        let expected = vec![
+            "emulator: process (pid 7) killed by signal 9".to_string(),
+            "controller: setpoints-stale (emulator: emulator-stalled)".to_string(),
+            "bench_rig: commands-stale".to_string(),
+            "emulator: emulator-stalled".to_string(),
+            "link: the rig went silent".to_string(),
+        ];
+        let mut faults = expected.clone();
+        faults.reverse();
+        super::order_faults(&mut faults, &records);
+        assert_eq!(faults, expected);
+        faults.swap(1, 3);
+        super::order_faults(&mut faults, &records);
+        assert_eq!(faults, expected);
+    }
+
     #[test]
     fn timestamp_is_utc_civil_time() {
         assert_eq!(super::utc_timestamp(0), "19700101T000000Z");
