@@ -44,11 +44,17 @@ fn closest_known_field(message: &str) -> Option<String> {
         .step_by(2)
         .filter(|c| !c.is_empty())
         .collect();
+    closest_key(unknown, &candidates).map(str::to_string)
+}
+
+/// The key among `candidates` nearest to `unknown`, when it is near enough to be a
+/// misspelling of it (for keys checked outside serde, such as `[rig.actuator]`'s).
+pub fn closest_key<'a>(unknown: &str, candidates: &[&'a str]) -> Option<&'a str> {
     let (distance, best) = candidates
         .iter()
         .map(|c| (edit_distance(unknown, c), *c))
         .min_by_key(|(d, _)| *d)?;
-    (distance <= (unknown.len() / 3).max(2)).then(|| best.to_string())
+    (distance <= (unknown.len() / 3).max(2)).then_some(best)
 }
 
 /// Levenshtein distance over chars.

@@ -442,6 +442,8 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
         .compensation
         .initial_delay_s
         .min(crate::hil::check::starting_lead_cap_s(cfg));
+    // The configured guess, reported as such (the plan may start elsewhere: `lead_us`).
+    let guess_s = cfg.compensation.initial_delay_s;
     let planned = planned_config(cfg, plan.as_ref());
     let cfg = &planned;
     let cap_s = crate::hil::check::starting_lead_cap_s(cfg);
@@ -480,7 +482,7 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                 "margins": m,
                 "stable_leads_us": lin.stable_leads(cfg.compensation.max_delay_s).map(|(a, b)| [a * 1e6, b * 1e6]),
                 "lead_us": lead_s * 1e6,
-                "initial_delay_us": cfg.compensation.initial_delay_s * 1e6,
+                "initial_delay_us": guess_s * 1e6,
                 "starting_lead_capped": cap_s.is_finite(),
                 "lead_order": cfg.compensation.lead_order,
                 "safe_start_stable": safe_start,
@@ -530,10 +532,12 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     eprintln!(
         "  compensation: starting lead {:.0} us ({}), prediction order {}",
         lead_s * 1e6,
-        if cfg.compensation.adapt_lead {
-            "[compensation] initial_delay_us"
-        } else {
+        if !cfg.compensation.adapt_lead {
             "planned, fixed"
+        } else if cap_s.is_finite() {
+            "[compensation] initial_delay_us, capped"
+        } else {
+            "[compensation] initial_delay_us"
         },
         cfg.compensation.lead_order
     );
@@ -709,7 +713,26 @@ fn not_clean_because(
             "{records_dropped} records dropped (record queue full)"
         ));
     }
+    if let Some(missed) = injections_not_fired(cfg, analysis.map_or(0, |a| a.safety.injected.len()))
+    {
+        why.push(missed);
+    }
     why
+}
+
+/// A fault test whose fault never came must not pass as a clean run: the configured
+/// `[[inject]]` faults beyond those the records say were injected (`safety.injected`).
+fn injections_not_fired(cfg: &HilConfig, fired: usize) -> Option<String> {
+    let configured = cfg.injections.len();
+    (fired < configured).then(|| {
+        let all: Vec<String> = cfg.injections.iter().map(|i| i.describe()).collect();
+        format!(
+            "{} of {configured} configured [[inject]] faults never fired (configured: {}; the run ended at {} s of programme)",
+            configured - fired,
+            all.join(", "),
+            cfg.scenario.duration_s
+        )
+    })
 }
 
 /// Checks the live view's options and binds its address when asked, before anything of
@@ -857,6 +880,8 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
     // The plan for the declared actuator (the simulated rig's, or an external rig's with
     // plan_for_external_rig), left for the controller; the report judges the run as planned.
     let compensation_plan = crate::hil::check::plan_for_rig(&cfg, args.rig.external());
+    // What the configuration asked for, reported as such beside what the plan set.
+    let configured = cfg.compensation;
     let cfg = planned_config(&cfg, compensation_plan.as_ref());
     // The controller reads the plan from the report directory: one left there by an
     // earlier run in the same directory must not stand for this one.
@@ -871,6 +896,14 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         eprintln!("hil: the external rig's actuator is unknown to fastemu, which learns its delay and gain during the run (adapt); a lab that knows its actuator and specimen can declare them in [rig.actuator] and [rig] with [compensation] plan_for_external_rig = true, and the launcher plans the compensation for them (docs/compensation.md, \"An external rig's declared actuator\")");
     }
     crate::hil::check::leave_plan(&out_dir, compensation_plan.as_ref())?;
+    let cap_s = crate::hil::check::starting_lead_cap_s(&cfg);
+    if cap_s < cfg.compensation.initial_delay_s {
+        eprintln!(
+            "hil: the run starts at a lead of {:.0} us, not at [compensation] initial_delay_us = {:.0} us: that lead would make the loop diverge within milliseconds in front of an actuator twice as fast as the guess; the adaptation takes the lead on from there (docs/compensation.md, \"Adaptation\")",
+            cap_s * 1e6,
+            cfg.compensation.initial_delay_s * 1e6
+        );
+    }
     if crate::hil::check::declares_the_rig(&cfg, args.rig.external()) {
         if let Some(warning) = stability_warning(&cfg) {
             eprintln!("hil: WARNING: {warning}");
@@ -878,6 +911,12 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
     }
     for inj in &cfg.injections {
         eprintln!("hil: injected fault configured: {}", inj.describe());
+        if inj.at_s >= cfg.scenario.duration_s {
+            eprintln!(
+                "hil: WARNING: it comes at or after the run's end ({} s of programme, [scenario] duration_s or --duration-s): it fires only if holds stretch the run, and a run it does not fire in is not clean",
+                cfg.scenario.duration_s
+            );
+        }
     }
     let effect_names: Vec<&str> = cfg.augmented.effects.iter().map(|e| e.name()).collect();
     if !effect_names.is_empty() {
@@ -937,6 +976,8 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         if args.rig.external() && outcome.rig_finished && a.safety.final_state == "running" {
             a.safety.final_state = "finished".into();
         }
+        // The guess as configured; `starting_lead_us` is the lead the run started with.
+        a.compensation.initial_delay_us = configured.initial_delay_s * 1e6;
         a
     });
     if let Some(a) = &analysis {
@@ -952,6 +993,7 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         records,
         &effect_names,
         &rig_setup,
+        &configured,
     )
 }
 
@@ -993,6 +1035,7 @@ fn summarise(
     records: serde_json::Value,
     effect_names: &[&str],
     rig_setup: &RigSetup,
+    configured: &crate::hil::compensation::CompensationConfig,
 ) -> anyhow::Result<ExitCode> {
     let emu = read_json(&out_dir.join("emulator-summary.json"));
     let rig = read_json(&out_dir.join("rig-summary.json"));
@@ -1060,10 +1103,11 @@ fn summarise(
                 crate::hil::config::CommandMode::Law => "law",
                 crate::hil::config::CommandMode::Force => "force",
             },
-            "initial_delay_us": cfg.compensation.initial_delay_s * 1e6,
-            "lead_order": cfg.compensation.lead_order,
-            "adapt": cfg.compensation.adapt,
-            "passivity_guard": cfg.compensation.passivity_guard,
+            // As configured; what the plan made of them: `compensation.plan`.
+            "initial_delay_us": configured.initial_delay_s * 1e6,
+            "lead_order": configured.lead_order,
+            "adapt": configured.adapt,
+            "passivity_guard": configured.passivity_guard,
         },
         "force_mode_compensation": {
             "enabled": cfg.controller.compensation_enabled,
@@ -1286,6 +1330,27 @@ mod tests {
         faults.swap(1, 3);
         super::order_faults(&mut faults, &records);
         assert_eq!(faults, expected);
+    }
+
+    /// A configured injection the records do not show (the run ended first) makes the run
+    /// not clean, naming it; none configured, or all fired, says nothing.
+    #[test]
+    fn an_injection_that_never_fired_is_named() {
+        use crate::hil::config::{InjectKind, Injection, LoopProcess};
+        let mut cfg = crate::hil::config::default_hil_config().unwrap();
+        assert_eq!(super::injections_not_fired(&cfg, 0), None);
+        cfg.injections.push(Injection {
+            process: LoopProcess::Emulator,
+            kind: InjectKind::Stall { duration_s: 0.1 },
+            at_s: 9.0,
+        });
+        assert_eq!(super::injections_not_fired(&cfg, 1), None);
+        let why = super::injections_not_fired(&cfg, 0).expect("named");
+        assert!(
+            why.starts_with("1 of 1 configured [[inject]] faults never fired")
+                && why.contains("emulator stall 100 ms at 9.000 s"),
+            "{why}"
+        );
     }
 
     #[test]

@@ -356,7 +356,8 @@ pub fn compensation_plan(cfg: &HilConfig) -> Option<CompensationPlan> {
     let scan = tolerance_scan(cfg, starting, TOLERANCE_DRAWS, PLAN_LEAD_STEP_S);
     if let Some((lead_us, count)) = scan.most_widely_stable {
         plan.lead_fixed = true;
-        plan.lead_us = lead_us;
+        // The scan's steps are whole microseconds (its sums leave 2849.9999999999995).
+        plan.lead_us = (lead_us * 1e3).round() / 1e3;
         plan.lead_stable_for = count;
         if c.passivity_guard {
             let mut lin = LinearLoop::for_plant(cfg, &plants[0], lead_us * 1e-6, 1.0);

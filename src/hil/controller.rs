@@ -481,6 +481,11 @@ impl ControllerCore {
                     sp.measured_force_n,
                     sp.commanded_force_n,
                 );
+                // The gain's read from the rig's own command comes first (a few samples
+                // under the rig's servo); the staleness bounds are tens of periods.
+                if !self.compensator.ready_to_command() {
+                    return None;
+                }
                 if sp.rig_state == rig_state::RUNNING {
                     self.compensator.on_sample(
                         sp.sample_sequence,

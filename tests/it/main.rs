@@ -9,6 +9,7 @@ mod compensation_inproc;
 mod diagnose_campaigns;
 mod diagnose_run;
 mod diagnose_verdicts;
+mod docs_links;
 mod durability;
 mod effects_model;
 mod gen;

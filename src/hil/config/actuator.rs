@@ -90,12 +90,19 @@ pub(super) fn parse_actuator(
         )
     })?;
     let keys = kind.keys();
-    for name in t.keys() {
+    for (name, value) in t.iter() {
         if !COMMON_KEYS.contains(&name.as_str()) && !keys.iter().any(|k| k.name == name) {
+            let valid: Vec<&str> = keys
+                .iter()
+                .map(|k| k.name)
+                .chain(COMMON_KEYS.iter().copied())
+                .collect();
+            let guess = crate::tomlerr::closest_key(name, &valid)
+                .map_or(String::new(), |g| format!(" (did you mean `{g}`?)"));
             return Err(check.err(
                 &format!("rig.actuator.{name}"),
                 format!(
-                    "not a parameter of kind \"{}\": expected {} (and {})",
+                    "`{name} = {value}` is not a parameter of kind \"{}\": expected {} (and {}){guess}",
                     kind.name(),
                     keys.iter().map(|k| k.name).collect::<Vec<_>>().join(", "),
                     COMMON_KEYS.join(", ")

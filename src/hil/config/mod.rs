@@ -646,8 +646,23 @@ mod tests {
             .to_string();
         assert!(
             e.contains("rig.actuator.valve_frequency_hz")
+                && e.contains("`valve_frequency_hz = 100.0`")
                 && e.contains("lag-delay")
-                && e.contains("lag_us"),
+                && e.contains("lag_us")
+                && !e.contains("did you mean"),
+            "{e}"
+        );
+        // A misspelt key: its value and the key meant.
+        let e = with_actuator(
+            "kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_uss = 80.0\nforce_max_n = 1e5",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("x.toml")
+                && e.contains("rig.actuator.lag_uss")
+                && e.contains("`lag_uss = 80.0`")
+                && e.ends_with("(did you mean `lag_us`?)"),
             "{e}"
         );
         let e = with_actuator("kind = \"lag-delay\"\ntransport_delay_us = 50.0\nforce_max_n = 1e5")
