@@ -301,9 +301,13 @@ fn a_cut_link_leaves_the_rig_holding_and_trips_the_emulator() {
         if emulator.fault().is_some() && emulator_trip_cycle.is_none() {
             emulator_trip_cycle = Some(k);
         }
+        // The controller answers from the rig's second sample on (it reads the gain from
+        // the rig's own command first: `Compensator::ready_to_command`).
+        let mut sent_now = false;
         if !cut {
             for sp in io.setpoints {
                 if let Some((cmd, _)) = controller.on_setpoint(&sp, k * period_ns + 30_000) {
+                    sent_now = true;
                     tx.send_command(&CommandDatagram {
                         command: cmd,
                         echo_sample_time_ns: 0,
@@ -315,7 +319,7 @@ fn a_cut_link_leaves_the_rig_holding_and_trips_the_emulator() {
         }
         let t = Instant::now();
         let mut got = false;
-        while !cut && !got {
+        while !cut && sent_now && !got {
             rig_end.receive_commands(&mut |c| {
                 rig.on_command(c);
                 got = true;
