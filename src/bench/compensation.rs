@@ -70,6 +70,8 @@ pub struct FidelityCell {
     pub record_delay_us: Option<f64>,
     pub truth_delay_us: f64,
     pub final_lead_us: f64,
+    /// With the planned fixed lead: the nudge's steps (`CompensationReport::lead_nudges`).
+    pub lead_nudges: Option<u32>,
     pub settled_at_s: Option<f64>,
     pub faithful_band_hz: Option<f64>,
     /// The band judged after the safe start only (`None`: the guard never armed).
@@ -186,7 +188,10 @@ pub fn fidelity_cell(cfg: &HilConfig, actuator: &str, duration_s: f64) -> Fideli
     for r in &run.emulator {
         analyser.emulator(r);
     }
-    let mut c = analyser.finish(cfg);
+    // Judged as planned, as `fastemu hil` judges a run (the plan's fixed lead and nudge).
+    let mut as_planned = cfg.clone();
+    as_planned.compensation = crate::hil::check::planned(&cfg.compensation, run.plan.as_ref());
+    let mut c = analyser.finish(&as_planned);
     if let Some(mut settled) = crate::hil::report::compensation::SettledRendering::after(&c) {
         for r in &run.emulator {
             settled.emulator(r);
@@ -220,6 +225,7 @@ pub fn fidelity_cell(cfg: &HilConfig, actuator: &str, duration_s: f64) -> Fideli
             (plant.effective_delay(k).delay_s + 0.5 * cfg.loop_.dt_s()) * 1e6
         },
         final_lead_us: c.final_lead_us,
+        lead_nudges: c.lead_nudges,
         settled_at_s: c.settled_at_s,
         faithful_band_hz: c.faithful_band_hz,
         faithful_band_after_safe_start_hz: c.faithful_band_after_safe_start_hz,
@@ -239,9 +245,13 @@ pub fn fidelity_table(cells: &[FidelityCell]) -> String {
         s.push_str(&format!(
             "| {} | {} | {} | {:.3} | {} | {} | {} | {:.0} | {} | {} | {} | {:.2} | {:.1} |\n",
             c.actuator,
-            match c.planned_lead_us {
-                Some(lead) => format!("{:.0} (planned: fixed {lead:.0})", c.initial_delay_us),
-                None => format!("{:.0}", c.initial_delay_us),
+            match (c.planned_lead_us, c.lead_nudges) {
+                (Some(lead), Some(n)) if n > 0 => format!(
+                    "{:.0} (planned: fixed {lead:.0}, stepped {n}x to {:.0})",
+                    c.initial_delay_us, c.final_lead_us
+                ),
+                (Some(lead), _) => format!("{:.0} (planned: fixed {lead:.0})", c.initial_delay_us),
+                (None, _) => format!("{:.0}", c.initial_delay_us),
             },
             c.fault.as_deref().unwrap_or("none"),
             c.displacement_error_pct,

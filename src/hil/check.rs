@@ -21,6 +21,7 @@ use std::f64::consts::PI;
 use realfft::num_complex::Complex64;
 
 use super::config::HilConfig;
+use crate::hil::compensation::NudgeRange;
 use crate::model::equiv::equivalent;
 use crate::plot::{draw_png, Panel, Series};
 use crate::rig::actuator::ActuatorPlant;
@@ -178,6 +179,61 @@ pub struct CompensationPlan {
     /// should lie near when the hardware is the declared actuator (`declaration_check`).
     #[serde(default)]
     pub effective_delays_us: Option<(f64, f64)>,
+    /// With the lead fixed: where the controller may step it when the loop keeps
+    /// oscillating (`compensation::LeadNudge`), from `nudge_range`; `None` when the
+    /// frequencies a lead too short and one too long go unstable at do not separate.
+    #[serde(default)]
+    pub nudge: Option<NudgeRange>,
+}
+
+/// How far apart the frequencies of a lead too short and one too long must lie (the
+/// highest of the first against the lowest of the second) for the nudge to tell them.
+const NUDGE_SEPARATION: f64 = 2.0;
+
+/// The planned fixed lead's nudge (`compensation::LeadNudge`) over `plants` and their
+/// stable windows (`ToleranceScan::windows_us`): the leads from the lowest window's start
+/// to the highest one's end, and the frequency between where a lead just below a window
+/// and one just above it make the loop unstable (the linearised loop's thinnest
+/// frequency there). `None` when those frequencies overlap (within `NUDGE_SEPARATION`) or
+/// no window is known.
+fn nudge_range(
+    cfg: &HilConfig,
+    plants: &[ActuatorPlant],
+    windows_us: &[Option<(f64, f64)>],
+    step_s: f64,
+) -> Option<NudgeRange> {
+    let edges = on_two_threads(
+        &plants.iter().zip(windows_us).collect::<Vec<_>>(),
+        |(plant, window)| {
+            let (lo, hi) = window.map(|(a, b)| (a * 1e-6, b * 1e-6))?;
+            let mut lin = LinearLoop::for_plant(cfg, plant, lo, 1.0);
+            let short = (lo > step_s).then(|| {
+                lin.lead_s = lo - step_s;
+                lin.thinnest_frequency_hz()
+            });
+            let long = (hi + step_s <= cfg.compensation.max_delay_s).then(|| {
+                lin.lead_s = hi + step_s;
+                lin.thinnest_frequency_hz()
+            });
+            Some((lo, hi, short, long))
+        },
+    );
+    let known: Vec<_> = edges.into_iter().flatten().collect();
+    let low_s = known.iter().map(|e| e.0).fold(f64::INFINITY, f64::min);
+    let high_s = known.iter().map(|e| e.1).fold(0.0, f64::max);
+    let short_max = known.iter().filter_map(|e| e.2).fold(0.0, f64::max);
+    let long_min = known
+        .iter()
+        .filter_map(|e| e.3)
+        .fold(f64::INFINITY, f64::min);
+    if known.is_empty() || !(short_max > 0.0 && long_min.is_finite()) {
+        return None;
+    }
+    (long_min > NUDGE_SEPARATION * short_max).then(|| NudgeRange {
+        low_s,
+        high_s,
+        split_hz: (short_max * long_min).sqrt(),
+    })
 }
 
 /// How many actuators within the tolerance `declared_effective_delays_us` draws: the 24 of
@@ -343,6 +399,7 @@ pub fn compensation_plan(cfg: &HilConfig) -> Option<CompensationPlan> {
         guard: c.passivity_guard,
         scan: None,
         effective_delays_us,
+        nudge: None,
     };
     if destination_unstable_for == 0 {
         plan.lead_stable_for = on_two_threads(&plants, |plant| {
@@ -364,6 +421,7 @@ pub fn compensation_plan(cfg: &HilConfig) -> Option<CompensationPlan> {
             lin.guard_damping_ns_per_m = c.guard_max_damping_ns_per_m;
             plan.guard = lin.is_stable(0.0, 1.0);
         }
+        plan.nudge = nudge_range(cfg, &plants, &scan.windows_us, PLAN_LEAD_STEP_S);
     }
     plan.scan = Some(scan);
     Some(plan)
@@ -398,6 +456,7 @@ pub fn planned(
             starting_lead_cap_s: f64::INFINITY,
             adapt_lead: false,
             passivity_guard: p.guard,
+            nudge: p.nudge,
             ..*cfg
         },
         _ => *cfg,
@@ -919,6 +978,27 @@ impl LinearLoop {
         (unwrapped - turns * PI).abs() < 0.5 * PI
     }
 
+    /// Where the loop comes nearest to instability: the frequency of the smallest
+    /// `|1 + L|`, Hz (`Margins::thinnest_frequency_hz`, without the bisections).
+    pub fn thinnest_frequency_hz(&self) -> f64 {
+        self.thinnest().0
+    }
+
+    /// The frequency of the smallest `|1 + L|` (Hz) and that distance.
+    fn thinnest(&self) -> (f64, f64) {
+        let weights = self.weights();
+        let (mut thin_i, mut thin) = (0, f64::INFINITY);
+        for i in 0..self.omega.len() {
+            let (open, rendered) = self.parts(i, 0.0, 1.0, &weights);
+            let d = ((open + rendered) / open).norm();
+            if d < thin {
+                thin = d;
+                thin_i = i;
+            }
+        }
+        (self.omega[thin_i] / (2.0 * PI), thin)
+    }
+
     /// The margins (bisection on `is_stable`).
     pub fn margins(&self) -> Margins {
         let stable = self.is_stable(0.0, 1.0);
@@ -956,23 +1036,14 @@ impl LinearLoop {
         } else {
             (None, None, None)
         };
-        let (mut thin_i, mut thin) = (0, f64::INFINITY);
-        let weights = self.weights();
-        for i in 0..self.omega.len() {
-            let (open, rendered) = self.parts(i, 0.0, 1.0, &weights);
-            let d = ((open + rendered) / open).norm();
-            if d < thin {
-                thin = d;
-                thin_i = i;
-            }
-        }
+        let (thinnest_frequency_hz, modulus_margin) = self.thinnest();
         Margins {
             stable,
             delay_error_tolerated_slower_us: slower,
             delay_error_tolerated_faster_us: faster,
             gain_margin: gain,
-            thinnest_frequency_hz: self.omega[thin_i] / (2.0 * PI),
-            modulus_margin: thin,
+            thinnest_frequency_hz,
+            modulus_margin,
         }
     }
 
@@ -1411,6 +1482,7 @@ mod tests {
         let shaker = crate::hil::config::parse_hil_config(&shaker, "shaker.toml", None).unwrap();
         assert!(!compensation_plan(&shaker).unwrap().lead_fixed);
         assert_eq!((p.lead_us, p.lead_stable_for), (252.0, 24));
+        assert_eq!(p.nudge, None);
         assert_eq!(
             planned(&shipped.compensation, Some(&p)),
             shipped.compensation
@@ -1444,6 +1516,33 @@ mod tests {
         let c = planned(&servo.compensation, Some(&p));
         assert!(c.adapt && !c.adapt_lead && !c.passivity_guard);
         assert_eq!(c.initial_delay_s, p.lead_us * 1e-6);
+        // The nudge: from the lowest window's start to the highest one's end, split
+        // between where a lead too short goes unstable (at most 43 Hz over these draws'
+        // lower edges) and one too long (at least 171 Hz).
+        let n = p.nudge.expect("a nudge range");
+        assert_eq!(c.nudge, Some(n));
+        let lowest = scan
+            .windows_us
+            .iter()
+            .flatten()
+            .map(|w| w.0)
+            .fold(f64::MAX, f64::min);
+        let highest = scan
+            .windows_us
+            .iter()
+            .flatten()
+            .map(|w| w.1)
+            .fold(0.0, f64::max);
+        assert_eq!((n.low_s * 1e6, n.high_s * 1e6), (lowest, highest));
+        assert!(n.low_s < p.lead_us * 1e-6 && p.lead_us * 1e-6 < n.high_s);
+        assert!((60.0..150.0).contains(&n.split_hz), "{n:?}");
+        // A lead just below the declared actuator's window goes unstable below the split,
+        // one just above it above.
+        let mut edge = nominal.clone();
+        edge.lead_s = lo - 60e-6;
+        assert!(edge.thinnest_frequency_hz() < n.split_hz);
+        edge.lead_s = hi + 60e-6;
+        assert!(edge.thinnest_frequency_hz() > n.split_hz);
         let mut exact = servo.clone();
         exact.compensation.actuator_tolerance = 0.0;
         let p = compensation_plan(&exact).unwrap();

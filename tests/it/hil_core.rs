@@ -237,6 +237,39 @@ fn controller_and_rig_cores_do_not_allocate() {
     assert_eq!(records.len(), 2000);
 }
 
+/// The planned fixed lead's nudge (`compensation::LeadNudge`) on the compensator's path:
+/// a sustained 33 Hz oscillation of 0.2 mm steps the lead (twice in 0.75 s), and no
+/// sample allocates.
+#[test]
+fn the_planned_leads_nudge_does_not_allocate() {
+    use fastemu::hil::compensation::{CompensationConfig, Compensator, NudgeRange};
+    let cfg = CompensationConfig {
+        initial_delay_s: 2.85e-3,
+        adapt_lead: false,
+        passivity_guard: false,
+        nudge: Some(NudgeRange {
+            low_s: 2.0e-3,
+            high_s: 5.0e-3,
+            split_hz: 100.0,
+        }),
+        ..CompensationConfig::with_initial_delay(2.85e-3)
+    };
+    let dt = 1.0 / 4096.0;
+    let mut c = Compensator::new(cfg, dt);
+    let mut lead = 0.0;
+    let allocations = count_allocations(|| {
+        for k in 0..3072u64 {
+            let t = k as f64 * dt;
+            let z = 0.4e-3 + 0.2e-3 * (2.0 * std::f64::consts::PI * 33.0 * t).sin();
+            let f = 20e3 + 5.7e7 * (z - 0.4e-3);
+            lead = c.on_sample(k, z, f, 0.86 * f).lead_s;
+        }
+    });
+    assert_eq!(allocations, 0, "the nudge allocated");
+    assert_eq!(c.lead_nudges(), 2);
+    assert!((lead - 2.85e-3 * 1.05 * 1.05).abs() < 1e-9, "{lead}");
+}
+
 #[test]
 fn missing_samples_are_interpolated_and_a_silent_rig_trips_the_emulator() {
     let mut cfg = config();

@@ -22,6 +22,7 @@
 //! controller's loop); same setpoint stream gives the same compensation bit for bit.
 
 mod load_band;
+mod nudge;
 mod oscillation;
 
 pub use load_band::{LoadBandDelay, LoadBandEstimate};
@@ -29,6 +30,7 @@ pub use load_band::{LoadBandDelay, LoadBandEstimate};
 pub mod welch_rules {
     pub use super::load_band::{MIN_BINS, MIN_COHERENCE, MIN_RELATIVE_EXCITATION, MIN_SEGMENTS};
 }
+pub use nudge::{LeadNudge, NudgeRange};
 pub use oscillation::{OscillationDelay, OscillationEstimate};
 
 use super::passivity::{LowPass2, PassivityObserver};
@@ -61,6 +63,9 @@ pub struct CompensationConfig {
     /// How far the hardware may be from the declared actuator: each parameter within
     /// this fraction (the plan's draws).
     pub actuator_tolerance: f64,
+    /// With the lead fixed by the plan: where a loop that keeps oscillating may step it
+    /// (`nudge::LeadNudge`); `None` otherwise.
+    pub nudge: Option<NudgeRange>,
     /// Add damping above the load band while the loop generates energy.
     pub passivity_guard: bool,
     /// Largest lead the adaptation may reach, s.
@@ -98,6 +103,7 @@ impl CompensationConfig {
             plan_from_actuator: true,
             plan_for_external_rig: false,
             actuator_tolerance: 0.3,
+            nudge: None,
             passivity_guard: true,
             max_delay_s: 0.01,
             estimator_band_hz: 30.0,
@@ -555,6 +561,10 @@ pub struct Compensator {
     ring_target_avg: f64,
     /// The delay estimator's latest estimate (`adapt`).
     last_estimate: Option<DelayEstimate>,
+    /// The planned fixed lead's nudge (`CompensationConfig::nudge`), and the lead it asked
+    /// for while the lead moves there.
+    nudge: Option<LeadNudge>,
+    nudge_target: Option<f64>,
     /// The weights' sum since the first sample (`1 - decay^n`): `missing_share /
     /// missing_weight` is the share without the start's bias towards 0.
     missing_weight: f64,
@@ -868,6 +878,8 @@ impl Compensator {
             ring_lead: None,
             ring_target_avg: f64::NAN,
             last_estimate: None,
+            nudge: cfg.nudge.map(|r| LeadNudge::new(r, dt_s)),
+            nudge_target: None,
         }
     }
 
@@ -965,6 +977,9 @@ impl Compensator {
             self.oscillation_target = None;
             self.ring_target_avg = f64::NAN;
             self.replay_samples = 0;
+            if let Some(n) = &mut self.nudge {
+                n.restart();
+            }
             self.feed(now);
         } else {
             let (z0, e0, m0) = self.last_values;
@@ -1025,6 +1040,36 @@ impl Compensator {
             GuardState::default()
         };
         self.status.guard = guard;
+        self.nudge_lead(displacement_m);
+    }
+
+    /// The planned fixed lead's nudge (`nudge::LeadNudge`): a step asked for is taken at
+    /// `OSCILLATION_MAX_RATE` (140 us in 1.4 ms), as a ring's target is.
+    #[inline]
+    fn nudge_lead(&mut self, displacement_m: f64) {
+        if self.cfg.adapt_lead {
+            return;
+        }
+        let Some(n) = &mut self.nudge else {
+            return;
+        };
+        if let Some(target) = n.update(displacement_m, self.lead_s) {
+            self.nudge_target = Some(target);
+        }
+        if let Some(target) = self.nudge_target {
+            let max_step = OSCILLATION_MAX_RATE * self.dt_s;
+            if (target - self.lead_s).abs() <= max_step {
+                self.lead_s = target;
+                self.nudge_target = None;
+            } else {
+                self.lead_s += max_step.copysign(target - self.lead_s);
+            }
+        }
+    }
+
+    /// Steps the planned fixed lead's nudge took (`nudge::LeadNudge`).
+    pub fn lead_nudges(&self) -> u32 {
+        self.nudge.map_or(0, |n| n.steps)
     }
 
     /// The force the rig was asked for, as it would be without the lead: the element's

@@ -183,6 +183,10 @@ pub struct CompensationReport {
     pub final_gain: f64,
     /// When the lead first came and stayed within 5 % (or 10 us) of its final value, s.
     pub settled_at_s: Option<f64>,
+    /// With the lead fixed by the plan: how many times the nudge stepped it because the
+    /// loop kept oscillating (`compensation::LeadNudge`); null when the lead was not fixed
+    /// with a nudge.
+    pub lead_nudges: Option<u32>,
     pub guard: GuardReport,
     /// The highest frequency up to which the rendered force stays within 1 % in amplitude
     /// and 2 degrees in phase of the element's (every bin from 1 Hz up that the load
@@ -205,6 +209,17 @@ pub struct CompensationReport {
     /// Whether the law was left for a hold (a fault's, or an operator's hold never resumed)
     /// rather than rendered to the run's end: the law's time was then cut short.
     pub law_ended_in_hold: bool,
+}
+
+/// The lead's moves in `points` (its changes, in time order): a change more than
+/// `STEP_GAP_S` after the previous one begins a move (a nudge takes the lead to its target
+/// within a few ms).
+fn lead_steps(points: &[(f64, f64)]) -> u32 {
+    const STEP_GAP_S: f64 = 0.01;
+    points
+        .windows(2)
+        .filter(|w| w[1].0 - w[0].0 > STEP_GAP_S)
+        .count() as u32
 }
 
 impl CompensationReport {
@@ -246,8 +261,18 @@ impl CompensationReport {
             },
             self.negative_delay_note(),
             self.final_gain,
-            self.settled_at_s
-                .map_or("never".to_string(), |t| format!("at {t:.2} s")),
+            format!(
+                "{}{}",
+                self.settled_at_s
+                    .map_or("never".to_string(), |t| format!("at {t:.2} s")),
+                match self.lead_nudges {
+                    Some(n) if n > 0 => format!(
+                        " (the lead the plan fixed, stepped {n} time{} because the loop kept oscillating)",
+                        if n == 1 { "" } else { "s" }
+                    ),
+                    _ => String::new(),
+                }
+            ),
             self.guard
                 .safe_start_s
                 .map_or("none".to_string(), |t| format!("{t:.2} s")),
@@ -524,6 +549,8 @@ impl CompensationAnalyser {
             adapt: c.adapt,
             initial_delay_us: c.initial_delay_s * 1e6,
             starting_lead_us: self.lead_points.first().map(|p| p.1 * 1e6),
+            lead_nudges: (!c.adapt_lead && c.nudge.is_some())
+                .then(|| lead_steps(&self.lead_points)),
             identified_delay_us: identified.map(|(d, _)| d * 1e6),
             identified_delay_sigma_us: identified.map(|(_, s)| s * 1e6),
             identified_from,
@@ -862,6 +889,39 @@ mod tests {
             assert!((d.max_us - max * 1e6).abs() < 1e-6);
             assert_eq!(record_delay(&rendering[..4], lead), None);
         }
+    }
+
+    /// A nudge's move (the lead changing on consecutive samples for ~1.4 ms) counts once;
+    /// the starting lead is no move; the console says how many.
+    #[test]
+    fn the_planned_leads_steps_are_counted_and_said() {
+        let dt = 1.0 / 4096.0;
+        let mut points = vec![(0.0, 2.85e-3)];
+        for (start, from) in [(2.1, 2.85e-3), (2.6, 2.9925e-3)] {
+            for k in 1..=6 {
+                points.push((start + k as f64 * dt, from + k as f64 * 24e-6));
+            }
+        }
+        assert_eq!(lead_steps(&points), 2);
+        assert_eq!(lead_steps(&points[..1]), 0);
+        let r = CompensationReport {
+            starting_lead_us: Some(2850.0),
+            final_lead_us: 3135.0,
+            lead_nudges: Some(2),
+            ..CompensationReport::default()
+        };
+        assert!(
+            r.describe().contains(
+                "(the lead the plan fixed, stepped 2 times because the loop kept oscillating)"
+            ),
+            "{}",
+            r.describe()
+        );
+        let quiet = CompensationReport {
+            lead_nudges: Some(0),
+            ..r
+        };
+        assert!(!quiet.describe().contains("stepped"));
     }
 
     /// The console line warns when the safe start never ended, and only then.
