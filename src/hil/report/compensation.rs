@@ -241,6 +241,16 @@ impl CompensationReport {
     /// guard and the faithful band; a warning when the safe start never ended.
     pub fn describe(&self) -> String {
         let us = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.0} us"));
+        let settled = self
+            .settled_at_s
+            .map_or("never".to_string(), |t| format!("at {t:.2} s"))
+            + &match self.lead_nudges {
+                Some(n) if n > 0 => format!(
+                    " (the lead the plan fixed, stepped {n} time{} because the loop kept oscillating)",
+                    if n == 1 { "" } else { "s" }
+                ),
+                _ => String::new(),
+            };
         let mut line = format!(
             "compensation: lead {} -> {:.0} us, identified {}{}{}{}, gain {:.3}, settled {}; guard: safe start {}, active {:.2} s, largest {:.1} kN s/m; faithful band {}",
             us(self.starting_lead_us),
@@ -261,18 +271,7 @@ impl CompensationReport {
             },
             self.negative_delay_note(),
             self.final_gain,
-            format!(
-                "{}{}",
-                self.settled_at_s
-                    .map_or("never".to_string(), |t| format!("at {t:.2} s")),
-                match self.lead_nudges {
-                    Some(n) if n > 0 => format!(
-                        " (the lead the plan fixed, stepped {n} time{} because the loop kept oscillating)",
-                        if n == 1 { "" } else { "s" }
-                    ),
-                    _ => String::new(),
-                }
-            ),
+            settled,
             self.guard
                 .safe_start_s
                 .map_or("none".to_string(), |t| format!("{t:.2} s")),
