@@ -57,6 +57,13 @@ enum Command {
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
+    // `hil` gives a verdict in its exit code (0 clean, 1 not clean, 2 a fault); an error is
+    // no verdict (it did not run, or could not finish its report): 3, for scripts to tell.
+    let failure = if matches!(cli.command, Command::Hil(_)) {
+        std::process::ExitCode::from(3)
+    } else {
+        std::process::ExitCode::FAILURE
+    };
     let result = match cli.command {
         Command::Simulate(cmd) => cli::simulate::run(cmd),
         Command::Equiv(args) => cli::equiv::run(args),
@@ -78,7 +85,7 @@ fn main() -> std::process::ExitCode {
         Ok(code) => code,
         Err(e) => {
             eprintln!("fastemu: error: {e:#}");
-            std::process::ExitCode::FAILURE
+            failure
         }
     }
 }

@@ -785,7 +785,8 @@ fn a_loop_no_lead_makes_stable_is_refused_and_run_anyway_trips_and_holds() {
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&refused.stderr);
-    assert_eq!(refused.status.code(), Some(1), "{stderr}");
+    // Exit 3: no verdict, the run never started.
+    assert_eq!(refused.status.code(), Some(3), "{stderr}");
     for needle in [
         config.to_str().unwrap(),
         "no lead from 0 to 10000 us makes the linearised loop stable",
