@@ -892,7 +892,16 @@ fn an_external_rigs_declared_actuator_is_planned_for_and_runs_stable() {
     let lead_us = plan["lead_us"].as_f64().unwrap();
     assert!((3000.0..8000.0).contains(&lead_us), "{plan}");
     assert_eq!(c["starting_lead_us"].as_f64(), Some(lead_us), "{c}");
-    assert_eq!(c["final_lead_us"].as_f64(), Some(lead_us), "{c}");
+    // The plan's lead, or where the nudge stepped it (`compensation::LeadNudge`: this
+    // actuator's axles ring on at the force loop's crossover, a lead on the short side,
+    // so up), within the plan's range.
+    let final_us = c["final_lead_us"].as_f64().unwrap();
+    let high_us = plan["nudge"]["high_s"].as_f64().unwrap() * 1e6;
+    match c["lead_nudges"].as_u64() {
+        Some(0) => assert_eq!(final_us, lead_us, "{c}"),
+        Some(_) => assert!(lead_us < final_us && final_us <= high_us, "{c}"),
+        None => panic!("no lead_nudges with a fixed lead: {c}"),
+    }
     // The rig is the declared actuator: nothing to warn about.
     assert!(c["declaration_warning"].is_null(), "{c}");
     assert!(faults(&json).is_empty(), "{:?}", faults(&json));
