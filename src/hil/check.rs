@@ -518,8 +518,16 @@ pub fn describe_plan(p: &CompensationPlan) -> String {
             p.destinations_us.0, p.destinations_us.1, p.lead_us, p.lead_stable_for, p.draws
         );
     }
+    let nudge = p.nudge.map_or(String::new(), |n| {
+        format!(
+            "; a loop that keeps oscillating steps it by 5 % within {:.0}-{:.0} us (up below {:.0} Hz, where a lead too short goes unstable, down above)",
+            n.low_s * 1e6,
+            n.high_s * 1e6,
+            n.split_hz
+        )
+    });
     format!(
-        "compensation planned from the declared actuator: over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are unstable somewhere for {} of them, so the lead is fixed at {:.0} us, stable for {} of {} (the adaptation learns the gain only){}; such an actuator is rendered stable but not faithful (a lead does not make up for a delay that varies with frequency: expect a run that is not clean); [compensation] plan_from_actuator = false (with an external rig, also plan_for_external_rig = false) runs as configured",
+        "compensation planned from the declared actuator: over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are unstable somewhere for {} of them, so the lead is fixed at {:.0} us, stable for {} of {} (the adaptation learns the gain only){nudge}{}; such an actuator is rendered stable but not faithful (a lead does not make up for a delay that varies with frequency: expect a run that is not clean); [compensation] plan_from_actuator = false (with an external rig, also plan_for_external_rig = false) runs as configured",
         p.destinations_us.0,
         p.destinations_us.1,
         p.destination_unstable_for,
@@ -1536,6 +1544,15 @@ mod tests {
         assert_eq!((n.low_s * 1e6, n.high_s * 1e6), (lowest, highest));
         assert!(n.low_s < p.lead_us * 1e-6 && p.lead_us * 1e-6 < n.high_s);
         assert!((60.0..150.0).contains(&n.split_hz), "{n:?}");
+        assert!(
+            describe_plan(&p).contains(&format!(
+                "steps it by 5 % within {:.0}-{:.0} us",
+                n.low_s * 1e6,
+                n.high_s * 1e6
+            )),
+            "{}",
+            describe_plan(&p)
+        );
         // A lead just below the declared actuator's window goes unstable below the split,
         // one just above it above.
         let mut edge = nominal.clone();
