@@ -56,7 +56,19 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            // A usage error is no verdict either: for `hil` 3, not clap's 2 (a fault).
+            let _ = e.print();
+            let hil = std::env::args().nth(1).as_deref() == Some("hil");
+            return match e.exit_code() {
+                0 => std::process::ExitCode::SUCCESS,
+                _ if hil => std::process::ExitCode::from(3),
+                code => std::process::ExitCode::from(code.clamp(1, 255) as u8),
+            };
+        }
+    };
     // `hil` gives a verdict in its exit code (0 clean, 1 not clean, 2 a fault); an error is
     // no verdict (it did not run, or could not finish its report): 3, for scripts to tell.
     let failure = if matches!(cli.command, Command::Hil(_)) {

@@ -713,7 +713,8 @@ fn not_clean_because(
             "{records_dropped} records dropped (record queue full)"
         ));
     }
-    if let Some(missed) = injections_not_fired(cfg, analysis.map_or(0, |a| a.safety.injected.len()))
+    // Without an analysis whether they fired is unknown (and the run is not clean anyway).
+    if let Some(missed) = analysis.and_then(|a| injections_not_fired(cfg, a.safety.injected.len()))
     {
         why.push(missed);
     }
@@ -998,9 +999,10 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
 }
 
 /// Orders the faults the processes reported (in the order their heartbeats or exits
-/// reached `hil`, which varies between runs) as they happened: process deaths first (the
-/// cause), then by when the records say each was detected (`safety.faults`), a fault the
-/// records do not date last; ties keep their order. Deterministic for the same run.
+/// reached `hil`, which varies between runs) as they happened: process deaths and a
+/// failed link first (the cause), then by when the records say each was detected
+/// (`safety.faults`), a fault the records do not date last; ties in text order. The same
+/// faults print in the same order whatever order they arrived in.
 fn order_faults(faults: &mut [String], dated: &[crate::hil::report::safety::FaultReport]) {
     let when = |f: &String| -> f64 {
         // "process: fault (detail)"; an external rig's own faults are labelled likewise.
@@ -1017,9 +1019,14 @@ fn order_faults(faults: &mut [String], dated: &[crate::hil::report::safety::Faul
             .or_else(|| earliest(false))
             .unwrap_or(f64::INFINITY)
     };
+    // Causes first: a process that died, or the link that failed (their reactions follow);
+    // ties (undated faults) in text order, so that the same faults print the same way.
     faults.sort_by(|a, b| {
-        let death = |f: &String| !f.contains("process (pid");
-        death(a).cmp(&death(b)).then(when(a).total_cmp(&when(b)))
+        let reaction = |f: &String| !(f.contains("process (pid") || f.starts_with("link: "));
+        reaction(a)
+            .cmp(&reaction(b))
+            .then(when(a).total_cmp(&when(b)))
+            .then(a.cmp(b))
     });
 }
 
@@ -1291,8 +1298,8 @@ fn micrometres(m: Option<f64>) -> String {
 
 #[cfg(test)]
 mod tests {
-    /// The faults as reported in any order come out deaths first, then by when the
-    /// records dated them; an undated one last.
+    /// The faults as reported in any order come out deaths and a failed link first, then
+    /// by when the records dated them, an undated one last, ties in text order.
     #[test]
     fn faults_are_ordered_as_they_happened() {
         let dated = |process: &str, fault: &str, at: f64| crate::hil::report::safety::FaultReport {
@@ -1317,19 +1324,25 @@ mod tests {
             dated("bench_rig", "commands-stale", 2.3),
         ];
         let expected = vec![
+            "controller: process (pid 9) killed by signal 9".to_string(),
             "emulator: process (pid 7) killed by signal 9".to_string(),
+            "link: the rig went silent".to_string(),
             "controller: setpoints-stale (emulator: emulator-stalled)".to_string(),
             "bench_rig: commands-stale".to_string(),
             "emulator: emulator-stalled".to_string(),
-            "link: the rig went silent".to_string(),
         ];
-        let mut faults = expected.clone();
-        faults.reverse();
-        super::order_faults(&mut faults, &records);
-        assert_eq!(faults, expected);
-        faults.swap(1, 3);
-        super::order_faults(&mut faults, &records);
-        assert_eq!(faults, expected);
+        // In whatever order they arrived.
+        for turn in 0..expected.len() {
+            for reversed in [false, true] {
+                let mut faults = expected.clone();
+                faults.rotate_left(turn);
+                if reversed {
+                    faults.reverse();
+                }
+                super::order_faults(&mut faults, &records);
+                assert_eq!(faults, expected, "turn {turn}, reversed {reversed}");
+            }
+        }
     }
 
     /// A configured injection the records do not show (the run ended first) makes the run

@@ -688,3 +688,31 @@ fn a_bad_or_busy_live_address_fails_before_anything_starts_naming_the_reason() {
         );
     }
 }
+
+/// `hil`'s exit code is its verdict (0 clean, 1 not clean, 2 a fault): a run that never
+/// starts, from a usage error or a configuration error, is no verdict, 3; `--help` is 0.
+#[test]
+fn hil_without_a_verdict_exits_3() {
+    let dir = TempDir::new("hil-exit3");
+    let bad = dir.join("bad.toml");
+    std::fs::write(&bad, "[loop]\nrat_hz = 4096.0\n").unwrap();
+    for args in [
+        vec!["hil", "--duration-s", "abc"],
+        vec!["hil", "--no-such-option"],
+        vec!["hil", "--config", path_str(&bad)],
+    ] {
+        let out = fastemu(&args);
+        assert_eq!(
+            out.status.code(),
+            Some(3),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    assert_eq!(fastemu(&["hil", "--help"]).status.code(), Some(0));
+    // Other commands keep the usual codes.
+    assert_eq!(
+        fastemu(&["equiv", "--no-such-option"]).status.code(),
+        Some(2)
+    );
+}

@@ -643,7 +643,7 @@ impl ContactGain {
         measured_force_n: f64,
         commanded_force_n: f64,
     ) -> Option<f64> {
-        if self.done || self.rest_samples >= CONTACT_COMMANDED_SAMPLES {
+        if self.done || self.unreported || self.rest_samples >= CONTACT_COMMANDED_SAMPLES {
             return None;
         }
         if !commanded_force_n.is_finite() {
@@ -1507,6 +1507,15 @@ mod tests {
         c.observe_rig(4, 0.92 * command, command);
         c.observe_rig(5, 0.92 * command, command);
         assert_eq!(c.on_sample(6, 0.0, 20e3, 20e3).gain, 1.0);
+
+        // A rig whose first sample reports no command is not read from its command at all
+        // (the controller commands at once; later agreeing samples are force control's).
+        let mut c = Compensator::new(cfg, DT);
+        c.observe_rig(0, 20e3, f64::NAN);
+        assert!(c.ready_to_command());
+        c.observe_rig(1, 0.74 * command, command);
+        c.observe_rig(2, 0.74 * command, command);
+        assert_eq!(c.on_sample(3, 0.0, 20e3, 20e3).gain, 1.0);
 
         // No command reported: nothing to wait for, and the contact read of the first
         // stretch decides (0.8 here).

@@ -45,6 +45,12 @@ const NUDGE_FLOOR_M: f64 = 20e-6;
 const NUDGE_STEP: f64 = 0.05;
 /// After a step, the loop is given this long to ring down before another.
 const NUDGE_REFRACTORY_S: f64 = 0.25;
+/// Steps per run at most: the detector cannot tell a loop at its edge from a programme
+/// that itself drives 10-600 Hz for 120 ms and more (a sine or sweep there), which would
+/// otherwise walk the lead to the end of the range, 0.37 s a step. Three steps (about
+/// 15 %) keep such a programme within the planned lead's neighbourhood; the rigs that
+/// needed a step took one or two.
+const NUDGE_MAX_STEPS: u32 = 3;
 /// The band the displacement is watched in, Hz: above the programme's harmonics, below
 /// the sensor's noise.
 const NUDGE_BAND_HZ: (f64, f64) = (10.0, 600.0);
@@ -105,6 +111,9 @@ impl LeadNudge {
     /// `NUDGE_REFRACTORY_S`.
     #[inline]
     pub fn update(&mut self, displacement_m: f64, lead_s: f64) -> Option<f64> {
+        if self.steps >= NUDGE_MAX_STEPS {
+            return None;
+        }
         let y = self.low_pass.step(self.high_pass.step(displacement_m));
         if self.wait > 0 {
             self.wait -= 1;
@@ -196,6 +205,16 @@ mod tests {
         assert_eq!(target, RANGE.high_s);
         // At the range's end already: nothing to move.
         assert_eq!(first_step(low, 1.0, RANGE.high_s), None);
+        // However long it goes on, three steps at most.
+        let mut n = LeadNudge::new(RANGE, DT);
+        let mut lead = 2.5e-3;
+        for i in 0..(3.0 / DT) as usize {
+            if let Some(t) = n.update(low(i as f64 * DT), lead) {
+                lead = t;
+            }
+        }
+        assert_eq!(n.steps, NUDGE_MAX_STEPS);
+        assert!((lead - 2.5e-3 * 1.05f64.powi(3)).abs() < 1e-12, "{lead}");
     }
 
     /// What a stable planned loop does at an axle: a ring at 38 Hz of 80 um that halves
