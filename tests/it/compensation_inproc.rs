@@ -6,6 +6,7 @@
 //! the offline reference (`reference_displacement_m`).
 
 use fastemu::hil::config::{default_hil_config, HilConfig};
+use fastemu::hil::controller::ControllerRecord;
 use fastemu::hil::fault::Fault;
 use fastemu::hil::inproc::{run_in_process, InProcessRun, InProcessScript};
 use fastemu::ipc::messages::{command_mode, process_id, rig_state};
@@ -156,11 +157,7 @@ fn a_lead_100_us_short_without_adaptation_or_guard_trips_loop_unstable_and_holds
 /// The run's law commands and how many of the first were sent with the guard armed (the
 /// safe start).
 fn safe_start(run: &InProcessRun) -> (Vec<&fastemu::hil::controller::ControllerRecord>, usize) {
-    let law: Vec<_> = run
-        .controller
-        .iter()
-        .filter(|r| r.mode == command_mode::LAW)
-        .collect();
+    let law = law_commands(&run);
     let start = law.iter().take_while(|r| r.guard_armed == 1).count();
     (law, start)
 }
@@ -286,11 +283,7 @@ fn an_undeclared_servo_hydraulic_loop_takes_its_lead_from_the_ringing_and_stays_
         after * 1e6,
         during * 1e6
     );
-    let law: Vec<_> = run
-        .controller
-        .iter()
-        .filter(|r| r.mode == command_mode::LAW)
-        .collect();
+    let law = law_commands(&run);
     let early = law.iter().take_while(|r| r.t_s < 0.15).last().unwrap();
     assert!(
         early.lead_s > 1.5e-3,
@@ -774,6 +767,14 @@ fn stalls_bridged_by_the_controller_are_not_read_as_a_delay() {
 /// A run that went to its end (`duration_s`) without a fault and without the rig ever
 /// holding; returns the largest displacement error against the offline reference before
 /// 4 s (the passage) and in the last second, m, and the relative RMS error.
+/// The run's law commands (force control), in order.
+fn law_commands(run: &InProcessRun) -> Vec<&ControllerRecord> {
+    run.controller
+        .iter()
+        .filter(|r| r.mode == command_mode::LAW)
+        .collect()
+}
+
 fn ran_to_the_end_unheld(cfg: &HilConfig, run: &InProcessRun, label: &str) -> (f64, f64, f64) {
     assert_eq!(run.rig.len(), 6 * RATE as usize, "{label}");
     assert!(faults(run).is_empty(), "{label}: {:?}", faults(run));
@@ -896,11 +897,7 @@ fn servo_hydraulic_presets_run_stable_on_the_planned_lead_and_are_not_clean() {
         let run = run_in_process(&cfg, &script(6.0));
         assert_eq!(run.plan.as_ref(), Some(&plan), "{actuator}");
         let (during, after, error) = ran_to_the_end_unheld(&cfg, &run, actuator);
-        let law: Vec<_> = run
-            .controller
-            .iter()
-            .filter(|r| r.mode == command_mode::LAW)
-            .collect();
+        let law = law_commands(&run);
         assert!(law.len() > 20_000, "{actuator}: {} law commands", law.len());
         let range = plan.nudge.expect("a nudge range");
         assert!(
@@ -975,11 +972,7 @@ fn a_planned_lead_a_draw_keeps_oscillating_at_is_stepped_into_its_stable_leads()
     );
     let run = run_in_process(&cfg, &script(6.0));
     let (during, after, error) = ran_to_the_end_unheld(&cfg, &run, actuator);
-    let law: Vec<_> = run
-        .controller
-        .iter()
-        .filter(|r| r.mode == command_mode::LAW)
-        .collect();
+    let law = law_commands(&run);
     // The plan's lead until the axle, then stepped up into the truth's stable leads.
     let first_move = law
         .iter()
@@ -1012,11 +1005,7 @@ fn the_safe_start_ends_under_frequent_emulator_stalls() {
     let cfg = default_hil_config().unwrap();
     for seed in [21, 22] {
         let run = run_unfaulted_under_frequent_stalls(&cfg, seed, 4.0);
-        let law: Vec<_> = run
-            .controller
-            .iter()
-            .filter(|r| r.mode == command_mode::LAW)
-            .collect();
+        let law = law_commands(&run);
         let armed_until = law
             .iter()
             .filter(|r| r.guard_armed == 1)
