@@ -157,7 +157,7 @@ fn a_lead_100_us_short_without_adaptation_or_guard_trips_loop_unstable_and_holds
 /// The run's law commands and how many of the first were sent with the guard armed (the
 /// safe start).
 fn safe_start(run: &InProcessRun) -> (Vec<&fastemu::hil::controller::ControllerRecord>, usize) {
-    let law = law_commands(&run);
+    let law = law_commands(run);
     let start = law.iter().take_while(|r| r.guard_armed == 1).count();
     (law, start)
 }
