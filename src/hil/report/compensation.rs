@@ -212,10 +212,12 @@ pub struct CompensationReport {
 }
 
 /// The lead's moves in `points` (its changes, in time order): a change more than
-/// `STEP_GAP_S` after the previous one begins a move (a nudge takes the lead to its target
-/// within a few ms).
+/// `STEP_GAP_S` after the previous one begins a move. A nudge takes the lead to its target
+/// within 5 ms (5 % of at most 10 ms at 0.1 s per s) and the next comes at least its
+/// refractory time (0.25 s) later, so only a record gap of over 0.1 s inside a move's
+/// 5 ms could count it twice.
 fn lead_steps(points: &[(f64, f64)]) -> u32 {
-    const STEP_GAP_S: f64 = 0.01;
+    const STEP_GAP_S: f64 = 0.1;
     points
         .windows(2)
         .filter(|w| w[1].0 - w[0].0 > STEP_GAP_S)
@@ -903,6 +905,12 @@ mod tests {
         }
         assert_eq!(lead_steps(&points), 2);
         assert_eq!(lead_steps(&points[..1]), 0);
+        // Records lost for 40 ms in the middle of the first move: still one move.
+        let gapped: Vec<(f64, f64)> = points
+            .iter()
+            .map(|&(t, l)| (if t > 2.1 + 3.5 * dt && t < 2.5 { t + 0.04 } else { t }, l))
+            .collect();
+        assert_eq!(lead_steps(&gapped), 2);
         let r = CompensationReport {
             starting_lead_us: Some(2850.0),
             final_lead_us: 3135.0,
