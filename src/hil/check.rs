@@ -184,6 +184,11 @@ pub struct CompensationPlan {
     /// frequencies a lead too short and one too long go unstable at do not separate.
     #[serde(default)]
     pub nudge: Option<NudgeRange>,
+    /// The prediction order the run uses instead of `[compensation] lead_order`, which has
+    /// no stable lead for the declared actuator (`raised_lead_order`); `None`: as
+    /// configured.
+    #[serde(default)]
+    pub raised_lead_order: Option<u32>,
 }
 
 /// How far apart the frequencies of a lead too short and one too long must lie (the
@@ -351,12 +356,15 @@ fn phase_delay_range(plant: &ActuatorPlant, k: f64, band_hz: f64) -> (f64, f64) 
 /// keeps the declared actuator's loop stable there. Otherwise the compensation stays as
 /// configured.
 pub fn compensation_plan(cfg: &HilConfig) -> Option<CompensationPlan> {
-    let c = &cfg.compensation;
-    if !(c.plan_from_actuator && c.adapt)
+    if !(cfg.compensation.plan_from_actuator && cfg.compensation.adapt)
         || cfg.controller.command_mode != super::config::CommandMode::Law
     {
         return None;
     }
+    // Everything below is judged at the order the run will predict with.
+    let (raised_lead_order, cfg) = with_raised_order(cfg);
+    let cfg = cfg.as_ref();
+    let c = &cfg.compensation;
     let plants = tolerance_draws(cfg, TOLERANCE_DRAWS);
     let preload = cfg.scenario.preload_n;
     let k = equivalent(
@@ -400,6 +408,7 @@ pub fn compensation_plan(cfg: &HilConfig) -> Option<CompensationPlan> {
         scan: None,
         effective_delays_us,
         nudge: None,
+        raised_lead_order,
     };
     if destination_unstable_for == 0 {
         plan.lead_stable_for = on_two_threads(&plants, |plant| {
@@ -450,6 +459,9 @@ pub fn planned(
     cfg: &crate::hil::compensation::CompensationConfig,
     plan: Option<&CompensationPlan>,
 ) -> crate::hil::compensation::CompensationConfig {
+    let lead_order = plan
+        .and_then(|p| p.raised_lead_order)
+        .unwrap_or(cfg.lead_order);
     match plan {
         Some(p) if p.lead_fixed => crate::hil::compensation::CompensationConfig {
             initial_delay_s: p.lead_us * 1e-6,
@@ -457,9 +469,10 @@ pub fn planned(
             adapt_lead: false,
             passivity_guard: p.guard,
             nudge: p.nudge,
+            lead_order,
             ..*cfg
         },
-        _ => *cfg,
+        _ => crate::hil::compensation::CompensationConfig { lead_order, ..*cfg },
     }
 }
 
@@ -504,6 +517,9 @@ pub fn describe_plan(p: &CompensationPlan) -> String {
     } else {
         "the declared actuator (actuator_tolerance = 0)".to_string()
     };
+    let raised = p.raised_lead_order.map_or(String::new(), |o| {
+        format!("the prediction's order raised to {o} (at [compensation] lead_order no lead makes the declared actuator's loop stable); ")
+    });
     if !p.lead_fixed {
         let unstable = if p.destination_unstable_for == 0 {
             "stable for all of them".to_string()
@@ -514,7 +530,7 @@ pub fn describe_plan(p: &CompensationPlan) -> String {
             )
         };
         return format!(
-            "compensation as configured: over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are {unstable}; the starting lead ({:.0} us) is stable for {} of {}",
+            "compensation as configured: {raised}over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are {unstable}; the starting lead ({:.0} us) is stable for {} of {}",
             p.destinations_us.0, p.destinations_us.1, p.lead_us, p.lead_stable_for, p.draws
         );
     }
@@ -526,8 +542,19 @@ pub fn describe_plan(p: &CompensationPlan) -> String {
             n.split_hz
         )
     });
+    // A lead stable for few of them: an actuator as far from the declaration as the
+    // tolerance allows may well trip (lag-delay 1 + 1 ms, 8 of 24: perturbed seeds 4 and 6
+    // of 0.3 tripped loop-unstable at 0.30 s and held 0.67 mm beyond where they ran).
+    let few = if 2 * p.lead_stable_for < p.draws {
+        format!(
+            ". WARNING: that lead is stable for only {} of the {} actuators judged: an actuator as far from the declaration as actuator_tolerance allows may trip loop-unstable and hold, the forces in flight moving the specimen by up to about a millimetre; declare the actuator as closely as it is known (a smaller actuator_tolerance judges fewer far ones)",
+            p.lead_stable_for, p.draws
+        )
+    } else {
+        String::new()
+    };
     format!(
-        "compensation planned from the declared actuator: over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are unstable somewhere for {} of them, so the lead is fixed at {:.0} us, stable for {} of {} (the adaptation learns the gain only){nudge}{}; such an actuator is rendered stable but not faithful (a lead does not make up for a delay that varies with frequency: expect a run that is not clean); [compensation] plan_from_actuator = false (with an external rig, also plan_for_external_rig = false) runs as configured",
+        "compensation planned from the declared actuator: {raised}over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are unstable somewhere for {} of them, so the lead is fixed at {:.0} us, stable for {} of {} (the adaptation learns the gain only){nudge}{}{few}; such an actuator is rendered stable but maybe not faithful (a fixed lead makes up neither for a delay that varies with frequency nor for the part of one it falls short of: expect a run that may not be clean); [compensation] plan_from_actuator = false (with an external rig, also plan_for_external_rig = false) runs as configured",
         p.destinations_us.0,
         p.destinations_us.1,
         p.destination_unstable_for,
@@ -687,35 +714,87 @@ pub fn actuator_cannot_hold(cfg: &HilConfig) -> Option<String> {
     })
 }
 
-/// Why the simulated rig's actuator cannot render this element at all: no lead from 0 to
-/// `[compensation] max_delay_us` makes the linearised loop stable (local-law commands),
-/// without the passivity guard's damping or, when it is on, with all of it.
-/// Such a run trips `loop-unstable` within tens of milliseconds, and the actuator still
-/// delivers the forces already in flight when it trips, so the hold of a loop that
-/// diverged moves the specimen by up to millimetres (`lag-delay` 1 + 1 ms: 0.7 mm, 3 + 2
-/// ms: 3.4 mm, against 0.1-0.3 mm for a loop one lead from stable). One line naming the
-/// file and the actuator; `None` when some lead is stable, or in force mode.
-pub fn no_stable_lead(cfg: &HilConfig) -> Option<String> {
-    if cfg.controller.command_mode != super::config::CommandMode::Law {
-        return None;
-    }
+/// The highest prediction order the rig ABI carries (`rig::servo::lead_weights`).
+pub const MAX_LEAD_ORDER: u32 = 3;
+
+/// Whether some lead from 0 to `[compensation] max_delay_us` makes the declared actuator's
+/// linearised loop stable with a prediction of order `order` (local-law commands), without
+/// the passivity guard's damping or, when it is on, with all of it: the guard adds its
+/// damping at most while the loop generates energy, so a loop that some lead makes stable
+/// with all of it is renderable.
+fn some_stable_lead(cfg: &HilConfig, order: u32) -> bool {
     let max = cfg.compensation.max_delay_s;
-    let lin = LinearLoop::for_plant(cfg, &nominal_plant(cfg), 0.0, 1.0);
-    // The guard adds its damping at most while the loop generates energy: a loop that
-    // some lead makes stable with all of it is not refused.
+    let mut lin = LinearLoop::for_plant(cfg, &nominal_plant(cfg), 0.0, 1.0);
+    lin.lead_order = order;
     let mut damped = lin.clone();
     damped.guard_damping_ns_per_m = cfg.compensation.guard_max_damping_ns_per_m;
-    let some = lin.has_stable_lead(max)
-        || (cfg.compensation.passivity_guard && damped.has_stable_lead(max));
-    (!some).then(|| {
-        format!(
-            "{}: [rig.actuator] {}: no lead from 0 to {:.0} us makes the linearised loop stable: {}; the run would trip loop-unstable within tens of milliseconds, and with the forces already in flight the hold would move the specimen by up to millimetres; choose another actuator, or pass --run-unstable to run it anyway",
-            cfg.origin,
-            describe_actuator(cfg),
-            max * 1e6,
-            why_no_stable_lead(cfg)
-        )
-    })
+    lin.has_stable_lead(max) || (cfg.compensation.passivity_guard && damped.has_stable_lead(max))
+}
+
+/// The lowest prediction order above `[compensation] lead_order`, up to `MAX_LEAD_ORDER`,
+/// with which some lead makes the declared actuator's loop stable, when none does at the
+/// configured order. A cubic extrapolation renders the specimen's resonance (155 Hz) far
+/// closer than a quadratic over 1.5 ms (its error grows as the fourth power of the
+/// horizon in radians, against the third) at the price of more gain above it: `lag-delay`
+/// 1 + 1 ms has no stable lead at order 2 and 1560-1670 us at order 3, where its own
+/// lag (a 159 Hz corner) takes the prediction's gain at 800 Hz down with it; 3 + 2 ms and
+/// a transport delay of 1 ms with little lag have none at either (docs/compensation.md).
+/// Only where the plan applies (`compensation_plan`: `plan_from_actuator` and `adapt`,
+/// local-law commands); `None` otherwise.
+pub fn raised_lead_order(cfg: &HilConfig) -> Option<u32> {
+    let c = &cfg.compensation;
+    if !(c.plan_from_actuator && c.adapt)
+        || cfg.controller.command_mode != super::config::CommandMode::Law
+        || some_stable_lead(cfg, c.lead_order)
+    {
+        return None;
+    }
+    (c.lead_order + 1..=MAX_LEAD_ORDER).find(|&order| some_stable_lead(cfg, order))
+}
+
+/// `cfg` with `[compensation] lead_order` as `raised_lead_order` raises it.
+fn with_raised_order(cfg: &HilConfig) -> (Option<u32>, std::borrow::Cow<'_, HilConfig>) {
+    match raised_lead_order(cfg) {
+        Some(order) => {
+            let mut raised = cfg.clone();
+            raised.compensation.lead_order = order;
+            (Some(order), std::borrow::Cow::Owned(raised))
+        }
+        None => (None, std::borrow::Cow::Borrowed(cfg)),
+    }
+}
+
+/// Why the simulated rig's actuator cannot render this element at all: no lead from 0 to
+/// `[compensation] max_delay_us` makes the linearised loop stable (local-law commands),
+/// without the passivity guard's damping or, when it is on, with all of it, at the
+/// configured prediction order or the one the plan raises it to (`raised_lead_order`).
+/// Such a run trips `loop-unstable` within tens of milliseconds, and the actuator still
+/// delivers the forces already in flight when it trips, so the hold of a loop that
+/// diverged moves the specimen by up to millimetres (`lag-delay` 1 + 1 ms at order 2:
+/// 0.7 mm, 3 + 2 ms: 3.4 mm, against 0.1-0.3 mm for a loop one lead from stable). One line
+/// naming the file and the actuator; `None` when some lead is stable, or in force mode.
+pub fn no_stable_lead(cfg: &HilConfig) -> Option<String> {
+    if cfg.controller.command_mode != super::config::CommandMode::Law
+        || some_stable_lead(cfg, cfg.compensation.lead_order)
+        || raised_lead_order(cfg).is_some()
+    {
+        return None;
+    }
+    let order = cfg.compensation.lead_order;
+    // Without the plan (adapt or plan_from_actuator off) a higher order is the user's to set.
+    let hint = (order + 1..=MAX_LEAD_ORDER)
+        .find(|&o| some_stable_lead(cfg, o))
+        .map(|o| {
+            format!(" at [compensation] lead_order = {order} (with lead_order = {o} some lead is; the plan from the declared actuator would raise it, with adapt = true and plan_from_actuator = true)")
+        })
+        .unwrap_or_default();
+    Some(format!(
+        "{}: [rig.actuator] {}: no lead from 0 to {:.0} us makes the linearised loop stable{hint}: {}; the run would trip loop-unstable within tens of milliseconds, and with the forces already in flight the hold would move the specimen by up to millimetres; choose another actuator, or pass --run-unstable to run it anyway",
+        cfg.origin,
+        describe_actuator(cfg),
+        cfg.compensation.max_delay_s * 1e6,
+        why_no_stable_lead(cfg)
+    ))
 }
 
 /// Why no lead makes the loop stable, in words: the actuator's own servo loop unstable
@@ -1690,5 +1769,58 @@ mod tests {
         assert!(refused(&blocked)
             .contains("unstable (2 poles in the right half-plane with its piston blocked"));
         assert_eq!(no_stable_lead(&with("preset = \"fatigue-150kn\"")), None);
+    }
+
+    /// `lag-delay` 1 + 1 ms has no stable lead with the shipped quadratic prediction and
+    /// some with a cubic one (1560-1670 us; a time-domain simulation of the mass, the
+    /// delayed and lagged force and the cubic prediction, written apart from this crate,
+    /// found 1560-1660 us on a 20 us grid): the plan raises the order, fixes the lead among
+    /// them and is not refused; without the plan (`adapt = false`) the refusal names the
+    /// order that would do. 3 + 2 ms has none at any order the ABI carries; the shipped
+    /// actuator is left at its configured order.
+    #[test]
+    fn the_plan_raises_the_prediction_order_where_the_configured_one_has_no_stable_lead() {
+        let with = |actuator: &str, adapt: bool| {
+            let text = crate::hil::config::DEFAULT_CONFIG_TOML
+                .replace(
+                    "kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_us = 80.0\nforce_max_n = 150000.0",
+                    actuator,
+                )
+                .replace("adapt = true", &format!("adapt = {adapt}"));
+            crate::hil::config::parse_hil_config(&text, "a.toml", None).unwrap()
+        };
+        let one_plus_one = "kind = \"lag-delay\"\ntransport_delay_us = 1000.0\nlag_us = 1000.0\nforce_max_n = 150000.0";
+        let cfg = with(one_plus_one, true);
+        assert_eq!(cfg.compensation.lead_order, 2);
+        assert!(!some_stable_lead(&cfg, 2));
+        assert_eq!(raised_lead_order(&cfg), Some(3));
+        assert_eq!(no_stable_lead(&cfg), None);
+        let plan = compensation_plan(&cfg).expect("a plan");
+        assert_eq!(plan.raised_lead_order, Some(3));
+        assert!(plan.lead_fixed);
+        let run_with = planned(&cfg.compensation, Some(&plan));
+        assert_eq!(run_with.lead_order, 3);
+        assert!(!run_with.adapt_lead);
+        let mut lin = LinearLoop::for_plant(&cfg, &nominal_plant(&cfg), plan.lead_us * 1e-6, 1.0);
+        lin.lead_order = 3;
+        assert!(lin.is_stable(0.0, 1.0), "{} us", plan.lead_us);
+        assert!(
+            (1560.0..=1670.0).contains(&plan.lead_us),
+            "{} us",
+            plan.lead_us
+        );
+        assert!(describe_plan(&plan).contains("the prediction's order raised to 3"));
+        // Without the plan: refused, naming the order that has stable leads.
+        let refused = no_stable_lead(&with(one_plus_one, false)).expect("refused");
+        assert!(
+            refused.contains("at [compensation] lead_order = 2 (with lead_order = 3 some lead is"),
+            "{refused}"
+        );
+        let slow = with("kind = \"lag-delay\"\ntransport_delay_us = 3000.0\nlag_us = 2000.0\nforce_max_n = 150000.0", true);
+        assert_eq!(raised_lead_order(&slow), None);
+        assert!(no_stable_lead(&slow).is_some());
+        let shipped = with("kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_us = 80.0\nforce_max_n = 150000.0", true);
+        assert_eq!(raised_lead_order(&shipped), None);
+        assert_eq!(compensation_plan(&shipped).unwrap().raised_lead_order, None);
     }
 }

@@ -92,6 +92,8 @@ record_type! {
             measured_force_n: f64,
             /// compensation sent: the lead the rig predicts over, s
             lead_s: f64,
+            /// compensation sent: the order of the rig's prediction polynomial
+            lead_order: u32,
             /// compensation sent: the actuator gain the rig divides by
             actuator_gain: f64,
             /// compensation sent: the passivity guard's added damping, N s/m
@@ -408,6 +410,7 @@ impl ControllerCore {
             end_to_end_ns: e2e_ns,
             measured_force_n,
             lead_s: compensation.lead_s,
+            lead_order: compensation.lead_order,
             actuator_gain: compensation.gain,
             guard_damping_ns_per_m: compensation.added_damping_ns_per_m,
             guard_generated_j: status.guard.generated_j,

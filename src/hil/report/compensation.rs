@@ -908,7 +908,16 @@ mod tests {
         // Records lost for 40 ms in the middle of the first move: still one move.
         let gapped: Vec<(f64, f64)> = points
             .iter()
-            .map(|&(t, l)| (if t > 2.1 + 3.5 * dt && t < 2.5 { t + 0.04 } else { t }, l))
+            .map(|&(t, l)| {
+                (
+                    if t > 2.1 + 3.5 * dt && t < 2.5 {
+                        t + 0.04
+                    } else {
+                        t
+                    },
+                    l,
+                )
+            })
             .collect();
         assert_eq!(lead_steps(&gapped), 2);
         let r = CompensationReport {
@@ -1114,6 +1123,7 @@ mod tests {
             end_to_end_ns: 0,
             measured_force_n: 2e4,
             lead_s,
+            lead_order: 2,
             actuator_gain: 1.0,
             guard_damping_ns_per_m: 0.0,
             guard_generated_j: 0.0,
