@@ -758,13 +758,13 @@ fn sigkill_of_hil_leaves_a_holding_rig_that_records_cleans_up_and_exits() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
-/// An actuator too slow for any lead at the configured prediction order (`lag-delay` 1 ms
-/// + 1 ms at order 2, without the plan that would raise the order: `adapt = false`; `hil
-/// --check` finds no stable lead up to 10 ms): `hil` refuses it before anything starts,
-/// naming the file, the flag and the order that has stable leads; with `--run-unstable`
-/// it runs, `loop-unstable` trips within 0.1 s, the rig holds, and the specimen, pushed by
-/// the forces already in flight, comes to rest within 1.5 mm of where the loop was
-/// (0.67-0.75 mm measured).
+/// An actuator too slow for any lead at the configured prediction order (`lag-delay` of
+/// 1 ms and 1 ms at order 2, without the plan that would raise the order: `adapt =
+/// false`; `hil --check` finds no stable lead up to 10 ms): `hil` refuses it before
+/// anything starts, naming the file, the flag and the order that has stable leads; with
+/// `--run-unstable` it runs, `loop-unstable` trips within 0.1 s, the rig holds, and the
+/// specimen, pushed by the forces already in flight, comes to rest within 1.5 mm of where
+/// the loop was (0.67-0.75 mm measured).
 #[test]
 fn a_loop_no_lead_makes_stable_is_refused_and_run_anyway_trips_and_holds() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
