@@ -1248,6 +1248,13 @@ fn summarise(
     if !outcome.faults.is_empty() {
         eprintln!("hil: FAULT: {}", outcome.faults.join("; "));
         eprintln!("hil: report in {}", out_dir.display());
+        // Faults before the loop ever ran (no rig connected, a rig of another link
+        // protocol, a process that died while setting up): nothing was loaded or held,
+        // so there is no verdict on a run.
+        if analysis.is_none() && u(&emu, "model_steps") == 0 {
+            eprintln!("hil: no verdict: the loop never started");
+            return Ok(ExitCode::from(3));
+        }
         return Ok(ExitCode::from(2));
     }
     if !clean {
