@@ -416,6 +416,19 @@ fn dispersive_hint(lin: &crate::hil::check::LinearLoop, adapt: bool) -> String {
     )
 }
 
+/// What the report says of an external rig's hold that only its heartbeat told.
+fn external_hold_not_recorded(h: crate::hil::orchestrator::RigHoldSeen) -> String {
+    let fault = crate::hil::fault::Fault::from_code(h.fault_code)
+        .map_or_else(|| format!("fault code {}", h.fault_code), |f| f.to_string());
+    let at = h.at_s.map_or("before the start".to_string(), |t| {
+        format!("from about {t:.2} s")
+    });
+    format!(
+        "the external rig reported a {} ({fault}) in its heartbeat {at}, but none of its samples from then on reached the records (the emulator records an external rig's samples: it had ended, or the link was silent), so held_s, the excursions and at_rest cover only what was recorded; the rig's own records hold the rest",
+        crate::hil::report::safety::rig_state_name(h.state),
+    )
+}
+
 /// `cfg` with its `[compensation]` as `plan` sets it.
 fn planned_config(
     cfg: &HilConfig,
@@ -475,11 +488,17 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     };
     let [(delay_1_s, amplitude_1, _), (delay_20_s, amplitude_20, velocity_20)] =
         [1.0, 20.0].map(|f| lin.actuator_at(f));
+    // Where the specimen starts: at rest under the programme's first force.
+    let start_force_n =
+        crate::rig::load::LoadProgramme::new(&cfg.programme, cfg.model.length_m).force_n(0.0);
+    let start_m = cfg.model.element.static_displacement_m(start_force_n);
     if args.json {
         println!(
             "{}",
             serde_json::to_string_pretty(&json!({
                 "margins": m,
+                "start_displacement_m": start_m,
+                "start_force_n": start_force_n,
                 "stable_leads_us": lin.stable_leads(cfg.compensation.max_delay_s).map(|(a, b)| [a * 1e6, b * 1e6]),
                 "lead_us": lead_s * 1e6,
                 "initial_delay_us": guess_s * 1e6,
@@ -502,13 +521,15 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     }
     eprintln!("hil --check: {}", cfg.origin);
     eprintln!(
-        "  specimen {:.2} kg, rig damping {:.0} N s/m; element at {:.0} kN preload: {:.1} MN/m, {:.0} N s/m at {:.0} Hz",
+        "  specimen {:.2} kg, rig damping {:.0} N s/m; element at {:.0} kN preload: {:.1} MN/m, {:.0} N s/m at {:.0} Hz; the specimen starts at rest at {:.6} mm (the element's static displacement under the programme's first force, {:.3} kN: where a rig of its own starts too)",
         cfg.rig.specimen_mass_kg,
         cfg.rig.damping_ns_per_m,
         cfg.scenario.preload_n * 1e-3,
         element.k_eq_n_per_m * 1e-6,
         element.c_eq_ns_per_m,
-        cfg.emulator.law_frequency_hz
+        cfg.emulator.law_frequency_hz,
+        start_m * 1e3,
+        start_force_n * 1e-3
     );
     eprintln!(
         "  actuator: {} ({})",
@@ -974,8 +995,30 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
     // datagrams), not in the samples the report reads: a session it ended at the
     // programme's end while running says "finished", as the simulated rig's does.
     let analysis = analysis.map(|mut a| {
-        if args.rig.external() && outcome.rig_finished && a.safety.final_state == "running" {
-            a.safety.final_state = "finished".into();
+        match outcome.rig_hold_seen {
+            // The rig held, but its samples from then on were not recorded (the emulator,
+            // which records an external rig's samples, was dead, or the link silent).
+            Some(h) if args.rig.external() && a.safety.held_s == 0.0 => {
+                a.safety.final_state =
+                    crate::hil::report::safety::rig_state_name(h.state).to_string();
+                a.safety.hold_not_recorded = Some(external_hold_not_recorded(h));
+            }
+            _ if args.rig.external() && a.safety.final_state == "running" => {
+                if a.programme.completed {
+                    if outcome.rig_finished {
+                        a.safety.final_state = "finished".into();
+                    }
+                } else {
+                    // The samples stop while it ran: what the rig did then is its own.
+                    a.safety.final_state = "unknown".into();
+                    a.safety.hold_not_recorded = Some(format!(
+                        "the external rig's samples stop at {:.3} s while it was in force control, before the programme's end ({:.1} s), and its heartbeat told no hold: how it ended (a hold on stale commands, as the protocol asks of it) is not in fastemu's records, so held_s, the excursions and at_rest cover only what was recorded; the rig's own records hold the rest",
+                        a.rig_steps as f64 * cfg.loop_.dt_s(),
+                        a.programme.end_s
+                    ));
+                }
+            }
+            _ => {}
         }
         // The guess as configured; `starting_lead_us` is the lead the run started with.
         a.compensation.initial_delay_us = configured.initial_delay_s * 1e6;
@@ -1066,7 +1109,12 @@ fn summarise(
         "steps": analysis.map_or(u(&emu, "model_steps"), |a| a.steps),
         "deadline_misses": deadline_misses,
         "deadline_misses_emulator": deadline_misses,
-        "deadline_misses_rig": u(&rig, "missed_deadlines"),
+        // An external rig's own timing is not known to fastemu: null, not 0.
+        "deadline_misses_rig": if args.rig.external() {
+            serde_json::Value::Null
+        } else {
+            json!(u(&rig, "missed_deadlines"))
+        },
         "emulator_standby_cycles": u(&emu, "standby_cycles"),
         "stale_samples": u(&emu, "stale_cycles"),
         "missing_samples": u(&emu, "missing_samples"),
@@ -1243,6 +1291,9 @@ fn summarise(
             if let Some(seen) = &f.instability {
                 eprintln!("hil:   it tripped on {}", seen.describe());
             }
+        }
+        if let Some(note) = &a.safety.hold_not_recorded {
+            eprintln!("hil: {note}");
         }
     }
     if !outcome.faults.is_empty() {

@@ -114,9 +114,23 @@ pub struct RunOutcome {
     pub leftover_files: Vec<PathBuf>,
     /// Whether the rig ended the run itself (scenario end or the end of a hold).
     pub rig_finished: bool,
+    /// The first heartbeat in which the rig said it held (its state: hold, unload or
+    /// operator hold; its fault code; when it came): an external rig's own account,
+    /// which the report needs when the records, written from its samples by the emulator,
+    /// end before its hold (the emulator dead, the link silent).
+    pub rig_hold_seen: Option<RigHoldSeen>,
     /// Whether the operator stopped the run (SIGINT/SIGTERM to `hil`).
     pub operator_stop: bool,
     pub completed: bool,
+}
+
+/// A hold the rig reported in its heartbeat (`RunOutcome::rig_hold_seen`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RigHoldSeen {
+    pub state: u32,
+    pub fault_code: u32,
+    /// When the heartbeat arrived, s of the loop's time (`None`: before the start).
+    pub at_s: Option<f64>,
 }
 
 /// Whether a child's exit is part of the run's end rather than a death: an exit with a
@@ -335,6 +349,8 @@ struct Supervisor {
     last_heartbeat: [Option<Instant>; 3],
     ready: [bool; 3],
     started_at: Option<Instant>,
+    /// The loop's time zero sent with START (monotonic ns).
+    loop_t0_ns: Option<u64>,
     first_fault_at: Option<Instant>,
     stop_sent_at: Option<Instant>,
     end_sent_at: Option<Instant>,
@@ -417,6 +433,21 @@ impl Supervisor {
                 if hb.process == process_id::RIG && hb.state == rig_state::FINISHED {
                     self.outcome.rig_finished = true;
                 }
+                let holding = matches!(
+                    hb.state,
+                    rig_state::HOLD | rig_state::UNLOAD | rig_state::OPERATOR_HOLD
+                );
+                if hb.process == process_id::RIG && holding && self.outcome.rig_hold_seen.is_none()
+                {
+                    let now = monotonic_now_ns();
+                    self.outcome.rig_hold_seen = Some(RigHoldSeen {
+                        state: hb.state,
+                        fault_code: hb.fault_code,
+                        at_s: self
+                            .loop_t0_ns
+                            .map(|t0| now.saturating_sub(t0) as f64 * 1e-9),
+                    });
+                }
                 if let Some(f) = heartbeat_fault(&hb) {
                     faults.push(f);
                 }
@@ -485,6 +516,7 @@ impl Supervisor {
             last_heartbeat: [None; 3],
             ready: [false; 3],
             started_at: None,
+            loop_t0_ns: None,
             first_fault_at: None,
             stop_sent_at: None,
             end_sent_at: None,
@@ -521,6 +553,7 @@ impl Supervisor {
             ));
         } else if self.ready.iter().all(|&r| r) {
             let t0 = monotonic_now_ns() + 100_000_000;
+            self.loop_t0_ns = Some(t0);
             let unix_now = std::time::SystemTime::now()
                 .duration_since(std::time::UNIX_EPOCH)
                 .map_or(0, |d| d.as_nanos() as u64);

@@ -665,6 +665,78 @@ fn an_external_rigs_hold_after_the_emulators_fault_is_in_the_records_and_the_rep
     assert_nothing_left(&json);
 }
 
+/// Runs the example rig over iceoryx2 under `hil --rig external` with `inject` appended to
+/// the configuration; returns hil's exit code and JSON.
+fn external_run_with(name: &str, inject: &str) -> (i32, serde_json::Value, String) {
+    let dir = scratch_dir(name);
+    let report = dir.join("report");
+    let config = write_config(&dir, EXAMPLE_RIG_SCENARIO, inject);
+    let run_id = format!("feit{}{name}", std::process::id());
+    let mut hil = spawn_hil_with(
+        &config,
+        &report,
+        2.5,
+        &["--rig", "external", "--run-id", &run_id],
+    );
+    let status = run_example_rig(&["--ipc", &run_id]);
+    assert!(status.is_some(), "{name}: the example rig did not end");
+    let (code, json) = hil.finish(Duration::from_secs(60));
+    let stderr = hil.stderr();
+    assert_nothing_left(&json);
+    std::fs::remove_dir_all(&dir).ok();
+    (code, json, stderr)
+}
+
+/// fastemu records an external rig's samples in the emulator. A new user's rig (UDP,
+/// 2026-11-28) held on the controller's hold command after the emulator was killed, and
+/// the report said `final_state` "finished", `held_s` 0: nothing recorded the hold. The
+/// rig's heartbeat says it held: the report now ends in "hold" and says that the records
+/// miss it and why. With the controller killed the emulator lives and records the rig's
+/// own `commands-stale` and its hold: that fault's action is the rig's hold (it read "the
+/// controller acts", the controller dead), and the programme time stops at the hold (it
+/// counted the hold's 1 s as programme).
+#[test]
+fn an_external_rigs_hold_the_records_miss_is_told_from_its_heartbeat() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let (code, json, stderr) = external_run_with(
+        "ext-emu-kill",
+        "\n[[inject]]\nprocess = \"emulator\"\nkind = \"kill\"\nat_s = 1.0\n",
+    );
+    assert_eq!(code, 2, "{stderr}");
+    let safety = &json["safety"];
+    assert_eq!(safety["final_state"], "hold", "{safety}");
+    let note = safety["hold_not_recorded"].as_str().unwrap_or_default();
+    assert!(
+        note.contains("reported a hold (hold-requested) in its heartbeat from about 1."),
+        "{safety}"
+    );
+    assert!(stderr.contains(note), "{stderr}");
+
+    let (code, json, stderr) = external_run_with(
+        "ext-ctl-kill",
+        "\n[[inject]]\nprocess = \"controller\"\nkind = \"kill\"\nat_s = 1.0\n",
+    );
+    assert_eq!(code, 2, "{stderr}");
+    let safety = &json["safety"];
+    let rig = safety["faults"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|f| f["fault"] == "commands-stale")
+        .unwrap_or_else(|| panic!("no commands-stale: {safety}"));
+    assert_eq!(rig["action"], "hold", "{rig}");
+    assert_eq!(safety["final_state"], "hold", "{safety}");
+    assert!(safety["hold_not_recorded"].is_null(), "{safety}");
+    assert!(safety["held_s"].as_f64().unwrap() > 0.5, "{safety}");
+    // The programme stopped at the hold: 1 s and the stale commands' 50 ms, not the 2.5 s
+    // of samples.
+    let programme_s = json["programme"]["programme_time_s"].as_f64().unwrap();
+    assert!(
+        (1.0..1.2).contains(&programme_s),
+        "programme time {programme_s} s"
+    );
+}
+
 #[test]
 fn an_external_rig_that_never_connects_is_a_named_fault_that_leaves_nothing() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());

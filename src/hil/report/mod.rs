@@ -115,8 +115,8 @@ fn external_rig_named(mut safety: safety::Safety) -> safety::Safety {
 
 /// Whether `t_s` comes before the rig fault found so far (the streams are not read in
 /// time order: the first fault is the earliest, not the first met).
-fn earlier(found: &Option<(f64, u64, u32)>, t_s: f64) -> bool {
-    found.is_none_or(|(t, _, _)| t_s < t)
+fn earlier(found: &Option<(f64, u64, u32, u32)>, t_s: f64) -> bool {
+    found.is_none_or(|(t, _, _, _)| t_s < t)
 }
 
 /// The rig's view of one period from the emulator's record of its sample (external rig).
@@ -190,7 +190,8 @@ struct SideStreams {
     /// Records of the rig itself (0: an external rig; its view comes from the samples).
     rig_records: u64,
     /// The first fault an external rig reported in its samples: (t_s, sample, code).
-    sample_rig_fault: Option<(f64, u64, u32)>,
+    /// The external rig's first fault from its samples: time, sequence, code, its state.
+    sample_rig_fault: Option<(f64, u64, u32, u32)>,
     compensation: compensation::CompensationAnalyser,
     actuator_truth: Option<ActuatorTruthRecord>,
     actuator_params: Vec<ActuatorParamRecord>,
@@ -241,7 +242,8 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
             t if t == AfterFaultSampleRecord::TOPIC => {
                 if let Some(r) = AfterFaultSampleRecord::decode(data) {
                     if r.rig_fault_code != 0 && earlier(&side.sample_rig_fault, r.t_s) {
-                        side.sample_rig_fault = Some((r.t_s, r.sample_seq, r.rig_fault_code));
+                        side.sample_rig_fault =
+                            Some((r.t_s, r.sample_seq, r.rig_fault_code, r.rig_state));
                     }
                 }
             }
@@ -255,7 +257,8 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
                         && r.interpolated == 0
                         && earlier(&side.sample_rig_fault, r.t_s)
                     {
-                        side.sample_rig_fault = Some((r.t_s, r.sample_seq, r.rig_fault_code));
+                        side.sample_rig_fault =
+                            Some((r.t_s, r.sample_seq, r.rig_fault_code, r.rig_state));
                     }
                     side.emulator_force.push(r.t_s, r.force_n);
                     if let Some(e) = &mut side.element {
@@ -300,14 +303,20 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
         .collect();
     if side.rig_records == 0 {
         // An external rig records nothing here: its own fault is known from its samples.
-        if let Some((t_s, step_idx, code)) = side.sample_rig_fault {
+        if let Some((t_s, step_idx, code, state)) = side.sample_rig_fault {
+            // What the rig did, as its sample says (a rig's own fault is its interlock).
+            let action = match state {
+                rig_state::HOLD => crate::records::event::action_code::HOLD,
+                rig_state::UNLOAD => crate::records::event::action_code::HOLD_UNLOAD,
+                _ => crate::records::event::action_code::NONE,
+            };
             side.events.push(EventRecord {
                 t_s,
                 process: crate::ipc::messages::process_id::RIG,
                 kind: crate::records::event_kind::FAULT,
                 fault_code: code,
                 remote_fault_code: 0,
-                action: crate::records::event::action_code::NONE,
+                action,
                 detection_latency_periods: 0,
                 step_idx,
                 value: f64::NAN,
@@ -370,6 +379,9 @@ fn read_rig_stream(
     };
     let mut rig_steps = 0u64;
     let mut programme_at_end = (0u64, 0u32, 0.0f64);
+    // An external rig's samples carry no programme time: its sample time less the time it
+    // held (its programme pauses in a hold, as the simulated rig's does).
+    let mut external_held_s = 0.0f64;
     let mut plots = RigPlots {
         x_hil: Decimator::new(0.0, 1e-3, PLOT_BUCKETS),
         x_ref: Decimator::new(0.0, 1e-3, PLOT_BUCKETS),
@@ -394,9 +406,22 @@ fn read_rig_stream(
     };
     let mut on_rig_record = |r: &RigRecord| {
         rig_steps += 1;
-        programme_at_end = (r.programme_cycle, r.programme_block, r.programme_time_s);
+        let programme_time_s = if side.rig_records > 0 {
+            r.programme_time_s
+        } else {
+            r.t_s - external_held_s
+        };
+        if side.rig_records == 0
+            && matches!(
+                r.state,
+                rig_state::HOLD | rig_state::UNLOAD | rig_state::OPERATOR_HOLD
+            )
+        {
+            external_held_s += dt;
+        }
+        programme_at_end = (r.programme_cycle, r.programme_block, programme_time_s);
         // The reference follows programme time (it pauses while the rig holds).
-        let programme_step = (r.programme_time_s / dt).round() as u64;
+        let programme_step = (programme_time_s / dt).round() as u64;
         let step = pause.push(r.state);
         if step == PauseStep::Restart {
             // The simulated rig is wholly on the law here: the force it applies is the

@@ -240,6 +240,11 @@ pub struct Safety {
     pub final_state: String,
     /// Whether the rig reported the specimen at rest in its hold.
     pub at_rest: bool,
+    /// An external rig that said in its heartbeat it held, where the records (the
+    /// emulator's of its samples) hold none of it: when and why it held, and that
+    /// `held_s`, the excursions and `at_rest` cover only what was recorded.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hold_not_recorded: Option<String>,
 }
 
 pub fn rig_state_name(state: u32) -> &'static str {
