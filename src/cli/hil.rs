@@ -998,7 +998,8 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
         match outcome.rig_hold_seen {
             // The rig held, but its samples from then on were not recorded (the emulator,
             // which records an external rig's samples, was dead, or the link silent).
-            Some(h) if args.rig.external() && a.safety.held_s == 0.0 => {
+            // (The records end in force control, the heartbeat in a hold.)
+            Some(h) if args.rig.external() && a.safety.final_state == "running" => {
                 a.safety.final_state =
                     crate::hil::report::safety::rig_state_name(h.state).to_string();
                 a.safety.hold_not_recorded = Some(external_hold_not_recorded(h));

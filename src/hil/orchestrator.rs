@@ -114,10 +114,12 @@ pub struct RunOutcome {
     pub leftover_files: Vec<PathBuf>,
     /// Whether the rig ended the run itself (scenario end or the end of a hold).
     pub rig_finished: bool,
-    /// The first heartbeat in which the rig said it held (its state: hold, unload or
-    /// operator hold; its fault code; when it came): an external rig's own account,
-    /// which the report needs when the records, written from its samples by the emulator,
-    /// end before its hold (the emulator dead, the link silent).
+    /// The rig's last hold as its heartbeat told it, while the rig's last heartbeat
+    /// before it finished still said it held (its state: hold, unload or operator hold;
+    /// its fault code; when the hold's first heartbeat came); `None` when the rig never
+    /// held or resumed from its last hold. An external rig's own account, which the
+    /// report needs when the records, written from its samples by the emulator, end
+    /// before that hold (the emulator dead, the link silent).
     pub rig_hold_seen: Option<RigHoldSeen>,
     /// Whether the operator stopped the run (SIGINT/SIGTERM to `hil`).
     pub operator_stop: bool,
@@ -437,16 +439,21 @@ impl Supervisor {
                     hb.state,
                     rig_state::HOLD | rig_state::UNLOAD | rig_state::OPERATOR_HOLD
                 );
-                if hb.process == process_id::RIG && holding && self.outcome.rig_hold_seen.is_none()
-                {
-                    let now = monotonic_now_ns();
-                    self.outcome.rig_hold_seen = Some(RigHoldSeen {
-                        state: hb.state,
-                        fault_code: hb.fault_code,
-                        at_s: self
-                            .loop_t0_ns
-                            .map(|t0| now.saturating_sub(t0) as f64 * 1e-9),
-                    });
+                let counts = !matches!(hb.state, rig_state::FINISHED | HEARTBEAT_READY);
+                if hb.process == process_id::RIG && counts {
+                    if !holding {
+                        // Resumed (or not yet held): no hold stands.
+                        self.outcome.rig_hold_seen = None;
+                    } else if self.outcome.rig_hold_seen.is_none() {
+                        let now = monotonic_now_ns();
+                        self.outcome.rig_hold_seen = Some(RigHoldSeen {
+                            state: hb.state,
+                            fault_code: hb.fault_code,
+                            at_s: self
+                                .loop_t0_ns
+                                .map(|t0| now.saturating_sub(t0) as f64 * 1e-9),
+                        });
+                    }
                 }
                 if let Some(f) = heartbeat_fault(&hb) {
                     faults.push(f);
