@@ -1005,11 +1005,11 @@ pub fn run(args: HilArgs) -> anyhow::Result<ExitCode> {
                 a.safety.hold_not_recorded = Some(external_hold_not_recorded(h));
             }
             _ if args.rig.external() && a.safety.final_state == "running" => {
-                if a.programme.completed {
-                    if outcome.rig_finished {
-                        a.safety.final_state = "finished".into();
-                    }
-                } else {
+                // A rig that said it finished, in a run without faults, finished (its own
+                // duration may be shorter than the programme's, or a resume shortened it).
+                if outcome.rig_finished && (a.programme.completed || outcome.faults.is_empty()) {
+                    a.safety.final_state = "finished".into();
+                } else if !a.programme.completed {
                     // The samples stop while it ran: what the rig did then is its own.
                     a.safety.final_state = "unknown".into();
                     a.safety.hold_not_recorded = Some(format!(
@@ -1303,7 +1303,7 @@ fn summarise(
         // Faults before the loop ever ran (no rig connected, a rig of another link
         // protocol, a process that died while setting up): nothing was loaded or held,
         // so there is no verdict on a run.
-        if analysis.is_none() && u(&emu, "model_steps") == 0 {
+        if !outcome.started {
             eprintln!("hil: no verdict: the loop never started");
             return Ok(ExitCode::from(3));
         }

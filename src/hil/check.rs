@@ -618,8 +618,10 @@ pub fn starting_compensation(
     cfg: &HilConfig,
     plan: Option<&CompensationPlan>,
 ) -> crate::hil::compensation::CompensationConfig {
+    // Judged at the order the run predicts with (the plan may raise it).
+    let (_, at_order) = with_raised_order(cfg);
     let capped = crate::hil::compensation::CompensationConfig {
-        starting_lead_cap_s: starting_lead_cap_s(cfg),
+        starting_lead_cap_s: starting_lead_cap_s(&at_order),
         ..cfg.compensation
     };
     planned(&capped, plan)

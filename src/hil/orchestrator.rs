@@ -123,6 +123,9 @@ pub struct RunOutcome {
     pub rig_hold_seen: Option<RigHoldSeen>,
     /// Whether the operator stopped the run (SIGINT/SIGTERM to `hil`).
     pub operator_stop: bool,
+    /// Whether the orchestrator sent START (every process was ready): false, the loop
+    /// never ran.
+    pub started: bool,
     pub completed: bool,
 }
 
@@ -444,7 +447,12 @@ impl Supervisor {
                     if !holding {
                         // Resumed (or not yet held): no hold stands.
                         self.outcome.rig_hold_seen = None;
-                    } else if self.outcome.rig_hold_seen.is_none() {
+                    } else if let Some(h) = &mut self.outcome.rig_hold_seen {
+                        // The same hold: its latest state and fault (an operator hold a
+                        // fault latched in), its first time.
+                        h.state = hb.state;
+                        h.fault_code = hb.fault_code;
+                    } else {
                         let now = monotonic_now_ns();
                         self.outcome.rig_hold_seen = Some(RigHoldSeen {
                             state: hb.state,
@@ -561,6 +569,7 @@ impl Supervisor {
         } else if self.ready.iter().all(|&r| r) {
             let t0 = monotonic_now_ns() + 100_000_000;
             self.loop_t0_ns = Some(t0);
+            self.outcome.started = true;
             let unix_now = std::time::SystemTime::now()
                 .duration_since(std::time::UNIX_EPOCH)
                 .map_or(0, |d| d.as_nanos() as u64);

@@ -550,6 +550,12 @@ fn external_session(name: &str, hil_args: &[&str], rig_args: &[&str]) -> serde_j
     let rel = json["fidelity"]["displacement_rel_rms"].as_f64().unwrap();
     assert!(rel < 0.02, "{name}: displacement relative RMS error {rel}");
     assert!(json["rig"]["kind"] == "external");
+    assert_eq!(
+        json["safety"]["final_state"], "finished",
+        "{}",
+        json["safety"]
+    );
+    assert_eq!(json["deadline_misses_rig"], serde_json::Value::Null);
     replay_is_bit_for_bit(&report);
     assert_nothing_left(&json);
     std::fs::remove_dir_all(&dir).ok();

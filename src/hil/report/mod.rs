@@ -305,10 +305,10 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
         // An external rig records nothing here: its own fault is known from its samples.
         if let Some((t_s, step_idx, code, state)) = side.sample_rig_fault {
             // What the rig did, as its sample says (a rig's own fault is its interlock).
+            // The protocol asks a hold of the rig on its own faults.
             let action = match state {
-                rig_state::HOLD => crate::records::event::action_code::HOLD,
                 rig_state::UNLOAD => crate::records::event::action_code::HOLD_UNLOAD,
-                _ => crate::records::event::action_code::NONE,
+                _ => crate::records::event::action_code::HOLD,
             };
             side.events.push(EventRecord {
                 t_s,

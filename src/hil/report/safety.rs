@@ -240,9 +240,10 @@ pub struct Safety {
     pub final_state: String,
     /// Whether the rig reported the specimen at rest in its hold.
     pub at_rest: bool,
-    /// An external rig that said in its heartbeat it held, where the records (the
-    /// emulator's of its samples) hold none of it: when and why it held, and that
-    /// `held_s`, the excursions and `at_rest` cover only what was recorded.
+    /// An external rig whose records (the emulator's of its samples) end in force
+    /// control after a fault: the hold its heartbeat still told (when and why), or that
+    /// how it ended is unknown; either way `held_s`, the excursions and `at_rest` cover
+    /// only what was recorded.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub hold_not_recorded: Option<String>,
 }
