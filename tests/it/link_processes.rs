@@ -614,24 +614,12 @@ fn an_external_rig_written_from_the_header_completes_sessions_over_iceoryx2_and_
 #[test]
 fn an_external_rigs_hold_after_the_emulators_fault_is_in_the_records_and_the_report() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let dir = scratch_dir("external-hold");
-    let report = dir.join("report");
-    let config = write_config(
-        &dir,
-        EXAMPLE_RIG_SCENARIO,
+    let (dir, code, json, stderr) = external_run_with(
+        "external-hold",
         "\n[[inject]]\nprocess = \"emulator\"\nkind = \"stall\"\nat_s = 1.0\nduration_ms = 300\n",
     );
-    let run_id = format!("feit{}hold", std::process::id());
-    let mut hil = spawn_hil_with(
-        &config,
-        &report,
-        2.5,
-        &["--rig", "external", "--run-id", &run_id],
-    );
-    let status = run_example_rig(&["--ipc", &run_id]);
-    assert!(status.is_some(), "the example rig did not end");
-    let (code, json) = hil.finish(Duration::from_secs(60));
-    assert_ne!(code, 0, "{}", hil.stderr());
+    let report = dir.join("report");
+    assert_ne!(code, 0, "{stderr}");
     let faults = json["safety"]["faults"].as_array().unwrap();
     let emulator = faults
         .iter()
@@ -672,8 +660,9 @@ fn an_external_rigs_hold_after_the_emulators_fault_is_in_the_records_and_the_rep
 }
 
 /// Runs the example rig over iceoryx2 under `hil --rig external` with `inject` appended to
-/// the configuration; returns hil's exit code and JSON.
-fn external_run_with(name: &str, inject: &str) -> (i32, serde_json::Value, String) {
+/// the configuration; returns the scratch directory (the report in `report/`), hil's exit
+/// code, JSON and stderr.
+fn external_run_with(name: &str, inject: &str) -> (Scratch, i32, serde_json::Value, String) {
     let dir = scratch_dir(name);
     let report = dir.join("report");
     let config = write_config(&dir, EXAMPLE_RIG_SCENARIO, inject);
@@ -689,8 +678,7 @@ fn external_run_with(name: &str, inject: &str) -> (i32, serde_json::Value, Strin
     let (code, json) = hil.finish(Duration::from_secs(60));
     let stderr = hil.stderr();
     assert_nothing_left(&json);
-    std::fs::remove_dir_all(&dir).ok();
-    (code, json, stderr)
+    (dir, code, json, stderr)
 }
 
 /// fastemu records an external rig's samples in the emulator. A new user's rig (UDP,
@@ -704,7 +692,7 @@ fn external_run_with(name: &str, inject: &str) -> (i32, serde_json::Value, Strin
 #[test]
 fn an_external_rigs_hold_the_records_miss_is_told_from_its_heartbeat() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let (code, json, stderr) = external_run_with(
+    let (_dir, code, json, stderr) = external_run_with(
         "ext-emu-kill",
         "\n[[inject]]\nprocess = \"emulator\"\nkind = \"kill\"\nat_s = 1.0\n",
     );
@@ -718,7 +706,7 @@ fn an_external_rigs_hold_the_records_miss_is_told_from_its_heartbeat() {
     );
     assert!(stderr.contains(note), "{stderr}");
 
-    let (code, json, stderr) = external_run_with(
+    let (_dir, code, json, stderr) = external_run_with(
         "ext-ctl-kill",
         "\n[[inject]]\nprocess = \"controller\"\nkind = \"kill\"\nat_s = 1.0\n",
     );
