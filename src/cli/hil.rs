@@ -500,6 +500,15 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                 "start_displacement_m": start_m,
                 "start_force_n": start_force_n,
                 "stable_leads_us": lin.stable_leads(cfg.compensation.max_delay_s).map(|(a, b)| [a * 1e6, b * 1e6]),
+                "programme_loads": {
+                    "lowest_n": crate::hil::check::programme_load_range(cfg).0,
+                    "highest_n": crate::hil::check::programme_load_range(cfg).1,
+                    "judged_n": lin.other_loads_n(),
+                    "unstable_at_n": lin.unstable_loads_n(),
+                    "stable_leads_us": lin
+                        .stable_leads_over_programme(cfg.compensation.max_delay_s)
+                        .map(|(a, b)| [a * 1e6, b * 1e6]),
+                },
                 "lead_us": lead_s * 1e6,
                 "initial_delay_us": guess_s * 1e6,
                 "starting_lead_capped": cap_s.is_finite(),
@@ -610,6 +619,40 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                 "the passivity guard's damping could make it stable, so `fastemu hil` runs it; expect loop-unstable and a hold if it does not"
             }
         ),
+    }
+    let loads = lin.other_loads_n();
+    if !loads.is_empty() {
+        let (lowest, highest) = crate::hil::check::programme_load_range(cfg);
+        let unstable = lin.unstable_loads_n();
+        let kn = |l: &[f64]| -> String {
+            l.iter()
+                .map(|x| format!("{:.1} kN", x / 1e3))
+                .collect::<Vec<_>>()
+                .join(" and ")
+        };
+        let over = match lin.stable_leads_over_programme(cfg.compensation.max_delay_s) {
+            Some((lo, hi)) => format!(
+                "leads stable at all three: {:.0}-{:.0} us",
+                lo * 1e6,
+                hi * 1e6
+            ),
+            None => "no lead is stable at all three".to_string(),
+        };
+        eprintln!(
+            "  at the programme's lowest and highest load ({:.1} and {:.1} kN; the element stiffens with its load): {}; {over}",
+            lowest.max(0.0) / 1e3,
+            highest / 1e3,
+            if !m.stable {
+                "(the loop is not stable at the preload)".to_string()
+            } else if unstable.is_empty() {
+                "stable with this lead too".to_string()
+            } else {
+                format!(
+                    "NOT stable with this lead under {}: the loop may ring or trip loop-unstable and hold while the load is there (an axle's peak)",
+                    kn(&unstable)
+                )
+            }
+        );
     }
     if let Some(p) = &plan {
         eprintln!("  {}", crate::hil::check::describe_plan(p));

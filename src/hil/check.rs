@@ -189,6 +189,19 @@ pub struct CompensationPlan {
     /// configured.
     #[serde(default)]
     pub raised_lead_order: Option<u32>,
+    /// With the lead fixed: for how many of the drawn actuators that lead is stable at the
+    /// programme's lowest and highest load as well as at the preload (the element stiffens
+    /// with its load; `LinearLoop::unstable_loads_n`), and the loads (N) at which it is
+    /// not for the declared actuator.
+    #[serde(default)]
+    pub over_programme: Option<OverProgramme>,
+}
+
+/// The planned lead over the programme's loads (`CompensationPlan::over_programme`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct OverProgramme {
+    pub stable_for: usize,
+    pub declared_unstable_loads_n: Vec<f64>,
 }
 
 /// How far apart the frequencies of a lead too short and one too long must lie (the
@@ -409,6 +422,7 @@ pub fn compensation_plan(cfg: &HilConfig) -> Option<CompensationPlan> {
         effective_delays_us,
         nudge: None,
         raised_lead_order,
+        over_programme: None,
     };
     if destination_unstable_for == 0 {
         plan.lead_stable_for = on_two_threads(&plants, |plant| {
@@ -431,6 +445,21 @@ pub fn compensation_plan(cfg: &HilConfig) -> Option<CompensationPlan> {
             plan.guard = lin.is_stable(0.0, 1.0);
         }
         plan.nudge = nudge_range(cfg, &plants, &scan.windows_us, PLAN_LEAD_STEP_S);
+        let unstable_loads = on_two_threads(&plants, |plant| {
+            LinearLoop::for_plant(cfg, plant, plan.lead_us * 1e-6, 1.0).unstable_loads_n()
+        });
+        plan.over_programme = Some(OverProgramme {
+            stable_for: plants
+                .iter()
+                .zip(&unstable_loads)
+                .filter(|(plant, loads)| {
+                    loads.is_empty()
+                        && LinearLoop::for_plant(cfg, plant, plan.lead_us * 1e-6, 1.0)
+                            .is_stable(0.0, 1.0)
+                })
+                .count(),
+            declared_unstable_loads_n: unstable_loads[0].clone(),
+        });
     }
     plan.scan = Some(scan);
     Some(plan)
@@ -553,8 +582,26 @@ pub fn describe_plan(p: &CompensationPlan) -> String {
     } else {
         String::new()
     };
+    let over = p.over_programme.as_ref().map_or(String::new(), |o| {
+        let declared = if o.declared_unstable_loads_n.is_empty() {
+            String::new()
+        } else {
+            format!(
+                ". WARNING: the declared actuator's loop with that lead is NOT stable under {} (the element stiffens with its load): expect it to ring or trip loop-unstable and hold while the load is there (an axle's peak)",
+                o.declared_unstable_loads_n
+                    .iter()
+                    .map(|l| format!("{:.1} kN", l / 1e3))
+                    .collect::<Vec<_>>()
+                    .join(" and ")
+            )
+        };
+        format!(
+            "; at the programme's lowest and highest load as well, stable for {} of {}{declared}",
+            o.stable_for, p.draws
+        )
+    });
     format!(
-        "compensation planned from the declared actuator: {raised}over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are unstable somewhere for {} of them, so the lead is fixed at {:.0} us, stable for {} of {} (the adaptation learns the gain only){nudge}{}{few}; such an actuator is rendered stable but maybe not faithful (a fixed lead makes up neither for a delay that varies with frequency nor for the part of one it falls short of: expect a run that may not be clean); [compensation] plan_from_actuator = false (with an external rig, also plan_for_external_rig = false) runs as configured",
+        "compensation planned from the declared actuator: {raised}over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are unstable somewhere for {} of them, so the lead is fixed at {:.0} us, stable for {} of {} (the adaptation learns the gain only){over}{nudge}{}{few}; such an actuator is rendered stable but maybe not faithful (a fixed lead makes up neither for a delay that varies with frequency nor for the part of one it falls short of: expect a run that may not be clean); [compensation] plan_from_actuator = false (with an external rig, also plan_for_external_rig = false) runs as configured",
         p.destinations_us.0,
         p.destinations_us.1,
         p.destination_unstable_for,
@@ -665,6 +712,31 @@ pub fn read_plan(out_dir: &std::path::Path) -> anyhow::Result<Option<Compensatio
 /// sequence (or up to its end, if sooner), sampled at the loop's period, and when (s):
 /// what a fault's hold must carry, since the programme stands still while the rig holds.
 pub fn programme_peak_load(cfg: &HilConfig) -> (f64, f64) {
+    let (mut peak, mut at) = (0.0, 0.0);
+    scan_programme(cfg, |t, f| {
+        if t == 0.0 || f.abs() > peak {
+            peak = f.abs();
+            at = t;
+        }
+    });
+    (peak, at)
+}
+
+/// The lowest and highest force the load programme asks for over its first sequence (or
+/// its whole span), N: the element stiffens with its load (SPEC 2.1), so the linearised
+/// loop is also judged at both (`LinearLoop::unstable_loads_n`).
+pub fn programme_load_range(cfg: &HilConfig) -> (f64, f64) {
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    scan_programme(cfg, |_, f| {
+        lo = lo.min(f);
+        hi = hi.max(f);
+    });
+    (lo, hi)
+}
+
+/// The programme's force at every loop period over its first sequence (or its whole
+/// span), from t = 0.
+fn scan_programme(cfg: &HilConfig, mut visit: impl FnMut(f64, f64)) {
     let load = crate::rig::load::LoadProgramme::new(&cfg.programme, cfg.model.length_m);
     let span_s = if load.sequence_s() > 0.0 {
         load.sequence_s().min(load.end_s())
@@ -673,16 +745,10 @@ pub fn programme_peak_load(cfg: &HilConfig) -> (f64, f64) {
     };
     let dt = cfg.loop_.dt_s();
     let n = (span_s / dt).ceil() as u64;
-    let (mut peak, mut at) = (load.force_n(0.0).abs(), 0.0);
-    for i in 1..=n {
+    for i in 0..=n {
         let t = i as f64 * dt;
-        let f = load.force_n(t).abs();
-        if f > peak {
-            peak = f;
-            at = t;
-        }
+        visit(t, load.force_n(t));
     }
-    (peak, at)
 }
 
 /// Why the simulated rig's actuator cannot hold the specimen, one line naming the file,
@@ -875,6 +941,10 @@ pub struct LinearLoop {
     pub actuator_unstable_poles: usize,
     /// The element's modulus `k_eq(w) + j w c_eq(w)` at the preload, on the frequency grid.
     element: Vec<Complex64>,
+    /// The same at the programme's lowest and highest load where they differ from the
+    /// preload (`programme_load_range`): the element stiffens with its load, and an axle's
+    /// load can take a loop stable at the preload past its edge (`unstable_loads_n`).
+    other_elements: Vec<(f64, Vec<Complex64>)>,
     /// Actuator responses on the grid: force per command, force per specimen velocity.
     actuator_u: Vec<Complex64>,
     actuator_v: Vec<Complex64>,
@@ -928,13 +998,27 @@ impl LinearLoop {
     ) -> LinearLoop {
         let omega = grid(cfg.loop_.dt_s());
         let preload = cfg.scenario.preload_n;
-        let element = omega
-            .iter()
-            .map(|&w| {
-                let e = equivalent(&cfg.model.element, preload, w);
-                Complex64::new(e.k_eq_n_per_m, w * e.c_eq_ns_per_m)
-            })
-            .collect();
+        let modulus = |load_n: f64| -> Vec<Complex64> {
+            omega
+                .iter()
+                .map(|&w| {
+                    let e = equivalent(&cfg.model.element, load_n, w);
+                    Complex64::new(e.k_eq_n_per_m, w * e.c_eq_ns_per_m)
+                })
+                .collect()
+        };
+        let element = modulus(preload);
+        let (lowest, highest) = programme_load_range(cfg);
+        let mut other_elements: Vec<(f64, Vec<Complex64>)> = Vec::new();
+        for load in [lowest, highest] {
+            // A force below zero pulls the element; its modulus is judged at no load.
+            let load = load.max(0.0);
+            let near = (load - preload).abs() <= 1e-6 * preload.abs().max(1.0)
+                || other_elements.iter().any(|(l, _)| *l == load);
+            if load.is_finite() && !near {
+                other_elements.push((load, modulus(load)));
+            }
+        }
         let (actuator_u, actuator_v) = omega.iter().map(|&w| actuator(w)).unzip();
         let h = cfg.loop_.dt_s();
         let delays = omega
@@ -963,6 +1047,7 @@ impl LinearLoop {
             guard_corner_hz: cfg.compensation.guard_band_hz,
             actuator_unstable_poles: 0,
             element,
+            other_elements,
             actuator_u,
             actuator_v,
             omega,
@@ -1019,6 +1104,18 @@ impl LinearLoop {
         gain_factor: f64,
         weights: &Weights,
     ) -> (Complex64, Complex64) {
+        self.parts_on(&self.element, i, extra_delay_s, gain_factor, weights)
+    }
+
+    /// `parts` with the element's modulus `element` (at one of the judged loads).
+    fn parts_on(
+        &self,
+        element: &[Complex64],
+        i: usize,
+        extra_delay_s: f64,
+        gain_factor: f64,
+        weights: &Weights,
+    ) -> (Complex64, Complex64) {
         let w = self.omega[i];
         let jw = Complex64::new(0.0, w);
         let open = Complex64::new(-self.mass_kg * w * w, 0.0)
@@ -1030,20 +1127,66 @@ impl LinearLoop {
             Complex64::from_polar(gain_factor, -w * extra_delay_s)
         };
         let (position, velocity) = self.predicted(i, weights);
-        let rendered = self.actuator_u[i]
-            * delay
-            * (position * self.element[i] + self.guard_force(i, velocity))
-            / self.gain;
+        let rendered =
+            self.actuator_u[i] * delay * (position * element[i] + self.guard_force(i, velocity))
+                / self.gain;
         (open, rendered)
     }
 
-    /// Stability by the argument principle (module doc).
+    /// Stability by the argument principle (module doc), at the preload.
     pub fn is_stable(&self, extra_delay_s: f64, gain_factor: f64) -> bool {
+        self.is_stable_on(&self.element, extra_delay_s, gain_factor, &self.weights())
+    }
+
+    /// The programme's loads (N) other than the preload at which the loop as it stands
+    /// is unstable: its lowest and highest where they differ from the preload. The
+    /// element stiffens with its load, so an axle's peak can take a loop stable at the
+    /// preload past its edge: `lag-delay` 1003 + 99 us with a lead of 1100 us is stable at
+    /// 20 kN and not at 71.9 kN, and tripped `loop-unstable` at the first axle. The
+    /// decisions (the plan, the cap, the margins) stay at the preload: an axle's peak is
+    /// brief, and the plan's leads judged there ran the servo-hydraulic presets with less
+    /// error than those judged at the peak as well (docs/compensation.md).
+    pub fn unstable_loads_n(&self) -> Vec<f64> {
+        let weights = self.weights();
+        self.other_elements
+            .iter()
+            .filter(|(_, e)| !self.is_stable_on(e, 0.0, 1.0, &weights))
+            .map(|(l, _)| *l)
+            .collect()
+    }
+
+    /// The programme's loads (N) judged besides the preload.
+    pub fn other_loads_n(&self) -> Vec<f64> {
+        self.other_elements.iter().map(|(l, _)| *l).collect()
+    }
+
+    /// The leads (10 us steps up to `max_lead_s`) stable at the preload and at every one
+    /// of the programme's other judged loads, as the first and last; `None` when none is.
+    pub fn stable_leads_over_programme(&self, max_lead_s: f64) -> Option<(f64, f64)> {
+        let mut probe = self.clone();
+        let n = (max_lead_s / LEAD_STEP_S).round() as usize;
+        let ok: Vec<bool> = (0..=n)
+            .map(|i| {
+                probe.lead_s = i as f64 * LEAD_STEP_S;
+                probe.is_stable(0.0, 1.0) && probe.unstable_loads_n().is_empty()
+            })
+            .collect();
+        let first = ok.iter().position(|&s| s)?;
+        let last = ok.iter().rposition(|&s| s)?;
+        Some((first as f64 * LEAD_STEP_S, last as f64 * LEAD_STEP_S))
+    }
+
+    fn is_stable_on(
+        &self,
+        element: &[Complex64],
+        extra_delay_s: f64,
+        gain_factor: f64,
+        weights: &Weights,
+    ) -> bool {
         let mut last = f64::NAN;
         let mut unwrapped = 0.0;
-        let weights = self.weights();
         for i in 0..self.omega.len() {
-            let (open, rendered) = self.parts(i, extra_delay_s, gain_factor, &weights);
+            let (open, rendered) = self.parts_on(element, i, extra_delay_s, gain_factor, weights);
             let arg = (open + rendered).arg();
             if last.is_nan() {
                 unwrapped = arg;
@@ -1412,6 +1555,38 @@ mod tests {
         assert!(actuator_cannot_hold(&cfg).is_some_and(|w| w.contains("perturb = 0.3")));
         cfg.rig.actuator.nominal.si[1] = 1.01 * peak / 0.7;
         assert_eq!(actuator_cannot_hold(&cfg), None);
+    }
+
+    /// The programme's lowest and highest load bound every force it asks for (sampled apart
+    /// from the scan), the highest is the peak load, and the shipped loop is judged at both
+    /// besides the preload, stable at each with the shipped lead; the element is stiffer
+    /// under the highest.
+    #[test]
+    fn the_loop_is_judged_at_the_programmes_lowest_and_highest_load() {
+        let cfg = default_hil_config().unwrap();
+        let (lowest, highest) = programme_load_range(&cfg);
+        assert_eq!(highest, programme_peak_load(&cfg).0);
+        assert!(lowest < cfg.scenario.preload_n - cfg.scenario.harmonic_amplitude_n.abs() + 1.0);
+        let load = crate::rig::load::LoadProgramme::new(&cfg.programme, cfg.model.length_m);
+        for i in 0..2000 {
+            let f = load.force_n(i as f64 * 3e-3);
+            assert!((lowest - 1e-9..=highest + 1e-9).contains(&f), "{f}");
+        }
+        let lin = LinearLoop::for_plant(&cfg, &nominal_plant(&cfg), 252e-6, 1.0);
+        assert_eq!(lin.other_loads_n(), vec![lowest, highest]);
+        assert!(lin.unstable_loads_n().is_empty());
+        let k = |load_n: f64| equivalent(&cfg.model.element, load_n, 2.0 * PI * 155.0).k_eq_n_per_m;
+        assert!(k(highest) > 1.05 * k(cfg.scenario.preload_n));
+        // A lead just above the shipped actuator's stable range at the preload is unstable
+        // there; one inside the range at the preload but past the highest load's edge is
+        // named at that load alone.
+        let (_, hi_preload) = lin.stable_leads(5e-3).unwrap();
+        let (_, hi_all) = lin.stable_leads_over_programme(5e-3).unwrap();
+        assert!(hi_all < hi_preload, "{hi_all} {hi_preload}");
+        let mut past = lin.clone();
+        past.lead_s = hi_preload;
+        assert!(past.is_stable(0.0, 1.0));
+        assert_eq!(past.unstable_loads_n(), vec![highest]);
     }
 
     #[test]

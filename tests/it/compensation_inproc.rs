@@ -1195,3 +1195,81 @@ fn a_lag_delay_of_1_plus_1_ms_runs_on_a_cubic_prediction_within_1_percent() {
         truth_s * 1e6
     );
 }
+
+/// The element stiffens with its load (SPEC 2.1): `lag-delay` 1003 + 99 us, declared as it
+/// is, has stable leads at the 20 kN preload (its plan fixes 1100 us inside them) but none
+/// under the axle's 71.9 kN, and the plan says so. In time, the loop runs without a fault
+/// until the first axle comes (2 s) and trips `loop-unstable` under it, and the rig holds
+/// within the range the run had kept. The per-load judgement is checked against the loop
+/// judged whole at that load as its preload.
+#[test]
+fn a_loop_stable_at_the_preload_and_not_under_the_axles_load_trips_at_the_first_axle() {
+    let actuator =
+        "kind = \"lag-delay\"\ntransport_delay_us = 1003.0\nlag_us = 99.0\nforce_max_n = 150000.0";
+    let cfg = config_with_actuator(actuator, 252.0, true, true);
+    let plan = fastemu::hil::check::compensation_plan(&cfg).expect("a plan");
+    assert!(plan.lead_fixed, "{plan:?}");
+    let (_, highest) = fastemu::hil::check::programme_load_range(&cfg);
+    assert!(highest > 3.0 * cfg.scenario.preload_n, "{highest}");
+    let over = plan
+        .over_programme
+        .clone()
+        .expect("judged over the programme");
+    assert_eq!(over.declared_unstable_loads_n, vec![highest]);
+    assert!(fastemu::hil::check::describe_plan(&plan).contains("NOT stable under 71.9 kN"));
+    let plant = fastemu::rig::actuator::ActuatorPlant::from_config(&cfg.rig.actuator);
+    let lead_s = plan.lead_us * 1e-6;
+    let lin = fastemu::hil::check::LinearLoop::for_plant(&cfg, &plant, lead_s, 1.0);
+    assert!(lin.is_stable(0.0, 1.0));
+    assert_eq!(lin.unstable_loads_n(), vec![highest]);
+    let mut at_peak = cfg.clone();
+    at_peak.scenario.preload_n = highest;
+    let whole = fastemu::hil::check::LinearLoop::for_plant(&at_peak, &plant, lead_s, 1.0);
+    assert!(!whole.is_stable(0.0, 1.0));
+    assert_eq!(whole.stable_leads(10e-3), None);
+
+    let run = run_in_process(&cfg, &script(3.0));
+    let f = faults(&run);
+    let first_axle_s = cfg.scenario.train_first_axle_s;
+    let trip = f
+        .iter()
+        .find(|(p, fault, _)| *p == process_id::EMULATOR && *fault == Fault::LoopUnstable)
+        .unwrap_or_else(|| panic!("no loop-unstable: {f:?}"));
+    assert!(
+        f.iter().all(|(_, _, t)| *t >= first_axle_s),
+        "a fault before the first axle: {f:?}"
+    );
+    assert!(
+        (first_axle_s..first_axle_s + 0.3).contains(&trip.2),
+        "tripped at {} s",
+        trip.2
+    );
+    assert!(run.rig.iter().any(|r| r.state == rig_state::HOLD));
+    // Faithful before the axle: within 0.5 % of the offline reference up to 1.9 s.
+    let reference = reference_displacement_m(&cfg, run.rig.len());
+    let (mut e2, mut r2) = (0.0, 0.0);
+    for r in run.rig.iter().filter(|r| r.t_s < first_axle_s - 0.1) {
+        let x_ref = reference[r.step_idx as usize];
+        e2 += (r.x_m - x_ref).powi(2);
+        r2 += x_ref * x_ref;
+    }
+    assert!(
+        (e2 / r2).sqrt() < 5e-3,
+        "error before the axle {}",
+        (e2 / r2).sqrt()
+    );
+    // The hold keeps the specimen within 0.1 mm of the range the run had kept.
+    let (lo, hi) = run
+        .rig
+        .iter()
+        .filter(|r| r.t_s < trip.2 - 0.05)
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), r| {
+            (a.min(r.x_m), b.max(r.x_m))
+        });
+    let beyond = run
+        .rig
+        .iter()
+        .map(|r| (r.x_m - hi).max(lo - r.x_m).max(0.0))
+        .fold(0.0f64, f64::max);
+    assert!(beyond < 0.1e-3, "excursion {} mm beyond", beyond * 1e3);
+}
