@@ -382,6 +382,7 @@ fn read_rig_stream(
     // An external rig's samples carry no programme time: its sample time less the time it
     // held (its programme pauses in a hold, as the simulated rig's does).
     let mut external_held_s = 0.0f64;
+    let mut external_last: Option<(u64, bool)> = None;
     let mut plots = RigPlots {
         x_hil: Decimator::new(0.0, 1e-3, PLOT_BUCKETS),
         x_ref: Decimator::new(0.0, 1e-3, PLOT_BUCKETS),
@@ -411,13 +412,10 @@ fn read_rig_stream(
         } else {
             r.t_s - external_held_s
         };
-        if side.rig_records == 0
-            && matches!(
-                r.state,
-                rig_state::HOLD | rig_state::UNLOAD | rig_state::OPERATOR_HOLD
-            )
-        {
-            external_held_s += dt;
+        if side.rig_records == 0 {
+            // Samples the link lost within a hold count as held (`safety::held_periods`).
+            external_held_s += safety::held_periods(external_last, r.step_idx, r.state) as f64 * dt;
+            external_last = Some((r.step_idx, safety::is_holding(r.state)));
         }
         programme_at_end = (r.programme_cycle, r.programme_block, programme_time_s);
         // The reference follows programme time (it pauses while the rig holds).
@@ -776,11 +774,7 @@ fn draw_safety_plot(dir: &Path, rig: &RigPass) -> anyhow::Result<()> {
             xr.push(t, xri);
         }
         fa.push(t, fai);
-        let holding = matches!(
-            state,
-            rig_state::HOLD | rig_state::UNLOAD | rig_state::OPERATOR_HOLD
-        );
-        hold.push(t, if holding { 1.0 } else { 0.0 });
+        hold.push(t, if safety::is_holding(state) { 1.0 } else { 0.0 });
     }
     let mut title = String::from("Specimen around the first fault");
     if let Some(f) = rig.safety.faults.first() {

@@ -268,6 +268,31 @@ struct Tracked {
     after_max: f64,
 }
 
+/// Whether a rig in `state` holds the specimen (a fault's hold, the final unload, an
+/// operator hold): its programme stands still.
+pub fn is_holding(state: u32) -> bool {
+    matches!(
+        state,
+        rig_state::HOLD | rig_state::UNLOAD | rig_state::OPERATOR_HOLD
+    )
+}
+
+/// The periods a record in `state` at period `step` adds to the time held, after the
+/// record before it (`previous`: its period and whether it held). An external rig's
+/// samples reach the report through the link, which may lose some: a gap between two
+/// records that both hold was held all through (the rig cannot leave a hold and come back
+/// to it unseen without a resume and a new fault, both of which its heartbeat and the
+/// events carry), so it counts whole; any other record counts its own period.
+pub fn held_periods(previous: Option<(u64, bool)>, step: u64, state: u32) -> u64 {
+    if !is_holding(state) {
+        return 0;
+    }
+    match previous {
+        Some((before, true)) if step > before => step - before,
+        _ => 1,
+    }
+}
+
 /// Follows the rig's records against the fault events.
 #[derive(Debug, Clone)]
 pub struct SafetyTracker {
@@ -278,6 +303,8 @@ pub struct SafetyTracker {
     held_periods: u64,
     dt_s: f64,
     last_state: u32,
+    /// The last record's period and whether it held (`held_periods`).
+    last_period: Option<(u64, bool)>,
     /// When the rig's current hold began (none: not holding).
     hold_since_s: Option<f64>,
     /// The rig recorded its end-of-run event.
@@ -334,6 +361,7 @@ impl SafetyTracker {
             held_periods: 0,
             dt_s,
             last_state: rig_state::STARTING,
+            last_period: None,
             hold_since_s: None,
             rig_finished,
             safety,
@@ -346,13 +374,9 @@ impl SafetyTracker {
     }
 
     pub fn push(&mut self, r: &RigRecord) {
-        let holding = matches!(
-            r.state,
-            rig_state::HOLD | rig_state::UNLOAD | rig_state::OPERATOR_HOLD
-        );
-        if holding {
-            self.held_periods += 1;
-        }
+        let holding = is_holding(r.state);
+        self.held_periods += held_periods(self.last_period, r.step_idx, r.state);
+        self.last_period = Some((r.step_idx, holding));
         // The hold this record belongs to, and whether it began before this record.
         let held_before = self.hold_since_s;
         if !holding {
@@ -539,6 +563,27 @@ mod tests {
         let ended_held = track(&[event(0.11, event_kind::FINISHED)], &held);
         assert_eq!(ended_held.final_state, "hold");
         assert!((ended_held.held_s - DT).abs() < 1e-12);
+    }
+
+    /// An external rig's samples come over a link that may lose some: a gap between two
+    /// records in a hold was held all through and counts whole; a gap into a hold counts
+    /// the record's own period only (the rig may have run until then).
+    #[test]
+    fn samples_lost_within_a_hold_count_as_held() {
+        let mut records: Vec<_> = (0..10)
+            .map(|i| record(i, 0.0, rig_state::RUNNING))
+            .collect();
+        // Running at 9, then the link loses 10-13: the hold is seen from 14.
+        for step in [14, 15, 16, 40, 41] {
+            records.push(record(step, 0.0, rig_state::HOLD));
+        }
+        let safety = track(&[], &records);
+        // 14, 15, 16: one each; 17-40 lost in the hold: 24; 41: one.
+        assert!((safety.held_s - 28.0 * DT).abs() < 1e-12, "{}", safety.held_s / DT);
+        assert_eq!(held_periods(None, 5, rig_state::HOLD), 1);
+        assert_eq!(held_periods(Some((4, true)), 9, rig_state::OPERATOR_HOLD), 5);
+        assert_eq!(held_periods(Some((4, false)), 9, rig_state::UNLOAD), 1);
+        assert_eq!(held_periods(Some((4, true)), 9, rig_state::RUNNING), 0);
     }
 
     /// A second fault in the first one's hold (the emulator's own stall trip after the
