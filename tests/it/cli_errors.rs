@@ -716,3 +716,87 @@ fn hil_without_a_verdict_exits_3() {
         Some(2)
     );
 }
+
+/// `hil --check --json` on the shipped configuration: stable as the run starts (exit 0),
+/// where the specimen starts (the element's static displacement under the programme's
+/// first force, checked here by the consistent form's static law forward, SPEC 2.1:
+/// `F = P0 [(1 + (1 - chi) k1_0 z / P0)^(1/(1-chi)) - 1]`), and the programme's loads it
+/// judges the loop at besides the preload. A `lag-delay` of 1003 + 99 us, stable at the
+/// preload with its planned lead and not under the axle's peak, says so and still exits 0
+/// (it starts stable).
+#[test]
+fn hil_check_json_says_where_the_specimen_starts_and_the_programmes_loads() {
+    let dir = TempDir::new("hil-check-json");
+    let out = dir.join("check");
+    let run = fastemu(&["hil", "--check", "--json", "--out", path_str(&out)]);
+    assert_eq!(run.status.code(), Some(0));
+    let j: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(j["margins"]["stable"], true);
+    let z = j["start_displacement_m"].as_f64().unwrap();
+    let (k1_0, chi, p0) = (62e6 * 0.75, 0.21, 64e3);
+    let force = p0 * ((1.0 + (1.0 - chi) * k1_0 * z / p0).powf(1.0 / (1.0 - chi)) - 1.0);
+    assert!((force - 20e3).abs() < 1e-6, "{force} N at {z} m");
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        stderr.contains(&format!("the specimen starts at rest at {:.6} mm", z * 1e3)),
+        "{stderr}"
+    );
+    let loads = &j["programme_loads"];
+    let (lowest, highest) = (
+        loads["lowest_n"].as_f64().unwrap(),
+        loads["highest_n"].as_f64().unwrap(),
+    );
+    // The harmonic's 4 kN below the preload at least, and the axles well above it.
+    assert!(
+        lowest <= 16e3 + 1e-6 && highest > 60e3,
+        "{lowest} {highest}"
+    );
+    assert_eq!(loads["judged_n"], serde_json::json!([lowest, highest]));
+    assert_eq!(loads["unstable_at_n"], serde_json::json!([]));
+    let over = loads["stable_leads_us"].as_array().unwrap();
+    let at_preload = j["stable_leads_us"].as_array().unwrap();
+    assert!(
+        over[0].as_f64() >= at_preload[0].as_f64() && over[1].as_f64() <= at_preload[1].as_f64()
+    );
+    assert!(out.join("check.png").exists());
+
+    let edge = dir.write(
+        "edge.toml",
+        &include_str!("../../configs/hil-default.toml").replace(
+            "transport_delay_us = 50.0\nlag_us = 80.0",
+            "transport_delay_us = 1003.0\nlag_us = 99.0",
+        ),
+    );
+    let run = fastemu(&[
+        "hil",
+        "--check",
+        "--json",
+        "--config",
+        path_str(&edge),
+        "--out",
+        path_str(&out),
+    ]);
+    assert_eq!(run.status.code(), Some(0));
+    let j: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert!(
+        (j["lead_us"].as_f64().unwrap() - 1100.0).abs() < 1e-6,
+        "{}",
+        j["lead_us"]
+    );
+    assert_eq!(
+        j["programme_loads"]["unstable_at_n"],
+        serde_json::json!([highest])
+    );
+    assert_eq!(
+        j["programme_loads"]["stable_leads_us"],
+        serde_json::Value::Null
+    );
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        stderr.contains("NOT stable with this lead under 71.9 kN")
+            && stderr.contains(
+                "the declared actuator's loop with that lead is NOT stable under 71.9 kN"
+            ),
+        "{stderr}"
+    );
+}

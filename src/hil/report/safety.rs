@@ -579,9 +579,16 @@ mod tests {
         }
         let safety = track(&[], &records);
         // 14, 15, 16: one each; 17-40 lost in the hold: 24; 41: one.
-        assert!((safety.held_s - 28.0 * DT).abs() < 1e-12, "{}", safety.held_s / DT);
+        assert!(
+            (safety.held_s - 28.0 * DT).abs() < 1e-12,
+            "{}",
+            safety.held_s / DT
+        );
         assert_eq!(held_periods(None, 5, rig_state::HOLD), 1);
-        assert_eq!(held_periods(Some((4, true)), 9, rig_state::OPERATOR_HOLD), 5);
+        assert_eq!(
+            held_periods(Some((4, true)), 9, rig_state::OPERATOR_HOLD),
+            5
+        );
         assert_eq!(held_periods(Some((4, false)), 9, rig_state::UNLOAD), 1);
         assert_eq!(held_periods(Some((4, true)), 9, rig_state::RUNNING), 0);
     }
