@@ -350,7 +350,7 @@ fn stability_warning(cfg: &HilConfig) -> Option<String> {
         return Some(format!(
             "the linearised loop is stable with the starting lead of {:.0} us but not with the safe start's damping ({:.0} kN s/m above {:.0} Hz until the lead is learned; this actuator's lag there turns damping into energy): expect loop-unstable and a hold; with a lead you trust, adapt = false starts without it (fastemu hil --check)",
             lead_s * 1e6,
-            cfg.compensation.guard_max_damping_ns_per_m * 1e-3,
+            crate::hil::check::safe_start_damping_ns_per_m(cfg) * 1e-3,
             cfg.compensation.guard_band_hz
         ));
     }
@@ -664,10 +664,19 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
         }
     }
     if let Some(stable) = safe_start {
+        let start_damping = crate::hil::check::safe_start_damping_ns_per_m(cfg);
         eprintln!(
-            "  safe start (the guard's {:.0} kN s/m above {:.0} Hz from the first command until the lead is learned): the linearised loop is {} with it at this lead{}",
-            cfg.compensation.guard_max_damping_ns_per_m * 1e-3,
+            "  safe start (the guard's {:.0} kN s/m above {:.0} Hz from the first command until the lead is learned{}): the linearised loop is {} with it at this lead{}",
+            start_damping * 1e-3,
             cfg.compensation.guard_band_hz,
+            if start_damping < cfg.compensation.guard_max_damping_ns_per_m {
+                format!(
+                    "; less than guard_max_damping_ns_per_m = {:.0} kN s/m, with which the loop at this lead is unstable in front of some actuator between half the guess and the guess",
+                    cfg.compensation.guard_max_damping_ns_per_m * 1e-3
+                )
+            } else {
+                String::new()
+            },
             if stable { "stable" } else { "NOT stable" },
             match (stable, m.stable) {
                 (true, false) => ": it holds the loop while the lead is learned",

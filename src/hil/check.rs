@@ -669,10 +669,65 @@ pub fn starting_compensation(
     let (_, at_order) = with_raised_order(cfg);
     let capped = crate::hil::compensation::CompensationConfig {
         starting_lead_cap_s: starting_lead_cap_s(&at_order),
+        safe_start_damping_ns_per_m: safe_start_damping_ns_per_m(&at_order),
         ..cfg.compensation
     };
     planned(&capped, plan)
 }
+
+/// The safe start's damping: the largest of `[compensation] guard_max_damping_ns_per_m`
+/// and its halves down to a sixteenth with which the linearised loop at the starting lead
+/// (`starting_lead_cap_s`) is stable in front of every actuator the guess allows, pure
+/// delays from half the guess to the guess (`SAFE_START_DRAWS` of them, half a period
+/// of hold less); the full damping when none is, or without a safe start or a guess.
+/// The damping acts on the velocity predicted over the lead, whose prediction amplifies
+/// the band's top, so in front of an actuator a little faster than a long lead the full
+/// damping itself generates energy: `lag-delay` 500 + 80 us (0.70 ms) from a guess of 800-
+/// 1000 us (the start capped at 774 us for 900) tripped `loop-unstable` within 0.1 s,
+/// stable there without the damping, unstable with 40 kN s/m and stable with 20 kN s/m
+/// (`hil --check` on the truth). A damping of its own size costs nothing when the lead is
+/// too short: the guard's answer to energy seen goes up to the full damping.
+pub fn safe_start_damping_ns_per_m(cfg: &HilConfig) -> f64 {
+    let c = &cfg.compensation;
+    let full = c.guard_max_damping_ns_per_m;
+    let guess = c.initial_delay_s;
+    if !(c.adapt && c.adapt_lead && c.passivity_guard)
+        || cfg.controller.command_mode != super::config::CommandMode::Law
+        || guess <= 0.0
+    {
+        return full;
+    }
+    let lead = guess.min(starting_lead_cap_s(cfg)).min(c.max_delay_s);
+    let hold = 0.5 * cfg.loop_.dt_s();
+    let loops: Vec<LinearLoop> = (0..SAFE_START_DRAWS)
+        .map(|i| {
+            let f = 0.5 + 0.5 * i as f64 / (SAFE_START_DRAWS - 1) as f64;
+            let tau = (f * guess - hold).max(0.0);
+            let pure = move |w: f64| {
+                (
+                    Complex64::from_polar(1.0, -w * tau),
+                    Complex64::new(0.0, 0.0),
+                )
+            };
+            LinearLoop::new(cfg, pure, lead, 1.0)
+        })
+        .collect();
+    (0..SAFE_START_HALVINGS)
+        .map(|k| full / f64::from(1u32 << k))
+        .find(|&d| {
+            loops.iter().all(|l| {
+                let mut damped = l.clone();
+                damped.guard_damping_ns_per_m = d;
+                damped.is_stable(0.0, 1.0)
+            })
+        })
+        .unwrap_or(full)
+}
+
+/// The actuators the safe start's damping is judged in front of (`safe_start_damping_ns_per_m`).
+const SAFE_START_DRAWS: usize = 6;
+/// The full damping and its halves tried: 1, 1/2, 1/4, 1/8, 1/16.
+const SAFE_START_HALVINGS: u32 = 5;
 
 /// Where the launcher leaves the plan for the controller (in the report directory).
 pub const PLAN_FILE: &str = "compensation-plan.json";
@@ -1322,7 +1377,7 @@ impl LinearLoop {
         let c = &cfg.compensation;
         (c.adapt && c.adapt_lead && c.passivity_guard).then(|| {
             let mut armed = self.clone();
-            armed.guard_damping_ns_per_m = cfg.compensation.guard_max_damping_ns_per_m;
+            armed.guard_damping_ns_per_m = safe_start_damping_ns_per_m(cfg);
             armed.is_stable(0.0, 1.0)
         })
     }
@@ -1555,6 +1610,46 @@ mod tests {
         assert!(actuator_cannot_hold(&cfg).is_some_and(|w| w.contains("perturb = 0.3")));
         cfg.rig.actuator.nominal.si[1] = 1.01 * peak / 0.7;
         assert_eq!(actuator_cannot_hold(&cfg), None);
+    }
+
+    /// The safe start's damping in front of `lag-delay` 500 + 80 us from a guess of 900 us
+    /// (capped at 774 us): the full 40 kN s/m makes the loop at the starting lead unstable
+    /// in front of that very actuator (and of a pure delay within the guess's range), half
+    /// of it does not, and half is what the launcher chooses; the shipped guess on the
+    /// shipped actuator keeps all of it, and so does a guess of 0 (no lead to be too long).
+    #[test]
+    fn the_safe_starts_damping_is_what_the_starting_lead_stays_stable_with() {
+        let text = crate::hil::config::DEFAULT_CONFIG_TOML
+            .replace("transport_delay_us = 50.0", "transport_delay_us = 500.0")
+            .replace("initial_delay_us = 252.0", "initial_delay_us = 900.0");
+        let cfg = crate::hil::config::parse_hil_config(&text, "g900.toml", None).unwrap();
+        let full = cfg.compensation.guard_max_damping_ns_per_m;
+        let lead = starting_lead_cap_s(&cfg);
+        assert!((700e-6..900e-6).contains(&lead), "{lead}");
+        let d = safe_start_damping_ns_per_m(&cfg);
+        assert_eq!(d, 0.5 * full);
+        let mut truth = LinearLoop::for_plant(&cfg, &nominal_plant(&cfg), lead, 1.0);
+        truth.guard_damping_ns_per_m = full;
+        assert!(!truth.is_stable(0.0, 1.0));
+        truth.guard_damping_ns_per_m = d;
+        assert!(truth.is_stable(0.0, 1.0));
+        assert_eq!(truth.safe_start_stable(&cfg), Some(true));
+        assert_eq!(
+            starting_compensation(&cfg, None).safe_start_damping_ns_per_m,
+            d
+        );
+        // A pure delay of 0.7 of the guess (the hold's half period less) at that lead.
+        let tau = 0.7 * 900e-6 - 0.5 / 4096.0;
+        let mut pure = LinearLoop::new(&cfg, lag_delay(tau, 0.0), lead, 1.0);
+        pure.guard_damping_ns_per_m = full;
+        assert!(!pure.is_stable(0.0, 1.0));
+        pure.guard_damping_ns_per_m = d;
+        assert!(pure.is_stable(0.0, 1.0));
+        let shipped = default_hil_config().unwrap();
+        assert_eq!(safe_start_damping_ns_per_m(&shipped), full);
+        let mut zero = cfg.clone();
+        zero.compensation.initial_delay_s = 0.0;
+        assert_eq!(safe_start_damping_ns_per_m(&zero), full);
     }
 
     /// The programme's lowest and highest load bound every force it asks for (sampled apart

@@ -45,6 +45,10 @@ pub struct CompensationConfig {
     /// too long for the fastest actuator the guess allows diverges within milliseconds,
     /// before anything is learned; one too short is what the guard makes up for).
     pub starting_lead_cap_s: f64,
+    /// The safe start's damping, N s/m (`check::safe_start_damping_ns_per_m`: the largest
+    /// of `guard_max_damping_ns_per_m` and its halves that the starting lead stays stable
+    /// with in front of every actuator the guess allows; not a key).
+    pub safe_start_damping_ns_per_m: f64,
     /// Prediction polynomial order (0-3).
     pub lead_order: u32,
     /// Learn the delay and gain during the run.
@@ -97,6 +101,7 @@ impl CompensationConfig {
         CompensationConfig {
             initial_delay_s,
             starting_lead_cap_s: f64::INFINITY,
+            safe_start_damping_ns_per_m: 40.0e3,
             lead_order: 2,
             adapt: true,
             adapt_lead: true,
@@ -359,6 +364,8 @@ pub struct PassivityGuard {
     onset_energy_j: f64,
     full_energy_j: f64,
     max_damping: f64,
+    /// The safe start's damping (`safe_start_damping`).
+    start_damping: f64,
     release: f64,
     damping: f64,
     last_z_hp_m: f64,
@@ -405,6 +412,13 @@ const SAFE_START_RING_BLOCKS: u32 = 3;
 const SAFE_START_RING_GROWTH: f64 = 1.1;
 const SAFE_START_RING_FLOOR_M: f64 = 1.5e-6;
 
+/// The safe start's damping: as `check::starting_compensation` chose it, never above the
+/// guard's largest.
+fn safe_start_damping(cfg: &CompensationConfig) -> f64 {
+    cfg.safe_start_damping_ns_per_m
+        .min(cfg.guard_max_damping_ns_per_m)
+}
+
 impl PassivityGuard {
     pub fn new(cfg: &CompensationConfig, dt_s: f64) -> PassivityGuard {
         PassivityGuard {
@@ -412,6 +426,7 @@ impl PassivityGuard {
             onset_energy_j: cfg.guard_onset_energy_j,
             full_energy_j: cfg.guard_full_energy_j,
             max_damping: cfg.guard_max_damping_ns_per_m,
+            start_damping: safe_start_damping(cfg),
             release: (-dt_s / cfg.guard_release_s).exp(),
             damping: 0.0,
             last_z_hp_m: 0.0,
@@ -480,7 +495,7 @@ impl PassivityGuard {
         // at once when it rises, released slowly when it falls.
         let span = (self.full_energy_j - self.onset_energy_j).max(1e-12);
         let target = if self.armed {
-            self.max_damping
+            self.start_damping
         } else {
             self.max_damping * ((s.generated_high_j - self.onset_energy_j) / span).clamp(0.0, 1.0)
         };
@@ -830,11 +845,7 @@ impl Compensator {
         // The safe start: full damping from the first command (`PassivityGuard`).
         let armed = cfg.adapt && cfg.adapt_lead && cfg.passivity_guard;
         let guard = GuardState {
-            damping_ns_per_m: if armed {
-                cfg.guard_max_damping_ns_per_m
-            } else {
-                0.0
-            },
+            damping_ns_per_m: if armed { safe_start_damping(&cfg) } else { 0.0 },
             generated_j: 0.0,
             armed,
         };
