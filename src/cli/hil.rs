@@ -461,7 +461,7 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     let cfg = &planned;
     let cap_s = crate::hil::check::starting_lead_cap_s(cfg);
     let lead_s = cfg.compensation.initial_delay_s.min(cap_s);
-    let lin = LinearLoop::for_plant(cfg, &nominal_plant(cfg), lead_s, 1.0);
+    let lin = LinearLoop::for_plant(cfg, &nominal_plant(cfg), lead_s, 1.0).with_programme_loads(cfg);
     let m = lin.margins();
     let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("."));
     std::fs::create_dir_all(&dir).map_err(|e| anyhow::anyhow!("--out {}: {e}", dir.display()))?;
@@ -473,7 +473,8 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
         2.0 * std::f64::consts::PI * cfg.emulator.law_frequency_hz,
     );
     let band_hz = lin.faithful_band_hz();
-    // The safe start: the run's first commands carry the guard's full damping.
+    // The safe start: the run's first commands carry its damping
+    // (`check::safe_start_damping_ns_per_m`).
     let safe_start = lin.safe_start_stable(cfg);
     // As the run starts: with the safe start's damping when it arms.
     let starts_stable = safe_start.unwrap_or(m.stable);
@@ -500,6 +501,7 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                 "start_displacement_m": start_m,
                 "start_force_n": start_force_n,
                 "stable_leads_us": lin.stable_leads(cfg.compensation.max_delay_s).map(|(a, b)| [a * 1e6, b * 1e6]),
+                "safe_start_damping_ns_per_m": crate::hil::check::safe_start_damping_ns_per_m(cfg),
                 "programme_loads": {
                     "lowest_n": crate::hil::check::programme_load_range(cfg).0,
                     "highest_n": crate::hil::check::programme_load_range(cfg).1,

@@ -445,20 +445,18 @@ pub fn compensation_plan(cfg: &HilConfig) -> Option<CompensationPlan> {
             plan.guard = lin.is_stable(0.0, 1.0);
         }
         plan.nudge = nudge_range(cfg, &plants, &scan.windows_us, PLAN_LEAD_STEP_S);
-        let unstable_loads = on_two_threads(&plants, |plant| {
-            LinearLoop::for_plant(cfg, plant, plan.lead_us * 1e-6, 1.0).unstable_loads_n()
+        let loads = programme_loads_n(cfg);
+        let judged = on_two_threads(&plants, |plant| {
+            let lin = LinearLoop::for_plant(cfg, plant, plan.lead_us * 1e-6, 1.0)
+                .with_loads(cfg, &loads);
+            (lin.is_stable(0.0, 1.0), lin.unstable_loads_n())
         });
         plan.over_programme = Some(OverProgramme {
-            stable_for: plants
+            stable_for: judged
                 .iter()
-                .zip(&unstable_loads)
-                .filter(|(plant, loads)| {
-                    loads.is_empty()
-                        && LinearLoop::for_plant(cfg, plant, plan.lead_us * 1e-6, 1.0)
-                            .is_stable(0.0, 1.0)
-                })
+                .filter(|(stable, unstable)| *stable && unstable.is_empty())
                 .count(),
-            declared_unstable_loads_n: unstable_loads[0].clone(),
+            declared_unstable_loads_n: judged[0].1.clone(),
         });
     }
     plan.scan = Some(scan);
@@ -643,7 +641,9 @@ pub fn starting_lead_cap_s(cfg: &HilConfig) -> f64 {
         )
     };
     let mut probe = LinearLoop::new(cfg, fastest, guess, 1.0);
-    // The run starts with the safe start's damping (`compensation::PassivityGuard`).
+    // Judged with the guard's full damping, the most the safe start can carry; the
+    // safe start's own damping is then chosen at the capped lead
+    // (`safe_start_damping_ns_per_m`), and may be less.
     if cfg.compensation.adapt && cfg.compensation.passivity_guard {
         probe.guard_damping_ns_per_m = cfg.compensation.guard_max_damping_ns_per_m;
     }
@@ -787,6 +787,34 @@ pub fn programme_load_range(cfg: &HilConfig) -> (f64, f64) {
         hi = hi.max(f);
     });
     (lo, hi)
+}
+
+/// The programme's lowest and highest load where they differ from the preload (a force
+/// below zero pulls the element: its modulus is judged at no load), N: the loads the
+/// linearised loop is also judged at (`LinearLoop::with_loads`).
+pub fn programme_loads_n(cfg: &HilConfig) -> Vec<f64> {
+    let preload = cfg.scenario.preload_n;
+    let (lowest, highest) = programme_load_range(cfg);
+    let mut loads: Vec<f64> = Vec::new();
+    for load in [lowest, highest] {
+        let load = load.max(0.0);
+        let near = (load - preload).abs() <= 1e-6 * preload.abs().max(1.0);
+        if load.is_finite() && !near && !loads.contains(&load) {
+            loads.push(load);
+        }
+    }
+    loads
+}
+
+/// The element's modulus `k_eq(w) + j w c_eq(w)` at `load_n` on the grid `omega`.
+fn element_modulus(cfg: &HilConfig, omega: &[f64], load_n: f64) -> Vec<Complex64> {
+    omega
+        .iter()
+        .map(|&w| {
+            let e = equivalent(&cfg.model.element, load_n, w);
+            Complex64::new(e.k_eq_n_per_m, w * e.c_eq_ns_per_m)
+        })
+        .collect()
 }
 
 /// The programme's force at every loop period over its first sequence (or its whole
@@ -1053,27 +1081,8 @@ impl LinearLoop {
     ) -> LinearLoop {
         let omega = grid(cfg.loop_.dt_s());
         let preload = cfg.scenario.preload_n;
-        let modulus = |load_n: f64| -> Vec<Complex64> {
-            omega
-                .iter()
-                .map(|&w| {
-                    let e = equivalent(&cfg.model.element, load_n, w);
-                    Complex64::new(e.k_eq_n_per_m, w * e.c_eq_ns_per_m)
-                })
-                .collect()
-        };
-        let element = modulus(preload);
-        let (lowest, highest) = programme_load_range(cfg);
-        let mut other_elements: Vec<(f64, Vec<Complex64>)> = Vec::new();
-        for load in [lowest, highest] {
-            // A force below zero pulls the element; its modulus is judged at no load.
-            let load = load.max(0.0);
-            let near = (load - preload).abs() <= 1e-6 * preload.abs().max(1.0)
-                || other_elements.iter().any(|(l, _)| *l == load);
-            if load.is_finite() && !near {
-                other_elements.push((load, modulus(load)));
-            }
-        }
+        let element = element_modulus(cfg, &omega, preload);
+        let other_elements = Vec::new();
         let (actuator_u, actuator_v) = omega.iter().map(|&w| actuator(w)).unzip();
         let h = cfg.loop_.dt_s();
         let delays = omega
@@ -1109,6 +1118,23 @@ impl LinearLoop {
             delays,
             zoh,
         }
+    }
+
+    /// The same loop judged also at `loads_n` (`programme_loads_n`): the element's
+    /// modulus at each, for `unstable_loads_n` (the stability decisions stay at the
+    /// preload, so the loops the plan and the cap scan by the thousand do without them).
+    pub fn with_loads(mut self, cfg: &HilConfig, loads_n: &[f64]) -> Self {
+        self.other_elements = loads_n
+            .iter()
+            .map(|&l| (l, element_modulus(cfg, &self.omega, l)))
+            .collect();
+        self
+    }
+
+    /// `with_loads` at the programme's lowest and highest load.
+    pub fn with_programme_loads(self, cfg: &HilConfig) -> Self {
+        let loads = programme_loads_n(cfg);
+        self.with_loads(cfg, &loads)
     }
 
     /// The configured loop in front of `plant`: its responses and its own unstable poles.
@@ -1667,7 +1693,8 @@ mod tests {
             let f = load.force_n(i as f64 * 3e-3);
             assert!((lowest - 1e-9..=highest + 1e-9).contains(&f), "{f}");
         }
-        let lin = LinearLoop::for_plant(&cfg, &nominal_plant(&cfg), 252e-6, 1.0);
+        let lin = LinearLoop::for_plant(&cfg, &nominal_plant(&cfg), 252e-6, 1.0)
+            .with_programme_loads(&cfg);
         assert_eq!(lin.other_loads_n(), vec![lowest, highest]);
         assert!(lin.unstable_loads_n().is_empty());
         let k = |load_n: f64| equivalent(&cfg.model.element, load_n, 2.0 * PI * 155.0).k_eq_n_per_m;

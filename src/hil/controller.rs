@@ -100,7 +100,7 @@ record_type! {
             guard_damping_ns_per_m: f64,
             /// the guard's observer: energy generated above its band corner, J
             guard_generated_j: f64,
-            /// 1 while the guard is armed (the safe start: full damping until the lead is learned)
+            /// 1 while the guard is armed (the safe start: its damping until the lead is learned)
             guard_armed: u8,
             /// the effective delay identified now (lead + residual), s (NaN: not yet)
             identified_delay_s: f64,

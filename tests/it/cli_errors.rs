@@ -755,8 +755,12 @@ fn hil_check_json_says_where_the_specimen_starts_and_the_programmes_loads() {
     assert_eq!(loads["unstable_at_n"], serde_json::json!([]));
     let over = loads["stable_leads_us"].as_array().unwrap();
     let at_preload = j["stable_leads_us"].as_array().unwrap();
-    assert!(
-        over[0].as_f64() >= at_preload[0].as_f64() && over[1].as_f64() <= at_preload[1].as_f64()
+    let f = |v: &serde_json::Value| v.as_f64().unwrap();
+    assert!(f(&over[0]) >= f(&at_preload[0]) && f(&over[1]) <= f(&at_preload[1]));
+    assert_eq!(
+        j["safe_start_damping_ns_per_m"].as_f64(),
+        Some(40e3),
+        "the shipped guess keeps all of the guard's damping"
     );
     assert!(out.join("check.png").exists());
 

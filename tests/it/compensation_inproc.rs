@@ -1219,7 +1219,8 @@ fn a_loop_stable_at_the_preload_and_not_under_the_axles_load_trips_at_the_first_
     assert!(fastemu::hil::check::describe_plan(&plan).contains("NOT stable under 71.9 kN"));
     let plant = fastemu::rig::actuator::ActuatorPlant::from_config(&cfg.rig.actuator);
     let lead_s = plan.lead_us * 1e-6;
-    let lin = fastemu::hil::check::LinearLoop::for_plant(&cfg, &plant, lead_s, 1.0);
+    let lin = fastemu::hil::check::LinearLoop::for_plant(&cfg, &plant, lead_s, 1.0)
+        .with_programme_loads(&cfg);
     assert!(lin.is_stable(0.0, 1.0));
     assert_eq!(lin.unstable_loads_n(), vec![highest]);
     let mut at_peak = cfg.clone();

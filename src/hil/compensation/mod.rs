@@ -11,7 +11,8 @@
 //! - `PassivityGuard`: a passivity observer (`hil::passivity`) above the load band and a
 //!   variable damper that adds damping there only while the loop has generated energy
 //!   (Hannaford and Ryu 2002), released slowly once the energy is gone. With `adapt`, it
-//!   starts armed (the safe start): full damping from the first command until the lead has
+//!   starts armed (the safe start): damping (all of it, or the largest fraction the starting
+//!   lead stays stable with, `check::safe_start_damping_ns_per_m`) from the first command until the lead has
 //!   reached the delay the estimator resolved, because until then nobody knows whether the
 //!   loop is passive (a guess of 0 in front of a 722 us actuator rang the resonance up to
 //!   0.3 % error before the observer saw energy). A loop that rings anyway gives its lead:
@@ -101,7 +102,7 @@ impl CompensationConfig {
         CompensationConfig {
             initial_delay_s,
             starting_lead_cap_s: f64::INFINITY,
-            safe_start_damping_ns_per_m: 40.0e3,
+            safe_start_damping_ns_per_m: f64::INFINITY,
             lead_order: 2,
             adapt: true,
             adapt_lead: true,
@@ -340,7 +341,7 @@ pub struct GuardState {
     pub damping_ns_per_m: f64,
     /// Energy generated above the corner (the observer), J.
     pub generated_j: f64,
-    /// The safe start: full damping until the lead is learned.
+    /// The safe start: its damping until the lead is learned.
     pub armed: bool,
 }
 

@@ -148,9 +148,6 @@ pub(super) fn parse_compensation(
         1.0,
         out.guard_max_damping_ns_per_m,
     )?;
-    // Until the launcher judges it (`check::safe_start_damping_ns_per_m`), the safe start
-    // damps with all of it.
-    out.safe_start_damping_ns_per_m = out.guard_max_damping_ns_per_m;
     out.guard_release_s = pos(
         "guard_release_ms",
         c.guard_release_ms,

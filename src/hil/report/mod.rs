@@ -407,16 +407,23 @@ fn read_rig_stream(
     };
     let mut on_rig_record = |r: &RigRecord| {
         rig_steps += 1;
+        // Samples the link lost within a hold count as held (`safety::held_periods`): they
+        // come before this record's programme time, its own period after it.
+        let held_now = if side.rig_records == 0 {
+            let periods = safety::held_periods(external_last, r.step_idx, r.state);
+            external_last = Some((r.step_idx, safety::is_holding(r.state)));
+            let lost = periods.saturating_sub(1);
+            external_held_s += lost as f64 * dt;
+            (periods - lost) as f64 * dt
+        } else {
+            0.0
+        };
         let programme_time_s = if side.rig_records > 0 {
             r.programme_time_s
         } else {
             r.t_s - external_held_s
         };
-        if side.rig_records == 0 {
-            // Samples the link lost within a hold count as held (`safety::held_periods`).
-            external_held_s += safety::held_periods(external_last, r.step_idx, r.state) as f64 * dt;
-            external_last = Some((r.step_idx, safety::is_holding(r.state)));
-        }
+        external_held_s += held_now;
         programme_at_end = (r.programme_cycle, r.programme_block, programme_time_s);
         // The reference follows programme time (it pauses while the rig holds).
         let programme_step = (programme_time_s / dt).round() as u64;

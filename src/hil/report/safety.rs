@@ -289,6 +289,8 @@ pub fn held_periods(previous: Option<(u64, bool)>, step: u64, state: u32) -> u64
     }
     match previous {
         Some((before, true)) if step > before => step - before,
+        // The same sample again (a duplicate over the link): its period is counted.
+        Some((before, _)) if step == before => 0,
         _ => 1,
     }
 }
@@ -591,6 +593,7 @@ mod tests {
         );
         assert_eq!(held_periods(Some((4, false)), 9, rig_state::UNLOAD), 1);
         assert_eq!(held_periods(Some((4, true)), 9, rig_state::RUNNING), 0);
+        assert_eq!(held_periods(Some((9, true)), 9, rig_state::HOLD), 0);
     }
 
     /// A second fault in the first one's hold (the emulator's own stall trip after the
