@@ -461,7 +461,8 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     let cfg = &planned;
     let cap_s = crate::hil::check::starting_lead_cap_s(cfg);
     let lead_s = cfg.compensation.initial_delay_s.min(cap_s);
-    let lin = LinearLoop::for_plant(cfg, &nominal_plant(cfg), lead_s, 1.0).with_programme_loads(cfg);
+    let lin =
+        LinearLoop::for_plant(cfg, &nominal_plant(cfg), lead_s, 1.0).with_programme_loads(cfg);
     let m = lin.margins();
     let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("."));
     std::fs::create_dir_all(&dir).map_err(|e| anyhow::anyhow!("--out {}: {e}", dir.display()))?;

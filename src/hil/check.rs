@@ -447,8 +447,8 @@ pub fn compensation_plan(cfg: &HilConfig) -> Option<CompensationPlan> {
         plan.nudge = nudge_range(cfg, &plants, &scan.windows_us, PLAN_LEAD_STEP_S);
         let loads = programme_loads_n(cfg);
         let judged = on_two_threads(&plants, |plant| {
-            let lin = LinearLoop::for_plant(cfg, plant, plan.lead_us * 1e-6, 1.0)
-                .with_loads(cfg, &loads);
+            let lin =
+                LinearLoop::for_plant(cfg, plant, plan.lead_us * 1e-6, 1.0).with_loads(cfg, &loads);
             (lin.is_stable(0.0, 1.0), lin.unstable_loads_n())
         });
         plan.over_programme = Some(OverProgramme {

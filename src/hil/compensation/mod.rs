@@ -495,10 +495,13 @@ impl PassivityGuard {
         // Damping in proportion to the energy generated (none while the loop absorbs it),
         // at once when it rises, released slowly when it falls.
         let span = (self.full_energy_j - self.onset_energy_j).max(1e-12);
+        let answer =
+            self.max_damping * ((s.generated_high_j - self.onset_energy_j) / span).clamp(0.0, 1.0);
+        // Armed: at least the safe start's damping, more as energy is seen.
         let target = if self.armed {
-            self.start_damping
+            self.start_damping.max(answer)
         } else {
-            self.max_damping * ((s.generated_high_j - self.onset_energy_j) / span).clamp(0.0, 1.0)
+            answer
         };
         self.damping = target.max(self.damping * self.release);
         if self.damping < 1.0 {
@@ -1585,6 +1588,37 @@ mod tests {
             last = g.update(z, k * z, k * z).damping_ns_per_m;
         }
         assert!(last < 0.03 * max_d, "{last}");
+    }
+
+    /// A safe start with less than the full damping (`check::safe_start_damping_ns_per_m`)
+    /// holds that much while the loop is passive and adds up to the full damping while it
+    /// generates energy, armed all the while.
+    #[test]
+    fn a_reduced_safe_start_rises_with_the_energy_generated() {
+        let cfg = CompensationConfig {
+            safe_start_damping_ns_per_m: 10e3,
+            ..CompensationConfig::with_initial_delay(900e-6)
+        };
+        let mut g = PassivityGuard::new(&cfg, DT);
+        let k = 5.7e7;
+        for i in 0..4096 {
+            let t = i as f64 * DT;
+            let z = 3e-4 + 5e-6 * (2.0 * PI * 155.0 * t).sin();
+            let s = g.update(z, k * z, k * z);
+            assert!(s.armed);
+            assert_eq!(s.damping_ns_per_m, 10e3);
+        }
+        let mut max_d: f64 = 0.0;
+        for i in 4096..8192 {
+            let t = i as f64 * DT;
+            let z = 3e-4 + 5e-6 * (2.0 * PI * 155.0 * t).sin();
+            let zl = 3e-4 + 5e-6 * (2.0 * PI * 155.0 * (t - 2e-4)).sin();
+            let s = g.update(z, k * z, k * zl);
+            assert!(s.armed && s.damping_ns_per_m >= 10e3);
+            max_d = max_d.max(s.damping_ns_per_m);
+        }
+        assert!(max_d > 0.5 * cfg.guard_max_damping_ns_per_m, "{max_d}");
+        assert!(max_d <= cfg.guard_max_damping_ns_per_m);
     }
 
     /// The safe start: with `adapt`, the guard holds its full damping from the first
