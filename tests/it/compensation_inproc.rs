@@ -25,14 +25,35 @@ fn script(duration_s: f64) -> InProcessScript {
 
 /// Relative RMS displacement error against the offline reference.
 fn displacement_error(cfg: &HilConfig, run: &InProcessRun) -> f64 {
+    displacement_error_before(cfg, run, f64::INFINITY)
+}
+
+/// The same over the rig's records before `t_s`.
+fn displacement_error_before(cfg: &HilConfig, run: &InProcessRun, t_s: f64) -> f64 {
     let reference = reference_displacement_m(cfg, run.rig.len());
     let (mut e2, mut r2) = (0.0, 0.0);
-    for r in &run.rig {
+    for r in run.rig.iter().filter(|r| r.t_s < t_s) {
         let x_ref = reference[r.step_idx as usize];
         e2 += (r.x_m - x_ref).powi(2);
         r2 += x_ref * x_ref;
     }
     (e2 / r2).sqrt()
+}
+
+/// How far the rig's displacement went, over the whole run, beyond the range its records
+/// kept before `t_s`, m.
+fn beyond_range_before(run: &InProcessRun, t_s: f64) -> f64 {
+    let (lo, hi) = run
+        .rig
+        .iter()
+        .filter(|r| r.t_s < t_s)
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), r| {
+            (a.min(r.x_m), b.max(r.x_m))
+        });
+    run.rig
+        .iter()
+        .map(|r| (r.x_m - hi).max(lo - r.x_m).max(0.0))
+        .fold(0.0f64, f64::max)
 }
 
 fn faults(run: &InProcessRun) -> Vec<(u32, Fault, f64)> {
@@ -125,22 +146,7 @@ fn a_lead_100_us_short_without_adaptation_or_guard_trips_loop_unstable_and_holds
     assert!(last.t_s < 4.0 - 0.5, "the run did not end in the hold");
     // Excursion: every displacement from the start to the end within 0.5 mm of the
     // range before the instability grew (the preload's static position +- the load).
-    let before: Vec<f64> = run
-        .rig
-        .iter()
-        .filter(|r| r.t_s < trip.2 - 0.2)
-        .map(|r| r.x_m)
-        .collect();
-    let (lo, hi) = before
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
-            (a.min(x), b.max(x))
-        });
-    let beyond = run
-        .rig
-        .iter()
-        .map(|r| (r.x_m - hi).max(lo - r.x_m).max(0.0))
-        .fold(0.0f64, f64::max);
+    let beyond = beyond_range_before(&run, trip.2 - 0.2);
     assert!(beyond < 0.5e-3, "excursion {} mm beyond", beyond * 1e3);
     // With the same lead, the guard alone keeps the loop stable and faithful.
     cfg.compensation.passivity_guard = true;
@@ -1247,31 +1253,10 @@ fn a_loop_stable_at_the_preload_and_not_under_the_axles_load_trips_at_the_first_
     );
     assert!(run.rig.iter().any(|r| r.state == rig_state::HOLD));
     // Faithful before the axle: within 0.5 % of the offline reference up to 1.9 s.
-    let reference = reference_displacement_m(&cfg, run.rig.len());
-    let (mut e2, mut r2) = (0.0, 0.0);
-    for r in run.rig.iter().filter(|r| r.t_s < first_axle_s - 0.1) {
-        let x_ref = reference[r.step_idx as usize];
-        e2 += (r.x_m - x_ref).powi(2);
-        r2 += x_ref * x_ref;
-    }
-    assert!(
-        (e2 / r2).sqrt() < 5e-3,
-        "error before the axle {}",
-        (e2 / r2).sqrt()
-    );
+    let error = displacement_error_before(&cfg, &run, first_axle_s - 0.1);
+    assert!(error < 5e-3, "error before the axle {error}");
     // The hold keeps the specimen within 0.1 mm of the range the run had kept.
-    let (lo, hi) = run
-        .rig
-        .iter()
-        .filter(|r| r.t_s < trip.2 - 0.05)
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), r| {
-            (a.min(r.x_m), b.max(r.x_m))
-        });
-    let beyond = run
-        .rig
-        .iter()
-        .map(|r| (r.x_m - hi).max(lo - r.x_m).max(0.0))
-        .fold(0.0f64, f64::max);
+    let beyond = beyond_range_before(&run, trip.2 - 0.05);
     assert!(beyond < 0.1e-3, "excursion {} mm beyond", beyond * 1e3);
 }
 

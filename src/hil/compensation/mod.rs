@@ -1552,6 +1552,11 @@ mod tests {
         assert_eq!(c.on_sample(0, 0.0, 20e3, 20e3).gain, 1.0);
     }
 
+    /// Sample `i` of a 5 um, 155 Hz ring on the preload's 0.3 mm, `late_s` late.
+    fn ring_z(i: usize, late_s: f64) -> f64 {
+        3e-4 + 5e-6 * (2.0 * PI * 155.0 * (i as f64 * DT - late_s)).sin()
+    }
+
     #[test]
     fn guard_adds_damping_only_while_energy_is_generated() {
         // Without adaptation there is no safe start: the energy alone decides.
@@ -1563,17 +1568,14 @@ mod tests {
         let k = 5.7e7;
         // A passive rendering: no damping.
         for i in 0..4096 {
-            let t = i as f64 * DT;
-            let z = 3e-4 + 5e-6 * (2.0 * PI * 155.0 * t).sin();
+            let z = ring_z(i, 0.0);
             let s = g.update(z, k * z, k * z);
             assert_eq!(s.damping_ns_per_m, 0.0);
         }
         // 200 us late at 155 Hz: energy generated, damping rises.
         let mut max_d: f64 = 0.0;
         for i in 4096..8192 {
-            let t = i as f64 * DT;
-            let z = 3e-4 + 5e-6 * (2.0 * PI * 155.0 * t).sin();
-            let zl = 3e-4 + 5e-6 * (2.0 * PI * 155.0 * (t - 2e-4)).sin();
+            let (z, zl) = (ring_z(i, 0.0), ring_z(i, 2e-4));
             max_d = max_d.max(g.update(z, k * z, k * zl).damping_ns_per_m);
         }
         assert!(max_d > 0.5 * cfg.guard_max_damping_ns_per_m, "{max_d}");
@@ -1583,8 +1585,7 @@ mod tests {
         let n = (4.0 * cfg.guard_release_s / DT) as usize + 1024;
         let mut last = f64::NAN;
         for i in 0..n {
-            let t = (8192 + i) as f64 * DT;
-            let z = 3e-4 + 5e-6 * (2.0 * PI * 155.0 * t).sin();
+            let z = ring_z(8192 + i, 0.0);
             last = g.update(z, k * z, k * z).damping_ns_per_m;
         }
         assert!(last < 0.03 * max_d, "{last}");
@@ -1602,17 +1603,14 @@ mod tests {
         let mut g = PassivityGuard::new(&cfg, DT);
         let k = 5.7e7;
         for i in 0..4096 {
-            let t = i as f64 * DT;
-            let z = 3e-4 + 5e-6 * (2.0 * PI * 155.0 * t).sin();
+            let z = ring_z(i, 0.0);
             let s = g.update(z, k * z, k * z);
             assert!(s.armed);
             assert_eq!(s.damping_ns_per_m, 10e3);
         }
         let mut max_d: f64 = 0.0;
         for i in 4096..8192 {
-            let t = i as f64 * DT;
-            let z = 3e-4 + 5e-6 * (2.0 * PI * 155.0 * t).sin();
-            let zl = 3e-4 + 5e-6 * (2.0 * PI * 155.0 * (t - 2e-4)).sin();
+            let (z, zl) = (ring_z(i, 0.0), ring_z(i, 2e-4));
             let s = g.update(z, k * z, k * zl);
             assert!(s.armed && s.damping_ns_per_m >= 10e3);
             max_d = max_d.max(s.damping_ns_per_m);
