@@ -280,9 +280,9 @@ pub fn is_holding(state: u32) -> bool {
 /// The periods a record in `state` at period `step` adds to the time held, after the
 /// record before it (`previous`: its period and whether it held). An external rig's
 /// samples reach the report through the link, which may lose some: a gap between two
-/// records that both hold was held all through (the rig cannot leave a hold and come back
-/// to it unseen without a resume and a new fault, both of which its heartbeat and the
-/// events carry), so it counts whole; any other record counts its own period.
+/// records that both hold counts whole as held (a resume and a new fault both lost inside
+/// one gap would be counted as held too; the events are not consulted); any other record
+/// counts its own period, a repeated one none.
 pub fn held_periods(previous: Option<(u64, bool)>, step: u64, state: u32) -> u64 {
     if !is_holding(state) {
         return 0;
