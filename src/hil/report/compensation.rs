@@ -66,6 +66,12 @@ pub struct GuardReport {
     pub max_damping_ns_per_m: f64,
     /// Largest energy the guard's observer saw generated in its band, J.
     pub max_generated_j: f64,
+    /// Bursts of energy after a stall of the setpoints (a gap the controller does not
+    /// bridge) that the guard excused rather than damped, and the largest, J: the fresh
+    /// law's step rings the specimen once; a loop that keeps generating is answered after
+    /// the burst's 16 ms.
+    pub stall_bursts_excused: u32,
+    pub max_stall_burst_j: f64,
     /// The band the guard observes and acts in, Hz.
     pub band_hz: (f64, f64),
 }
@@ -386,6 +392,10 @@ pub struct CompensationAnalyser {
     armed_last: bool,
     max_damping: f64,
     max_generated: f64,
+    /// Stall bursts excused (rises of `guard_excused_j` from 0) and the largest, J.
+    stall_bursts: u32,
+    max_stall_burst: f64,
+    last_excused: f64,
     identified: Option<(f64, f64)>,
     /// The last law command's delay over the load band, sigma, bins, from and to (None
     /// when it had none: not yet, or no longer, identified).
@@ -415,6 +425,9 @@ impl CompensationAnalyser {
             active_s: 0.0,
             max_damping: 0.0,
             max_generated: 0.0,
+            stall_bursts: 0,
+            max_stall_burst: 0.0,
+            last_excused: 0.0,
             armed_s: 0.0,
             armed_seen: false,
             armed_last: false,
@@ -459,6 +472,11 @@ impl CompensationAnalyser {
         if r.guard_generated_j.is_finite() {
             self.max_generated = self.max_generated.max(r.guard_generated_j);
         }
+        if r.guard_excused_j > 0.0 && self.last_excused <= 0.0 {
+            self.stall_bursts += 1;
+        }
+        self.last_excused = r.guard_excused_j;
+        self.max_stall_burst = self.max_stall_burst.max(r.guard_excused_j);
         if r.identified_delay_s.is_finite() {
             self.identified = Some((r.identified_delay_s, r.identified_delay_sigma_s));
         }
@@ -577,6 +595,8 @@ impl CompensationAnalyser {
                 dissipated_j: self.dissipated_j,
                 max_damping_ns_per_m: self.max_damping,
                 max_generated_j: self.max_generated,
+                stall_bursts_excused: self.stall_bursts,
+                max_stall_burst_j: self.max_stall_burst,
                 band_hz: (c.guard_band_hz, c.guard_band_top_hz),
             },
             faithful_band_hz: faithful,
@@ -1127,6 +1147,7 @@ mod tests {
             actuator_gain: 1.0,
             guard_damping_ns_per_m: 0.0,
             guard_generated_j: 0.0,
+            guard_excused_j: 0.0,
             guard_armed: 0,
             identified_delay_s: f64::NAN,
             identified_delay_sigma_s: f64::NAN,
