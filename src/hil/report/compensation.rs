@@ -260,7 +260,7 @@ impl CompensationReport {
                 _ => String::new(),
             };
         let mut line = format!(
-            "compensation: lead {} -> {:.0} us, identified {}{}{}{}, gain {:.3}, settled {}; guard: safe start {}, active {:.2} s, largest {:.1} kN s/m; faithful band {}",
+            "compensation: lead {} -> {:.0} us, identified {}{}{}{}, gain {:.3}, settled {}; guard: safe start {}, active {:.2} s, largest {:.1} kN s/m{}; faithful band {}",
             us(self.starting_lead_us),
             self.final_lead_us,
             us(self.identified_delay_us),
@@ -285,6 +285,14 @@ impl CompensationReport {
                 .map_or("none".to_string(), |t| format!("{t:.2} s")),
             self.guard.active_s,
             self.guard.max_damping_ns_per_m * 1e-3,
+            match self.guard.stall_bursts_excused {
+                0 => String::new(),
+                n => format!(
+                    ", {n} stall burst{} excused (largest {:.1} mJ)",
+                    if n == 1 { "" } else { "s" },
+                    self.guard.max_stall_burst_j * 1e3
+                ),
+            },
             band_text(self.faithful_band_hz, &self.faithful_band_limited_by),
         );
         if self.faithful_band_after_safe_start_hz.is_some()
@@ -1180,6 +1188,32 @@ mod tests {
             oscillation_m: 0.0,
             element_temperature_rise_k: 0.0,
         }
+    }
+
+    /// The stall bursts the guard excused: each rise of `guard_excused_j` from 0 is one,
+    /// the largest is reported, and the console line says so (and nothing without one).
+    #[test]
+    fn the_stall_bursts_the_guard_excused_are_counted() {
+        let cfg = crate::hil::config::default_hil_config().expect("embedded config");
+        let excused = [0.0, 0.0, 1e-3, 2.5e-3, 2e-3, 0.0, 0.0, 4e-3, 3e-3, 0.0];
+        let mut a = CompensationAnalyser::new(1.0 / 4096.0, 1.0);
+        for (k, &x) in excused.iter().enumerate() {
+            let mut c = command(k as f64 * 0.01, command_mode::LAW, 252e-6);
+            c.guard_excused_j = x;
+            a.controller(&c);
+        }
+        let r = a.finish(&cfg);
+        assert_eq!(r.guard.stall_bursts_excused, 2);
+        assert_eq!(r.guard.max_stall_burst_j, 4e-3);
+        assert!(
+            r.describe()
+                .contains("largest 0.0 kN s/m, 2 stall bursts excused (largest 4.0 mJ);"),
+            "{}",
+            r.describe()
+        );
+        let mut quiet = CompensationAnalyser::new(1.0 / 4096.0, 1.0);
+        quiet.controller(&command(0.0, command_mode::LAW, 252e-6));
+        assert!(!quiet.finish(&cfg).describe().contains("stall burst"));
     }
 
     /// The faithful band after the safe start is judged on the samples after it alone: a
