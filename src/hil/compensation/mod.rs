@@ -386,10 +386,13 @@ pub struct PassivityGuard {
     last_block_peak_m: f64,
     block_samples: u32,
     growing_blocks: u32,
-    /// The stall's burst (`STALL_BURST_S`): the window in samples, samples of it left, and
-    /// the energy excused, J; the observer's per-sample decay.
+    /// The stall's burst (`STALL_BURST_S`): the window in samples, samples of it left,
+    /// samples since the last window began and the least between two (`STALL_BURST_SPACING_S`),
+    /// and the energy excused, J; the observer's per-sample decay.
     burst_window: u32,
     burst_samples_left: u32,
+    since_burst: u32,
+    burst_spacing: u32,
     excused_j: f64,
     decay: f64,
     pub activity: GuardActivity,
@@ -422,6 +425,10 @@ const STALL_BURST_S: f64 = 0.016;
 /// the monitor's bound): the bursts read 1.0-5.1 mJ (in-process, the stalls above, with
 /// the burst excused and so not damped).
 const STALL_BURST_MAX_FULL: f64 = 2.0;
+/// At most one stall's burst is excused in this long (the guard's release time constant):
+/// a loop whose emulator stalls more often keeps the guard's whole watch, so the guard is
+/// blind to at most 16 ms in 250 ms, however often the emulator stalls.
+const STALL_BURST_SPACING_S: f64 = 0.25;
 
 /// The safe start's full damping can itself be what makes the loop ring. It acts on the
 /// displacement predicted over the lead, whose prediction amplifies the band's top (twice
@@ -483,6 +490,8 @@ impl PassivityGuard {
             growing_blocks: 0,
             burst_window: (STALL_BURST_S / dt_s).round() as u32,
             burst_samples_left: 0,
+            since_burst: u32::MAX,
+            burst_spacing: (STALL_BURST_SPACING_S / dt_s).round() as u32,
             excused_j: 0.0,
             decay: (-dt_s / GUARD_MEMORY_S).exp(),
             activity: GuardActivity::default(),
@@ -536,16 +545,21 @@ impl PassivityGuard {
     }
 
     /// Restarts after a gap in the setpoints (a stall of the emulator): the energy read in
-    /// the next `STALL_BURST_S` is the stall's burst.
+    /// the next `STALL_BURST_S` is the stall's burst, unless the last window began less
+    /// than `STALL_BURST_SPACING_S` ago.
     pub fn restart_after_stall(&mut self) {
         self.restart();
-        self.burst_samples_left = self.burst_window;
-        self.activity.stall_bursts += 1;
+        if self.since_burst >= self.burst_spacing {
+            self.burst_samples_left = self.burst_window;
+            self.since_burst = 0;
+            self.activity.stall_bursts += 1;
+        }
     }
 
     /// The energy generated beyond the stall's burst (`STALL_BURST_S`), J.
     #[inline]
     fn beyond_stall_burst(&mut self, generated_j: f64) -> f64 {
+        self.since_burst = self.since_burst.saturating_add(1);
         if self.burst_samples_left > 0 {
             self.burst_samples_left -= 1;
             let cap = STALL_BURST_MAX_FULL * self.full_energy_j;
@@ -1674,7 +1688,8 @@ mod tests {
     /// After a stall (`restart_after_stall`), a burst of energy that ends within the window
     /// (`STALL_BURST_S`) adds no damping, where the same burst after a plain restart does;
     /// a loop that keeps generating is answered once the window is over, from the burst's
-    /// level, within two of the ring's periods.
+    /// level, within two of the ring's periods; a second stall within
+    /// `STALL_BURST_SPACING_S` of the first is not excused.
     #[test]
     fn a_stalls_burst_is_excused_and_a_loop_generating_beyond_it_is_not() {
         let cfg = CompensationConfig {
@@ -1720,6 +1735,23 @@ mod tests {
         assert_eq!(activity.stall_bursts, 1);
         assert!(activity.max_stall_burst_j > cfg.guard_onset_energy_j);
         assert_eq!(activity.active_samples, 0);
+        // A second stall 0.1 s after the first is not excused (`STALL_BURST_SPACING_S`).
+        let mut g = PassivityGuard::new(&cfg, DT);
+        let mut damped = false;
+        for i in 0..4096 {
+            if i == 1000 || i == 1000 + 410 {
+                g.restart_after_stall();
+            }
+            let burst = (1000..1040).contains(&i) || (1410..1450).contains(&i);
+            let z = ring_z(i, 0.0);
+            let s = g.update(z, k * z, k * ring_z(i, if burst { 2e-4 } else { 0.0 }));
+            damped |= s.damping_ns_per_m > 0.0;
+        }
+        assert!(
+            damped,
+            "the second burst, 0.1 s after the first, was excused"
+        );
+        assert_eq!(g.activity.stall_bursts, 1);
         // Generating on: answered after the window, within two periods of 155 Hz.
         let (answered, _, _) = run(true, 4096);
         let period = (1.0 / (155.0 * DT)).ceil() as usize;
