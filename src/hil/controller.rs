@@ -102,6 +102,8 @@ record_type! {
             guard_generated_j: f64,
             /// of it, the burst after a stall of the setpoints that the guard excuses, J
             guard_excused_j: f64,
+            /// the stall bursts the guard has excused so far in the run
+            guard_stall_bursts: u32,
             /// 1 while the guard is armed (the safe start: its damping until the lead is learned)
             guard_armed: u8,
             /// the effective delay identified now (lead + residual), s (NaN: not yet)
@@ -417,6 +419,7 @@ impl ControllerCore {
             guard_damping_ns_per_m: compensation.added_damping_ns_per_m,
             guard_generated_j: status.guard.generated_j,
             guard_excused_j: status.guard.excused_j,
+            guard_stall_bursts: status.guard.stall_bursts,
             // As sent: only law commands carry the guard's damping.
             guard_armed: u8::from(mode == command_mode::LAW && status.guard.armed),
             identified_delay_s: status.identified_delay_s,

@@ -341,8 +341,10 @@ pub struct GuardState {
     pub damping_ns_per_m: f64,
     /// Energy generated above the corner (the observer), J.
     pub generated_j: f64,
-    /// Of it, the stall's burst the guard excuses (`STALL_BURST_S`), J.
+    /// Of it, the stall's burst the guard excuses (`STALL_BURST_S`), J, and the stall
+    /// bursts excused so far.
     pub excused_j: f64,
+    pub stall_bursts: u32,
     /// The safe start: its damping until the lead is learned.
     pub armed: bool,
 }
@@ -404,30 +406,28 @@ const GUARD_MEMORY_S: f64 = 0.1;
 /// After a gap in the setpoints longer than the compensator bridges (`MAX_BRIDGED_GAP`: the
 /// emulator stalled), the energy the observer reads in this long (16 ms, 64 samples at 4096
 /// Hz, two and a half periods of the specimen's resonance on the element) is the stall's
-/// burst, excused up to `STALL_BURST_MAX_FULL` times `guard_full_energy_j`; after the
-/// window the excused energy follows the observer's down, never up, so that energy
-/// generated beyond the burst counts from the lowest level the burst fell to. While the
-/// emulator stalls the rig renders the last law, a linearisation that drifts from the
-/// element (100-200 N over 9 ms in an axle's passage, a few um); the fresh law corrects it
-/// at once and the step rings the specimen's resonance; and the observer, restarted by the
-/// gap on a specimen the load moves, reads the restart's own transient too. In-process,
-/// default run, one emulator stall of 33-37 periods at 2.33-2.4 s (2026-11-28): 1.0-4.0 mJ
-/// read within 2-8 ms of the gap, then gone (the loop is stable), answered with 2.9-31 kN
-/// s/m released over a second of axle passages: 0.040-0.076 % displacement error against
-/// 0.038-0.046 % with the guard off. A loop that is unstable keeps generating after the
-/// window, and the guard answers it then (the damping it had before the gap is kept); the
-/// emulator's monitor, which sees every sample, is not excused. (Tried and not kept:
-/// restarting the observer on the ramp through its first two samples instead of on a
-/// constant. Those samples carry the stale law's error dying away (-197 and -104 N), and
-/// the ramp through them read 12 mJ in `fastemu hil`.)
+/// burst, excused up to `guard_full_energy_j`: that much is never answered, in the window
+/// or after it. After the window the excused energy follows the observer's down, never
+/// up, so that energy generated beyond the burst counts from the lowest level the burst
+/// fell to (as if the observer had restarted there). While the emulator stalls the rig
+/// renders the last law, a linearisation that drifts from the element (100-200 N over 9 ms
+/// in an axle's passage, a few um); the fresh law corrects it at once and the step rings
+/// the specimen's resonance; and the observer, restarted by the gap on a specimen the load
+/// moves, reads the restart's own transient too. In-process, default run, one emulator
+/// stall of 33-37 periods at 2.33-2.4 s (2026-11-28): 0.8-4.0 mJ read within 2-8 ms of the
+/// gap, then gone (the loop is stable), answered with 2.9-31 kN s/m released over a second
+/// of axle passages: 0.040-0.076 % displacement error against 0.038-0.046 % with the guard
+/// off; with the burst excused (and so not damped) it read 1.2-5.1 mJ. A loop that is
+/// unstable keeps generating after the window, and the guard answers it then; the damping
+/// it had before the gap keeps being released as before. The emulator's monitor, which
+/// sees every sample, is not excused. (Tried and not kept: restarting the observer on the
+/// ramp through its first two samples instead of on a constant. Those samples carry the
+/// stale law's error dying away (-197 and -104 N), and the ramp through them read 12 mJ in
+/// `fastemu hil`.)
 const STALL_BURST_S: f64 = 0.016;
-/// The most a stall's burst excuses, in `guard_full_energy_j` (10 mJ by default, a fifth of
-/// the monitor's bound): the bursts read 1.0-5.1 mJ (in-process, the stalls above, with
-/// the burst excused and so not damped).
-const STALL_BURST_MAX_FULL: f64 = 2.0;
-/// At most one stall's burst is excused in this long (the guard's release time constant):
-/// a loop whose emulator stalls more often keeps the guard's whole watch, so the guard is
-/// blind to at most 16 ms in 250 ms, however often the emulator stalls.
+/// At most one stall's burst is excused in this long (0.25 s, the default
+/// `guard_release_ms`, counted in the guard's samples): however often the emulator stalls,
+/// the guard is blind for at most 16 ms, and to at most `guard_full_energy_j`, in 250 ms.
 const STALL_BURST_SPACING_S: f64 = 0.25;
 
 /// The safe start's full damping can itself be what makes the loop ring. It acts on the
@@ -562,8 +562,7 @@ impl PassivityGuard {
         self.since_burst = self.since_burst.saturating_add(1);
         if self.burst_samples_left > 0 {
             self.burst_samples_left -= 1;
-            let cap = STALL_BURST_MAX_FULL * self.full_energy_j;
-            self.excused_j = self.excused_j.max(generated_j).min(cap);
+            self.excused_j = self.excused_j.max(generated_j).min(self.full_energy_j);
             let a = &mut self.activity;
             a.max_stall_burst_j = a.max_stall_burst_j.max(self.excused_j);
         } else {
@@ -608,6 +607,7 @@ impl PassivityGuard {
             damping_ns_per_m: self.damping,
             generated_j: s.generated_high_j,
             excused_j: self.excused_j,
+            stall_bursts: self.activity.stall_bursts,
             armed: self.armed,
         }
     }
@@ -941,6 +941,7 @@ impl Compensator {
             damping_ns_per_m: if armed { safe_start_damping(&cfg) } else { 0.0 },
             generated_j: 0.0,
             excused_j: 0.0,
+            stall_bursts: 0,
             armed,
         };
         let compensation = Compensation {
@@ -1076,7 +1077,9 @@ impl Compensator {
         }
         if gap == u64::MAX || gap > MAX_BRIDGED_GAP {
             self.estimator.restart();
-            if self.last_sample_seq.is_some() {
+            // A stall: samples came again, later than the bridge reaches (not the first
+            // after a hold, not one out of order).
+            if self.cfg.passivity_guard && gap != u64::MAX {
                 self.guard.restart_after_stall();
             } else {
                 self.guard.restart();
@@ -1688,8 +1691,9 @@ mod tests {
     /// After a stall (`restart_after_stall`), a burst of energy that ends within the window
     /// (`STALL_BURST_S`) adds no damping, where the same burst after a plain restart does;
     /// a loop that keeps generating is answered once the window is over, from the burst's
-    /// level, within two of the ring's periods; a second stall within
-    /// `STALL_BURST_SPACING_S` of the first is not excused.
+    /// level, within two of the ring's periods; energy beyond `guard_full_energy_j` is
+    /// answered inside the window; a second stall within `STALL_BURST_SPACING_S` of the
+    /// first is not excused.
     #[test]
     fn a_stalls_burst_is_excused_and_a_loop_generating_beyond_it_is_not() {
         let cfg = CompensationConfig {
@@ -1735,6 +1739,28 @@ mod tests {
         assert_eq!(activity.stall_bursts, 1);
         assert!(activity.max_stall_burst_j > cfg.guard_onset_energy_j);
         assert_eq!(activity.active_samples, 0);
+        // Beyond `guard_full_energy_j` the burst is answered inside the window: a ring of
+        // 15 um, 200 us late, generates 7.8 mJ per period.
+        let mut g = PassivityGuard::new(&cfg, DT);
+        let mut answered_at = None;
+        for i in 0..4096 {
+            if i == 2048 {
+                g.restart_after_stall();
+            }
+            let big = |late| 3e-4 + 3.0 * (ring_z(i, late) - 3e-4);
+            let s = g.update(
+                big(0.0),
+                k * big(0.0),
+                k * big(if i >= 2048 { 2e-4 } else { 0.0 }),
+            );
+            if s.damping_ns_per_m > 0.0 && answered_at.is_none() {
+                answered_at = Some(i);
+                assert!(s.generated_j > cfg.guard_full_energy_j, "{}", s.generated_j);
+                assert_eq!(s.excused_j, cfg.guard_full_energy_j);
+            }
+        }
+        let at = answered_at.expect("a burst beyond the full energy was not answered");
+        assert!(at < 2048 + window, "{at}");
         // A second stall 0.1 s after the first is not excused (`STALL_BURST_SPACING_S`).
         let mut g = PassivityGuard::new(&cfg, DT);
         let mut damped = false;

@@ -67,9 +67,9 @@ pub struct GuardReport {
     /// Largest energy the guard's observer saw generated in its band, J.
     pub max_generated_j: f64,
     /// Bursts of energy after a stall of the setpoints (a gap the controller does not
-    /// bridge) that the guard excused rather than damped, and the largest, J: the fresh
-    /// law's step rings the specimen once; a loop that keeps generating is answered after
-    /// the burst's 16 ms.
+    /// bridge) that the guard excused rather than damped (at most one per 0.25 s), and the
+    /// largest excused, J (at most `guard_full_energy_j`): the fresh law's step rings the
+    /// specimen once; a loop that keeps generating is answered after the burst's 16 ms.
     pub stall_bursts_excused: u32,
     pub max_stall_burst_j: f64,
     /// The band the guard observes and acts in, Hz.
@@ -400,10 +400,9 @@ pub struct CompensationAnalyser {
     armed_last: bool,
     max_damping: f64,
     max_generated: f64,
-    /// Stall bursts excused (rises of `guard_excused_j` from 0) and the largest, J.
+    /// Stall bursts excused (the records' running count) and the largest, J.
     stall_bursts: u32,
     max_stall_burst: f64,
-    last_excused: f64,
     identified: Option<(f64, f64)>,
     /// The last law command's delay over the load band, sigma, bins, from and to (None
     /// when it had none: not yet, or no longer, identified).
@@ -435,7 +434,6 @@ impl CompensationAnalyser {
             max_generated: 0.0,
             stall_bursts: 0,
             max_stall_burst: 0.0,
-            last_excused: 0.0,
             armed_s: 0.0,
             armed_seen: false,
             armed_last: false,
@@ -480,10 +478,7 @@ impl CompensationAnalyser {
         if r.guard_generated_j.is_finite() {
             self.max_generated = self.max_generated.max(r.guard_generated_j);
         }
-        if r.guard_excused_j > 0.0 && self.last_excused <= 0.0 {
-            self.stall_bursts += 1;
-        }
-        self.last_excused = r.guard_excused_j;
+        self.stall_bursts = self.stall_bursts.max(r.guard_stall_bursts);
         self.max_stall_burst = self.max_stall_burst.max(r.guard_excused_j);
         if r.identified_delay_s.is_finite() {
             self.identified = Some((r.identified_delay_s, r.identified_delay_sigma_s));
@@ -1156,6 +1151,7 @@ mod tests {
             guard_damping_ns_per_m: 0.0,
             guard_generated_j: 0.0,
             guard_excused_j: 0.0,
+            guard_stall_bursts: 0,
             guard_armed: 0,
             identified_delay_s: f64::NAN,
             identified_delay_sigma_s: f64::NAN,
@@ -1190,16 +1186,28 @@ mod tests {
         }
     }
 
-    /// The stall bursts the guard excused: each rise of `guard_excused_j` from 0 is one,
-    /// the largest is reported, and the console line says so (and nothing without one).
+    /// The stall bursts the guard excused: the records' running count (whichever records
+    /// were lost), the largest excused, and the console line says so (and nothing without
+    /// one).
     #[test]
     fn the_stall_bursts_the_guard_excused_are_counted() {
         let cfg = crate::hil::config::default_hil_config().expect("embedded config");
-        let excused = [0.0, 0.0, 1e-3, 2.5e-3, 2e-3, 0.0, 0.0, 4e-3, 3e-3, 0.0];
+        // (excused, the running count); the record that opened the second window lost.
+        let records = [
+            (0.0, 0),
+            (0.0, 1),
+            (1e-3, 1),
+            (2.5e-3, 1),
+            (2e-3, 1),
+            (4e-3, 2),
+            (3e-3, 2),
+            (0.0, 2),
+        ];
         let mut a = CompensationAnalyser::new(1.0 / 4096.0, 1.0);
-        for (k, &x) in excused.iter().enumerate() {
+        for (k, &(x, n)) in records.iter().enumerate() {
             let mut c = command(k as f64 * 0.01, command_mode::LAW, 252e-6);
             c.guard_excused_j = x;
+            c.guard_stall_bursts = n;
             a.controller(&c);
         }
         let r = a.finish(&cfg);
