@@ -665,8 +665,16 @@ pub fn starting_compensation(
     cfg: &HilConfig,
     plan: Option<&CompensationPlan>,
 ) -> crate::hil::compensation::CompensationConfig {
-    // Judged at the order the run predicts with (the plan may raise it).
-    let (_, at_order) = with_raised_order(cfg);
+    // Judged at the order the run predicts with: the plan's when it raised it, else the
+    // configured one (without a plan, an external rig's say, nothing raises it).
+    let at_order = match plan.and_then(|p| p.raised_lead_order) {
+        Some(order) => {
+            let mut raised = cfg.clone();
+            raised.compensation.lead_order = order;
+            std::borrow::Cow::Owned(raised)
+        }
+        None => std::borrow::Cow::Borrowed(cfg),
+    };
     let capped = crate::hil::compensation::CompensationConfig {
         starting_lead_cap_s: starting_lead_cap_s(&at_order),
         safe_start_damping_ns_per_m: safe_start_damping_ns_per_m(&at_order),
@@ -1676,6 +1684,38 @@ mod tests {
         let mut zero = cfg.clone();
         zero.compensation.initial_delay_s = 0.0;
         assert_eq!(safe_start_damping_ns_per_m(&zero), full);
+    }
+
+    /// The starting lead's cap and the safe start's damping are judged at the prediction
+    /// order the run uses: the plan's raised order with the plan, the configured one
+    /// without (an external rig's undeclared actuator); before, always at the raised one.
+    #[test]
+    fn the_start_is_judged_at_the_order_the_run_predicts_with() {
+        let text = crate::hil::config::DEFAULT_CONFIG_TOML
+            .replace("transport_delay_us = 50.0", "transport_delay_us = 1000.0")
+            .replace("lag_us = 80.0", "lag_us = 1000.0")
+            .replace("initial_delay_us = 252.0", "initial_delay_us = 2000.0");
+        let cfg = crate::hil::config::parse_hil_config(&text, "g2000.toml", None).unwrap();
+        let order = raised_lead_order(&cfg).expect("1 + 1 ms needs a raised order");
+        assert!(order > cfg.compensation.lead_order);
+        let mut raised = cfg.clone();
+        raised.compensation.lead_order = order;
+        let plan = compensation_plan(&cfg).expect("a plan for the declared actuator");
+        assert_eq!(plan.raised_lead_order, Some(order));
+        let without = starting_compensation(&cfg, None);
+        assert_eq!(without.lead_order, cfg.compensation.lead_order);
+        assert_eq!(without.starting_lead_cap_s, starting_lead_cap_s(&cfg));
+        assert_eq!(
+            without.safe_start_damping_ns_per_m,
+            safe_start_damping_ns_per_m(&cfg)
+        );
+        // The cap differs between the two orders (680 and 400 us), so the order shows.
+        assert!(starting_lead_cap_s(&cfg) > 1.5 * starting_lead_cap_s(&raised));
+        let mut adapting = plan.clone();
+        adapting.lead_fixed = false;
+        let with = starting_compensation(&cfg, Some(&adapting));
+        assert_eq!(with.lead_order, order);
+        assert_eq!(with.starting_lead_cap_s, starting_lead_cap_s(&raised));
     }
 
     /// The programme's lowest and highest load bound every force it asks for (sampled apart
