@@ -461,8 +461,12 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     let cfg = &planned;
     let cap_s = crate::hil::check::starting_lead_cap_s(cfg);
     let lead_s = cfg.compensation.initial_delay_s.min(cap_s);
-    let lin =
-        LinearLoop::for_plant(cfg, &nominal_plant(cfg), lead_s, 1.0).with_programme_loads(cfg);
+    // The programme is scanned once (a durability block takes seconds).
+    let load_range = crate::hil::check::programme_load_range(cfg);
+    let lin = LinearLoop::for_plant(cfg, &nominal_plant(cfg), lead_s, 1.0).with_loads(
+        cfg,
+        &crate::hil::check::loads_beside_the_preload(cfg, load_range),
+    );
     let m = lin.margins();
     let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("."));
     std::fs::create_dir_all(&dir).map_err(|e| anyhow::anyhow!("--out {}: {e}", dir.display()))?;
@@ -504,8 +508,8 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                 "stable_leads_us": lin.stable_leads(cfg.compensation.max_delay_s).map(|(a, b)| [a * 1e6, b * 1e6]),
                 "safe_start_damping_ns_per_m": crate::hil::check::safe_start_damping_ns_per_m(cfg),
                 "programme_loads": {
-                    "lowest_n": crate::hil::check::programme_load_range(cfg).0,
-                    "highest_n": crate::hil::check::programme_load_range(cfg).1,
+                    "lowest_n": load_range.0,
+                    "highest_n": load_range.1,
                     "judged_n": lin.other_loads_n(),
                     "unstable_at_n": lin.unstable_loads_n(),
                     "stable_leads_us": lin
@@ -625,7 +629,7 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     }
     let loads = lin.other_loads_n();
     if !loads.is_empty() {
-        let (lowest, highest) = crate::hil::check::programme_load_range(cfg);
+        let (lowest, highest) = load_range;
         let unstable = lin.unstable_loads_n();
         let kn = |l: &[f64]| -> String {
             l.iter()

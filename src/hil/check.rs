@@ -801,8 +801,13 @@ pub fn programme_load_range(cfg: &HilConfig) -> (f64, f64) {
 /// below zero pulls the element: its modulus is judged at no load), N: the loads the
 /// linearised loop is also judged at (`LinearLoop::with_loads`).
 pub fn programme_loads_n(cfg: &HilConfig) -> Vec<f64> {
+    loads_beside_the_preload(cfg, programme_load_range(cfg))
+}
+
+/// The loads of `range` (`programme_load_range`) the linearised loop is judged at besides
+/// the preload (`programme_loads_n`), without scanning the programme again.
+pub fn loads_beside_the_preload(cfg: &HilConfig, (lowest, highest): (f64, f64)) -> Vec<f64> {
     let preload = cfg.scenario.preload_n;
-    let (lowest, highest) = programme_load_range(cfg);
     let mut loads: Vec<f64> = Vec::new();
     for load in [lowest, highest] {
         let load = load.max(0.0);

@@ -289,7 +289,7 @@ pub fn held_periods(previous: Option<(u64, bool)>, step: u64, state: u32) -> u64
     }
     match previous {
         Some((before, true)) if step > before => step - before,
-        // The same sample again (a duplicate over the link): its period is counted.
+        // The same sample again (a duplicate over the link): its period is counted already.
         Some((before, _)) if step == before => 0,
         _ => 1,
     }
