@@ -620,10 +620,8 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
             crate::hil::check::why_no_stable_lead(cfg),
             if no_stable_lead.is_some() {
                 "`fastemu hil` refuses to run it (--run-unstable runs it anyway: expect loop-unstable and a hold that may move the specimen by millimetres)"
-            } else if !declared {
-                "with this actuator, expect loop-unstable and a hold"
             } else {
-                "the passivity guard's damping could make it stable, so `fastemu hil` runs it; expect loop-unstable and a hold if it does not"
+                "with this actuator, expect loop-unstable and a hold"
             }
         ),
     }

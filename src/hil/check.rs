@@ -882,17 +882,16 @@ pub fn actuator_cannot_hold(cfg: &HilConfig) -> Option<String> {
 pub const MAX_LEAD_ORDER: u32 = 3;
 
 /// Whether some lead from 0 to `[compensation] max_delay_us` makes the declared actuator's
-/// linearised loop stable with a prediction of order `order` (local-law commands), without
-/// the passivity guard's damping or, when it is on, with all of it: the guard adds its
-/// damping at most while the loop generates energy, so a loop that some lead makes stable
-/// with all of it is renderable.
+/// linearised loop stable with a prediction of order `order` (local-law commands), by
+/// itself: without the passivity guard's damping. A loop that only the guard's full
+/// damping makes stable is not counted: the guard damps only while the loop generates
+/// energy, and every such actuator tried tripped `loop-unstable` from every guess
+/// (`lag-delay` 1000 + 200, 1000 + 300, 1100 + 100, 1100 + 500, 1200 + 0 and
+/// 1200 + 700 us, guesses from 252 us to the truth; 2026-11-28, docs/compensation.md).
 fn some_stable_lead(cfg: &HilConfig, order: u32) -> bool {
-    let max = cfg.compensation.max_delay_s;
     let mut lin = LinearLoop::for_plant(cfg, &nominal_plant(cfg), 0.0, 1.0);
     lin.lead_order = order;
-    let mut damped = lin.clone();
-    damped.guard_damping_ns_per_m = cfg.compensation.guard_max_damping_ns_per_m;
-    lin.has_stable_lead(max) || (cfg.compensation.passivity_guard && damped.has_stable_lead(max))
+    lin.has_stable_lead(cfg.compensation.max_delay_s)
 }
 
 /// The lowest prediction order above `[compensation] lead_order`, up to `MAX_LEAD_ORDER`,
@@ -929,9 +928,9 @@ fn with_raised_order(cfg: &HilConfig) -> (Option<u32>, std::borrow::Cow<'_, HilC
 }
 
 /// Why the simulated rig's actuator cannot render this element at all: no lead from 0 to
-/// `[compensation] max_delay_us` makes the linearised loop stable (local-law commands),
-/// without the passivity guard's damping or, when it is on, with all of it, at the
-/// configured prediction order or the one the plan raises it to (`raised_lead_order`).
+/// `[compensation] max_delay_us` makes the linearised loop stable by itself (local-law
+/// commands; a loop that only the guard's full damping makes stable trips as well, see
+/// `some_stable_lead`), at the configured prediction order or the one the plan raises it to (`raised_lead_order`).
 /// Such a run trips `loop-unstable` within tens of milliseconds, and the actuator still
 /// delivers the forces already in flight when it trips, so the hold of a loop that
 /// diverged moves the specimen by up to millimetres (`lag-delay` 1 + 1 ms at order 2:
@@ -2099,6 +2098,16 @@ mod tests {
             );
             crate::hil::config::parse_hil_config(&text, "a.toml", None).unwrap()
         };
+        // Stable only under the guard's full damping, at either order: refused (such
+        // actuators tripped `loop-unstable` from every guess; they ran before).
+        let damped_only = with("kind = \"lag-delay\"\ntransport_delay_us = 1000.0\nlag_us = 200.0\nforce_max_n = 150000.0");
+        let mut lin = LinearLoop::for_plant(&damped_only, &nominal_plant(&damped_only), 0.0, 1.0);
+        lin.guard_damping_ns_per_m = damped_only.compensation.guard_max_damping_ns_per_m;
+        assert!(lin.has_stable_lead(damped_only.compensation.max_delay_s));
+        assert!(!some_stable_lead(&damped_only, 2) && !some_stable_lead(&damped_only, 3));
+        assert_eq!(raised_lead_order(&damped_only), None);
+        assert!(no_stable_lead(&damped_only)
+            .is_some_and(|why| why.contains("too slow for the specimen's resonance")));
         let slow = with("kind = \"lag-delay\"\ntransport_delay_us = 3000.0\nlag_us = 2000.0\nforce_max_n = 150000.0");
         let on_mass = with("preset = \"rths-fast-150kn\"\nvelocity_compensation = 0.0");
         let blocked = with("preset = \"fatigue-150kn\"\nforce_loop_bandwidth_hz = 250.0");

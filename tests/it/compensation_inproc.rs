@@ -1292,6 +1292,50 @@ fn a_lag_delay_of_1_plus_1_ms_runs_on_a_cubic_prediction_within_1_percent() {
     );
 }
 
+/// `lag-delay` 700 + 900 us has stable leads at the configured quadratic prediction only
+/// with all of the passivity guard's damping, and 1330-1570 us by itself at the cubic one.
+/// Before 2026-11-28 (twenty-seventh session) the guard's damping counted as making the
+/// quadratic renderable, so the plan did not raise the order, the run relied on the guard
+/// and tripped `loop-unstable` from every guess (0, 252 and 3444 us). The plan now raises
+/// the order, fixes the lead where the loop is stable by itself, and the run ends without
+/// a fault within 1 % (measured: `fastemu hil` 0.396 % in 2 runs, in-process 0.396 %).
+#[test]
+fn a_loop_stable_only_under_the_guards_damping_at_the_configured_order_runs_at_the_raised_one() {
+    let cfg = config_with_actuator(
+        "kind = \"lag-delay\"\ntransport_delay_us = 700.0\nlag_us = 900.0\nforce_max_n = 150000.0",
+        252.0,
+        true,
+        true,
+    );
+    assert_eq!(cfg.compensation.lead_order, 2);
+    // The premise, on the linearised loop: at order 2 stable only with all of the damping.
+    let plant = fastemu::rig::actuator::ActuatorPlant::from_config(&cfg.rig.actuator);
+    let max = cfg.compensation.max_delay_s;
+    let mut bare = fastemu::hil::check::LinearLoop::for_plant(&cfg, &plant, 0.0, 1.0);
+    assert!(!bare.has_stable_lead(max));
+    let mut damped = bare.clone();
+    damped.guard_damping_ns_per_m = cfg.compensation.guard_max_damping_ns_per_m;
+    assert!(damped.has_stable_lead(max));
+    bare.lead_order = 3;
+    assert!(bare.has_stable_lead(max));
+    let run = run_in_process(&cfg, &script(6.0));
+    let plan = run.plan.as_ref().expect("a plan");
+    assert_eq!(plan.raised_lead_order, Some(3));
+    assert!(plan.lead_fixed);
+    let law: Vec<&ControllerRecord> = law_commands(&run);
+    assert!(!law.is_empty());
+    assert!(law
+        .iter()
+        .all(|r| r.lead_order == 3 && (r.lead_s * 1e6 - plan.lead_us).abs() < 1e-6));
+    let mut at_plan =
+        fastemu::hil::check::LinearLoop::for_plant(&cfg, &plant, plan.lead_us * 1e-6, 1.0);
+    at_plan.lead_order = 3;
+    assert!(at_plan.is_stable(0.0, 1.0), "{} us", plan.lead_us);
+    assert!(faults(&run).is_empty(), "{:?}", faults(&run));
+    let error = displacement_error(&cfg, &run);
+    assert!(error < 0.01, "displacement error {:.3} %", 100.0 * error);
+}
+
 /// The element stiffens with its load (SPEC 2.1): `lag-delay` 1003 + 99 us, declared as it
 /// is, has stable leads at the 20 kN preload (its plan fixes 1100 us inside them) but none
 /// under the axle's 71.9 kN, and the plan says so. In time, the loop runs without a fault
