@@ -571,6 +571,8 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
         lead_s * 1e6,
         if !cfg.compensation.adapt_lead {
             "planned, fixed"
+        } else if cfg.compensation.start_planned {
+            "planned from the declared actuator, not the guess; the adaptation takes it on from there, without a safe start's damping"
         } else if cap_s.is_finite() {
             "[compensation] initial_delay_us, capped"
         } else {

@@ -195,6 +195,13 @@ pub struct CompensationPlan {
     /// not for the declared actuator.
     #[serde(default)]
     pub over_programme: Option<OverProgramme>,
+    /// Without a fixed lead: the lead the run would have started at (the guess, capped),
+    /// us, when that lead is stable for fewer than half of the drawn actuators and the plan
+    /// starts the run at `lead_us` instead, the lead stable for most of them (and for the
+    /// declared one); the adaptation takes the lead on from there. `None`: the run starts
+    /// at the guess.
+    #[serde(default)]
+    pub start_moved_from_us: Option<f64>,
 }
 
 /// The planned lead over the programme's loads (`CompensationPlan::over_programme`).
@@ -423,6 +430,7 @@ pub fn compensation_plan(cfg: &HilConfig) -> Option<CompensationPlan> {
         nudge: None,
         raised_lead_order,
         over_programme: None,
+        start_moved_from_us: None,
     };
     if destination_unstable_for == 0 {
         plan.lead_stable_for = on_two_threads(&plants, |plant| {
@@ -431,6 +439,33 @@ pub fn compensation_plan(cfg: &HilConfig) -> Option<CompensationPlan> {
         .iter()
         .filter(|&&ok| ok)
         .count();
+        // A guess far off (0 before a `lag-delay` of 500 + 500 us, whose stable leads
+        // start near 900 us) starts the loop unstable for most of the actuators the
+        // declaration allows, and the safe start's damping does not hold every one while
+        // the lead is learned (perturbed seeds 3, 4 and 6 of 0.3 tripped `loop-unstable`
+        // from 0). The declaration knows better than the guess where to start.
+        if 2 * plan.lead_stable_for < plan.draws {
+            // The lead stable for all of them nearest the guess, two steps inside their
+            // common leads where they are that wide (the guess is the user's knowledge:
+            // the middle of a wide window, 180-1530 us for the shipped actuator, would
+            // start far from it); else the most widely stable one.
+            let scan = tolerance_scan(cfg, starting, TOLERANCE_DRAWS, PLAN_LEAD_STEP_S);
+            let start = match (scan.common_us, scan.most_widely_stable) {
+                (Some((lo, hi)), _) => {
+                    let margin = (2.0 * PLAN_LEAD_STEP_S * 1e6).min(0.5 * (hi - lo));
+                    Some(((starting * 1e6).clamp(lo + margin, hi - margin), plan.draws))
+                }
+                (None, best) => best,
+            };
+            if let Some((lead_us, count)) = start {
+                if count > plan.lead_stable_for {
+                    plan.start_moved_from_us = Some(starting * 1e6);
+                    plan.lead_us = (lead_us * 1e3).round() / 1e3;
+                    plan.lead_stable_for = count;
+                    plan.scan = Some(scan);
+                }
+            }
+        }
         return Some(plan);
     }
     let scan = tolerance_scan(cfg, starting, TOLERANCE_DRAWS, PLAN_LEAD_STEP_S);
@@ -499,6 +534,22 @@ pub fn planned(
             lead_order,
             ..*cfg
         },
+        // A start stable by itself for the actuators the declaration allows: no safe
+        // start's damping there. Damping acts on the velocity predicted over the lead, and
+        // at a long lead even a quarter of it made a loop unstable that is stable without
+        // it (`lag-delay` 600 + 300 us, perturbed seed 11 of 0.3, started at 1150 us with
+        // 10 kN s/m: `loop-unstable` at 0.07 s; 0.045 % without). The guard still answers
+        // energy generated.
+        Some(p) if p.start_moved_from_us.is_some() => {
+            crate::hil::compensation::CompensationConfig {
+                initial_delay_s: p.lead_us * 1e-6,
+                starting_lead_cap_s: f64::INFINITY,
+                safe_start_damping_ns_per_m: 0.0,
+                start_planned: true,
+                lead_order,
+                ..*cfg
+            }
+        }
         _ => crate::hil::compensation::CompensationConfig { lead_order, ..*cfg },
     }
 }
@@ -556,6 +607,12 @@ pub fn describe_plan(p: &CompensationPlan) -> String {
                 p.destination_unstable_for
             )
         };
+        if let Some(from_us) = p.start_moved_from_us {
+            return format!(
+                "compensation planned from the declared actuator: {raised}over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are {unstable}; the starting lead ({from_us:.0} us, [compensation] initial_delay_us) is stable for fewer than half of them, so the run starts at {:.0} us, stable for {} of {}, and the adaptation takes the lead on from there; [compensation] plan_from_actuator = false (with an external rig, also plan_for_external_rig = false) starts at the guess",
+                p.destinations_us.0, p.destinations_us.1, p.lead_us, p.lead_stable_for, p.draws
+            );
+        }
         return format!(
             "compensation as configured: {raised}over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are {unstable}; the starting lead ({:.0} us) is stable for {} of {}",
             p.destinations_us.0, p.destinations_us.1, p.lead_us, p.lead_stable_for, p.draws
@@ -630,6 +687,7 @@ pub fn starting_lead_cap_s(cfg: &HilConfig) -> f64 {
     if cfg.controller.command_mode != super::config::CommandMode::Law
         || guess <= 0.0
         || !cfg.compensation.adapt_lead
+        || cfg.compensation.start_planned
     {
         return f64::INFINITY;
     }
@@ -675,6 +733,7 @@ pub fn starting_compensation(
         }
         None => std::borrow::Cow::Borrowed(cfg),
     };
+    // A start the plan moves (`planned`) has neither cap nor safe start's damping.
     let capped = crate::hil::compensation::CompensationConfig {
         starting_lead_cap_s: starting_lead_cap_s(&at_order),
         safe_start_damping_ns_per_m: safe_start_damping_ns_per_m(&at_order),
@@ -699,6 +758,9 @@ pub fn safe_start_damping_ns_per_m(cfg: &HilConfig) -> f64 {
     let c = &cfg.compensation;
     let full = c.guard_max_damping_ns_per_m;
     let guess = c.initial_delay_s;
+    if c.start_planned {
+        return 0.0;
+    }
     if !(c.adapt && c.adapt_lead && c.passivity_guard)
         || cfg.controller.command_mode != super::config::CommandMode::Law
         || guess <= 0.0
@@ -1413,7 +1475,8 @@ impl LinearLoop {
     /// `None` without a safe start.
     pub fn safe_start_stable(&self, cfg: &HilConfig) -> Option<bool> {
         let c = &cfg.compensation;
-        (c.adapt && c.adapt_lead && c.passivity_guard).then(|| {
+        // A start the plan moved carries no safe start (`planned`).
+        (c.adapt && c.adapt_lead && c.passivity_guard && !c.start_planned).then(|| {
             let mut armed = self.clone();
             armed.guard_damping_ns_per_m = safe_start_damping_ns_per_m(cfg);
             armed.is_stable(0.0, 1.0)

@@ -50,6 +50,10 @@ pub struct CompensationConfig {
     /// of `guard_max_damping_ns_per_m` and its halves that the starting lead stays stable
     /// with in front of every actuator the guess allows; not a key).
     pub safe_start_damping_ns_per_m: f64,
+    /// The plan moved the start off the guess to a lead stable by itself for the actuators
+    /// the declaration allows (`check::CompensationPlan::start_moved_from_us`): no cap on
+    /// it and no safe start's damping (not a key).
+    pub start_planned: bool,
     /// Prediction polynomial order (0-3).
     pub lead_order: u32,
     /// Learn the delay and gain during the run.
@@ -103,6 +107,7 @@ impl CompensationConfig {
             initial_delay_s,
             starting_lead_cap_s: f64::INFINITY,
             safe_start_damping_ns_per_m: f64::INFINITY,
+            start_planned: false,
             lead_order: 2,
             adapt: true,
             adapt_lead: true,
