@@ -56,6 +56,8 @@ pub struct FidelityCell {
     pub initial_delay_us: f64,
     /// The lead the plan fixed instead (`check::compensation_plan`), us.
     pub planned_lead_us: Option<f64>,
+    /// The lead the plan started the run at instead of the guess, us (`None`: the guess).
+    pub planned_start_us: Option<f64>,
     pub fault: Option<String>,
     pub displacement_error_pct: f64,
     /// The report's identified delay (over the load band when the load excited it) and the
@@ -206,6 +208,11 @@ pub fn fidelity_cell(cfg: &HilConfig, actuator: &str, duration_s: f64) -> Fideli
             .as_ref()
             .filter(|p| p.lead_fixed)
             .map(|p| p.lead_us),
+        planned_start_us: run
+            .plan
+            .as_ref()
+            .filter(|p| !p.lead_fixed && p.start_moved_from_us.is_some())
+            .map(|p| p.lead_us),
         fault,
         displacement_error_pct: if r2 > 0.0 {
             (e2 / r2).sqrt() * 100.0
@@ -251,7 +258,10 @@ pub fn fidelity_table(cells: &[FidelityCell]) -> String {
                     c.initial_delay_us, c.final_lead_us
                 ),
                 (Some(lead), _) => format!("{:.0} (planned: fixed {lead:.0})", c.initial_delay_us),
-                (None, _) => format!("{:.0}", c.initial_delay_us),
+                (None, _) => match c.planned_start_us {
+                    Some(start) => format!("{:.0} (planned: start {start:.0})", c.initial_delay_us),
+                    None => format!("{:.0}", c.initial_delay_us),
+                },
             },
             c.fault.as_deref().unwrap_or("none"),
             c.displacement_error_pct,

@@ -666,7 +666,12 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
         if let Some(t) = &p.scan {
             eprintln!(
                 "  {}",
-                crate::hil::check::describe_tolerance(t, original_lead_s)
+                crate::hil::check::describe_tolerance(
+                    t,
+                    // The lead the scan judged: the guess's start, which the plan moved.
+                    p.start_moved_from_us
+                        .map_or(original_lead_s, |us| us * 1e-6)
+                )
             );
         }
     }

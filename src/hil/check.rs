@@ -171,7 +171,7 @@ pub struct CompensationPlan {
     /// Whether the passivity guard acts (false: its full damping at `lead_us` makes the
     /// declared actuator's loop unstable: through its lag the damping generates energy).
     pub guard: bool,
-    /// The scan of leads, when the lead is fixed.
+    /// The scan of leads, when the lead is fixed or the start moved (`start_moved_from_us`).
     pub scan: Option<ToleranceScan>,
     /// The lowest and highest effective delay (the mean phase delay over 1-20 Hz, plus half
     /// a period of hold, as the report identifies it) of the declared actuator and
@@ -450,12 +450,25 @@ pub fn compensation_plan(cfg: &HilConfig) -> Option<CompensationPlan> {
             // the middle of a wide window, 180-1530 us for the shipped actuator, would
             // start far from it); else the most widely stable one.
             let scan = tolerance_scan(cfg, starting, TOLERANCE_DRAWS, PLAN_LEAD_STEP_S);
-            let start = match (scan.common_us, scan.most_widely_stable) {
-                (Some((lo, hi)), _) => {
-                    let margin = (2.0 * PLAN_LEAD_STEP_S * 1e6).min(0.5 * (hi - lo));
-                    Some(((starting * 1e6).clamp(lo + margin, hi - margin), plan.draws))
-                }
-                (None, best) => best,
+            // The common leads are the first and last the scan found stable for all of
+            // them; the lead chosen inside is counted again (a draw's stable leads may
+            // have a hole).
+            let stable_for = |lead_us: f64| {
+                on_two_threads(&plants, |plant| {
+                    LinearLoop::for_plant(cfg, plant, lead_us * 1e-6, 1.0).is_stable(0.0, 1.0)
+                })
+                .iter()
+                .filter(|&&ok| ok)
+                .count()
+            };
+            let nearest = scan.common_us.map(|(lo, hi)| {
+                let margin = (2.0 * PLAN_LEAD_STEP_S * 1e6).min(0.5 * (hi - lo));
+                let lead_us = (starting * 1e6).clamp(lo + margin, hi - margin);
+                (lead_us, stable_for(lead_us))
+            });
+            let start = match (nearest, scan.most_widely_stable) {
+                (Some((lead_us, count)), _) if count == plan.draws => Some((lead_us, count)),
+                (_, best) => best,
             };
             if let Some((lead_us, count)) = start {
                 if count > plan.lead_stable_for {
@@ -609,7 +622,7 @@ pub fn describe_plan(p: &CompensationPlan) -> String {
         };
         if let Some(from_us) = p.start_moved_from_us {
             return format!(
-                "compensation planned from the declared actuator: {raised}over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are {unstable}; the starting lead ({from_us:.0} us, [compensation] initial_delay_us) is stable for fewer than half of them, so the run starts at {:.0} us, stable for {} of {}, and the adaptation takes the lead on from there; [compensation] plan_from_actuator = false (with an external rig, also plan_for_external_rig = false) starts at the guess",
+                "compensation planned from the declared actuator: {raised}over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are {unstable}; the lead the guess would start at ({from_us:.0} us: [compensation] initial_delay_us, capped where it would diverge in front of an actuator twice as fast) is stable for fewer than half of them, so the run starts at {:.0} us, stable for {} of {}, and the adaptation takes the lead on from there; [compensation] plan_from_actuator = false (with an external rig, also plan_for_external_rig = false) starts at the guess",
                 p.destinations_us.0, p.destinations_us.1, p.lead_us, p.lead_stable_for, p.draws
             );
         }

@@ -87,8 +87,8 @@ fn final_lead_s(run: &InProcessRun) -> f64 {
 }
 
 /// From a guess of 0 (the default actuator needs ~0.25 ms) and from one 100 % too long,
-/// the run is faithful from its start, the lead settles within 2 s, and the identified
-/// delay is the one a matched run identifies.
+/// declared or not, the run is faithful from its start, the lead settles within 2 s, and
+/// the identified delay is the one a matched run identifies.
 #[test]
 fn a_wrong_initial_delay_is_learned_and_the_run_stays_faithful() {
     let matched = {
@@ -99,10 +99,21 @@ fn a_wrong_initial_delay_is_learned_and_the_run_stays_faithful() {
     };
     // The default actuator: 122 us of hold + 50 us + 80 us, as seen at the samples.
     assert!((200e-6..330e-6).contains(&matched), "{matched}");
-    for initial_s in [0.0, 2.0 * 252e-6] {
+    // Declared (the plan may start elsewhere than the guess) and not (an external rig's:
+    // the run starts at the guess).
+    for (initial_s, declared) in [
+        (0.0, true),
+        (0.0, false),
+        (2.0 * 252e-6, true),
+        (2.0 * 252e-6, false),
+    ] {
         let mut cfg = default_hil_config().unwrap();
         cfg.compensation.initial_delay_s = initial_s;
+        cfg.compensation.plan_from_actuator = declared;
         let run = run_in_process(&cfg, &script(4.0));
+        if !declared {
+            assert!(run.plan.is_none());
+        }
         assert!(faults(&run).is_empty(), "{initial_s}: {:?}", faults(&run));
         let error = displacement_error(&cfg, &run);
         assert!(error < 5e-3, "initial {initial_s}: error {error}");
@@ -336,6 +347,22 @@ fn a_guess_far_off_before_a_declared_actuator_starts_where_the_declaration_is_st
         .and_then(|s| s.common_us)
         .expect("leads stable for every draw");
     assert!((lo..=hi).contains(&plan.lead_us), "{} us", plan.lead_us);
+    // Stable by itself at the start for the rig's truth and the declared actuator, on the
+    // linearised loop.
+    let plant = fastemu::rig::actuator::ActuatorPlant::from_config(&cfg.rig.actuator);
+    let declared_nominal = {
+        let mut c = cfg.clone();
+        c.rig.actuator.perturb = 0.0;
+        fastemu::rig::actuator::ActuatorPlant::from_config(&c.rig.actuator)
+    };
+    for p in [&plant, &declared_nominal] {
+        assert!(
+            fastemu::hil::check::LinearLoop::for_plant(&cfg, p, plan.lead_us * 1e-6, 1.0)
+                .is_stable(0.0, 1.0),
+            "{} us",
+            plan.lead_us
+        );
+    }
     let run = run_in_process(&cfg, &script(6.0));
     assert!(faults(&run).is_empty(), "{:?}", faults(&run));
     let law = law_commands(&run);
@@ -457,6 +484,9 @@ fn an_undeclared_servo_hydraulic_loop_takes_its_lead_from_the_ringing_and_stays_
 fn compensation_is_deterministic() {
     let mut cfg = default_hil_config().unwrap();
     cfg.compensation.initial_delay_s = 0.0;
+    // Undeclared, so the run starts at the guess and the safe start's damping acts (a
+    // declared actuator's plan would start where its loop is stable, without damping).
+    cfg.compensation.plan_from_actuator = false;
     // 4 s: the load band's delay is identified from 3 s of force control on.
     let a = run_in_process(&cfg, &script(4.0));
     let b = run_in_process(&cfg, &script(4.0));
@@ -471,6 +501,7 @@ fn compensation_is_deterministic() {
         );
         assert_eq!(x.load_band_delay_s.to_bits(), y.load_band_delay_s.to_bits());
     }
+    assert!(a.controller.iter().any(|r| r.guard_damping_ns_per_m > 0.0));
 }
 
 /// The default configuration's text with `[rig.actuator]` replaced by `actuator` (TOML
@@ -782,7 +813,20 @@ fn unfaulted_lag_delay_run(
     );
     let run = run_in_process(&cfg, &script(seconds));
     assert!(faults(&run).is_empty(), "{:?}", faults(&run));
+    assert_started_at_the_guess(&run);
     (cfg, run)
+}
+
+/// The run started where its guess put it (the plan did not move the start), so what a
+/// test says of the start holds of the guess.
+fn assert_started_at_the_guess(run: &InProcessRun) {
+    assert!(
+        run.plan
+            .as_ref()
+            .is_none_or(|p| p.start_moved_from_us.is_none()),
+        "the plan moved the start: {:?}",
+        run.plan
+    );
 }
 
 /// The run's final lead within `tolerance` (relative) of the effective delay `truth_s`,
@@ -892,6 +936,8 @@ fn stalls_bridged_by_the_controller_are_not_read_as_a_delay() {
     // the 252 us a run without stalls learns.
     let mut cfg0 = cfg.clone();
     cfg0.compensation.initial_delay_s = 0.0;
+    // From the guess itself: undeclared (the plan would start where the loop is stable).
+    cfg0.compensation.plan_from_actuator = false;
     let sparse: Vec<(u64, u64)> = frequent_stalls(2, 24_000).into_iter().step_by(25).collect();
     assert!(sparse.len() > 10 && sparse.iter().any(|s| s.1 > 2));
     let run = run_in_process(
@@ -1188,6 +1234,7 @@ fn perturbed_lag_delay_run(
     );
     let run = run_in_process(&cfg, &script(3.0));
     assert!(faults(&run).is_empty(), "seed {seed}: {:?}", faults(&run));
+    assert_started_at_the_guess(&run);
     let truth_s = truth_delay_s(&cfg);
     (cfg, run, truth_s)
 }

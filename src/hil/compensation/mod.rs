@@ -12,7 +12,8 @@
 //!   variable damper that adds damping there only while the loop has generated energy
 //!   (Hannaford and Ryu 2002), released slowly once the energy is gone. With `adapt`, it
 //!   starts armed (the safe start): damping (all of it, or the largest fraction the starting
-//!   lead stays stable with, `check::safe_start_damping_ns_per_m`) from the first command until the lead has
+//!   lead stays stable with, `check::safe_start_damping_ns_per_m`; none at a start the plan
+//!   moved to a lead stable by itself, `start_planned`) from the first command until the lead has
 //!   reached the delay the estimator resolved, because until then nobody knows whether the
 //!   loop is passive (a guess of 0 in front of a 722 us actuator rang the resonance up to
 //!   0.3 % error before the observer saw energy). A loop that rings anyway gives its lead:

@@ -358,8 +358,16 @@ impl CompensationReport {
             ));
         } else if self.guard.safe_start_ended == Some(false) {
             line.push_str(&format!(
-                "; WARNING: the safe start never ended (the delay was never learned to within 10 %, or the gain lay outside 0.5-2): the guard damped above {:.0} Hz for as long as the law was rendered",
-                self.guard.band_hz.0
+                "; WARNING: the safe start never ended (the delay was never learned to within 10 %, or the gain lay outside 0.5-2){}",
+                // A start the plan moved carries no damping (`check::planned`).
+                if self.guard.max_damping_ns_per_m > 0.0 {
+                    format!(
+                        ": the guard damped above {:.0} Hz for as long as the law was rendered",
+                        self.guard.band_hz.0
+                    )
+                } else {
+                    String::new()
+                }
             ));
         }
         line
