@@ -328,7 +328,7 @@ fn a_guess_of_zero_before_a_slow_actuator_is_made_safe_from_the_start() {
 /// A guess far off before a declared actuator: 0 before `lag-delay` 500 + 500 us drawn by
 /// `perturb = 0.3` seed 3 (truth 1137 us). The guess is stable for none of the actuators
 /// the declaration allows, and the safe start's damping did not hold this one while the
-/// lead was learned: `loop-unstable` at about 0.05 s (before 2026-11-28, twenty-seventh
+/// lead was learned: `loop-unstable` at 0.08 s (`fastemu hil`; before 2026-11-28, twenty-seventh
 /// session; seeds 4 and 6 alike). The plan now starts the run at the lead stable for all
 /// of its draws nearest the guess, without the safe start's damping, and the adaptation
 /// takes it on: no fault, no damping at all, the lead within 5 % of the truth, the run as
