@@ -432,13 +432,17 @@ pub fn compensation_plan(cfg: &HilConfig) -> Option<CompensationPlan> {
         over_programme: None,
         start_moved_from_us: None,
     };
-    if destination_unstable_for == 0 {
-        plan.lead_stable_for = on_two_threads(&plants, |plant| {
-            LinearLoop::for_plant(cfg, plant, starting, 1.0).is_stable(0.0, 1.0)
+    // How many of the draws the loop is stable for at a lead, s.
+    let stable_for = |lead_s: f64| {
+        on_two_threads(&plants, |plant| {
+            LinearLoop::for_plant(cfg, plant, lead_s, 1.0).is_stable(0.0, 1.0)
         })
         .iter()
         .filter(|&&ok| ok)
-        .count();
+        .count()
+    };
+    if destination_unstable_for == 0 {
+        plan.lead_stable_for = stable_for(starting);
         // A guess far off (0 before a `lag-delay` of 500 + 500 us, whose stable leads
         // start near 900 us) starts the loop unstable for most of the actuators the
         // declaration allows, and the safe start's damping does not hold every one while
@@ -453,18 +457,10 @@ pub fn compensation_plan(cfg: &HilConfig) -> Option<CompensationPlan> {
             // The common leads are the first and last the scan found stable for all of
             // them; the lead chosen inside is counted again (a draw's stable leads may
             // have a hole).
-            let stable_for = |lead_us: f64| {
-                on_two_threads(&plants, |plant| {
-                    LinearLoop::for_plant(cfg, plant, lead_us * 1e-6, 1.0).is_stable(0.0, 1.0)
-                })
-                .iter()
-                .filter(|&&ok| ok)
-                .count()
-            };
             let nearest = scan.common_us.map(|(lo, hi)| {
                 let margin = (2.0 * PLAN_LEAD_STEP_S * 1e6).min(0.5 * (hi - lo));
                 let lead_us = (starting * 1e6).clamp(lo + margin, hi - margin);
-                (lead_us, stable_for(lead_us))
+                (lead_us, stable_for(lead_us * 1e-6))
             });
             let start = match (nearest, scan.most_widely_stable) {
                 (Some((lead_us, count)), _) if count == plan.draws => Some((lead_us, count)),
@@ -1005,7 +1001,8 @@ fn with_raised_order(cfg: &HilConfig) -> (Option<u32>, std::borrow::Cow<'_, HilC
 /// Why the simulated rig's actuator cannot render this element at all: no lead from 0 to
 /// `[compensation] max_delay_us` makes the linearised loop stable by itself (local-law
 /// commands; a loop that only the guard's full damping makes stable trips as well, see
-/// `some_stable_lead`), at the configured prediction order or the one the plan raises it to (`raised_lead_order`).
+/// `some_stable_lead`), at the configured prediction order or the one the plan raises it
+/// to (`raised_lead_order`).
 /// Such a run trips `loop-unstable` within tens of milliseconds, and the actuator still
 /// delivers the forces already in flight when it trips, so the hold of a loop that
 /// diverged moves the specimen by up to millimetres (`lag-delay` 1 + 1 ms at order 2:

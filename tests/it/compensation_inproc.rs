@@ -1357,14 +1357,7 @@ fn a_lag_delay_of_1_plus_1_ms_runs_on_a_cubic_prediction_within_1_percent() {
     );
     assert_eq!(cfg.compensation.lead_order, 2);
     let run = run_in_process(&cfg, &script(6.0));
-    let plan = run.plan.as_ref().expect("a plan");
-    assert_eq!(plan.raised_lead_order, Some(3));
-    assert!(plan.lead_fixed);
-    let law: Vec<&ControllerRecord> = law_commands(&run);
-    assert!(!law.is_empty());
-    assert!(law
-        .iter()
-        .all(|r| r.lead_order == 3 && (r.lead_s * 1e6 - plan.lead_us).abs() < 1e-6));
+    assert_on_the_planned_cubic(&run);
     assert!(faults(&run).is_empty(), "{:?}", faults(&run));
     let error = displacement_error(&cfg, &run);
     assert!(error < 0.01, "displacement error {:.3} %", 100.0 * error);
@@ -1387,6 +1380,20 @@ fn a_lag_delay_of_1_plus_1_ms_runs_on_a_cubic_prediction_within_1_percent() {
         identified_s * 1e6,
         truth_s * 1e6
     );
+}
+
+/// The run's plan raised the prediction to cubic and fixed the lead, and every law command
+/// carried both; returns the plan.
+fn assert_on_the_planned_cubic(run: &InProcessRun) -> &fastemu::hil::check::CompensationPlan {
+    let plan = run.plan.as_ref().expect("a plan");
+    assert_eq!(plan.raised_lead_order, Some(3));
+    assert!(plan.lead_fixed);
+    let law: Vec<&ControllerRecord> = law_commands(run);
+    assert!(!law.is_empty());
+    assert!(law
+        .iter()
+        .all(|r| r.lead_order == 3 && (r.lead_s * 1e6 - plan.lead_us).abs() < 1e-6));
+    plan
 }
 
 /// `lag-delay` 700 + 900 us has stable leads at the configured quadratic prediction only
@@ -1416,14 +1423,7 @@ fn a_loop_stable_only_under_the_guards_damping_at_the_configured_order_runs_at_t
     bare.lead_order = 3;
     assert!(bare.has_stable_lead(max));
     let run = run_in_process(&cfg, &script(6.0));
-    let plan = run.plan.as_ref().expect("a plan");
-    assert_eq!(plan.raised_lead_order, Some(3));
-    assert!(plan.lead_fixed);
-    let law: Vec<&ControllerRecord> = law_commands(&run);
-    assert!(!law.is_empty());
-    assert!(law
-        .iter()
-        .all(|r| r.lead_order == 3 && (r.lead_s * 1e6 - plan.lead_us).abs() < 1e-6));
+    let plan = assert_on_the_planned_cubic(&run);
     let mut at_plan =
         fastemu::hil::check::LinearLoop::for_plant(&cfg, &plant, plan.lead_us * 1e-6, 1.0);
     at_plan.lead_order = 3;
