@@ -5,7 +5,7 @@
 //! Must not: allocate, lock, log, read a clock or do I/O (runs per rig sample in the
 //! controller's loop); the same sample stream gives the same estimate bit for bit.
 
-use super::{add_to_sums, solve_two};
+use super::estimator::{add_to_sums, solve_two};
 use crate::hil::passivity::{HighPass2, LowPass2};
 
 /// The estimate after a sample.
