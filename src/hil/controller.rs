@@ -106,6 +106,10 @@ record_type! {
             guard_stall_bursts: u32,
             /// 1 while the guard is armed (the safe start: its damping until the lead is learned)
             guard_armed: u8,
+            /// the energy the guard damps from now, J (its onset scaled for the sensor's noise; inf: noise not read yet; NaN: no guard)
+            guard_onset_j: f64,
+            /// the displacement sensor's noise as the controller reads it, m (NaN: not yet)
+            sensor_noise_m: f64,
             /// the effective delay identified now (lead + residual), s (NaN: not yet)
             identified_delay_s: f64,
             /// its standard error, s
@@ -422,6 +426,8 @@ impl ControllerCore {
             guard_stall_bursts: status.guard.stall_bursts,
             // As sent: only law commands carry the guard's damping.
             guard_armed: u8::from(mode == command_mode::LAW && status.guard.armed),
+            guard_onset_j: status.guard.onset_j,
+            sensor_noise_m: status.sensor_noise_m,
             identified_delay_s: status.identified_delay_s,
             identified_delay_sigma_s: status.identified_delay_sigma_s,
             load_band_delay_s: status.load_band.map_or(f64::NAN, |e| e.delay_s),

@@ -17,6 +17,9 @@ pub struct GuardState {
     pub stall_bursts: u32,
     /// The safe start: its damping until the lead is learned.
     pub armed: bool,
+    /// The energy the guard damps from now, J: `guard_onset_energy_j` times the sensor
+    /// noise's scale (`noise::SensorNoise`); infinite before the noise is read.
+    pub onset_j: f64,
 }
 
 /// Running totals of the guard's activity (for the report).
@@ -34,6 +37,8 @@ pub struct GuardActivity {
     /// (`STALL_BURST_S`), and the largest burst it excused, J.
     pub stall_bursts: u32,
     pub max_stall_burst_j: f64,
+    /// The largest factor the sensor's noise put on the guard's thresholds (1: none).
+    pub max_energy_scale: f64,
 }
 
 /// Time-domain passivity controller above the load band.
@@ -42,6 +47,8 @@ pub struct PassivityGuard {
     observer: PassivityObserver,
     onset_energy_j: f64,
     full_energy_j: f64,
+    /// The factor on both thresholds for the sensor's noise (`noise::SensorNoise`), >= 1.
+    energy_scale: f64,
     max_damping: f64,
     /// The safe start's damping (`safe_start_damping`).
     start_damping: f64,
@@ -147,6 +154,7 @@ impl PassivityGuard {
             ),
             onset_energy_j: cfg.guard_onset_energy_j,
             full_energy_j: cfg.guard_full_energy_j,
+            energy_scale: 1.0,
             max_damping: cfg.guard_max_damping_ns_per_m,
             start_damping: safe_start_damping(cfg),
             release: (-dt_s / cfg.guard_release_s).exp(),
@@ -164,7 +172,10 @@ impl PassivityGuard {
             burst_spacing: (STALL_BURST_SPACING_S / dt_s).round() as u32,
             excused_j: 0.0,
             decay: (-dt_s / GUARD_MEMORY_S).exp(),
-            activity: GuardActivity::default(),
+            activity: GuardActivity {
+                max_energy_scale: 1.0,
+                ..GuardActivity::default()
+            },
         }
     }
 
@@ -185,8 +196,32 @@ impl PassivityGuard {
         self.block_peak_m = 0.0;
         self.block_samples = 0;
         self.growing_blocks >= SAFE_START_RING_BLOCKS
-            && self.last_block_peak_m >= SAFE_START_RING_FLOOR_M
-            && s.generated_high_j <= self.onset_energy_j
+            && self.last_block_peak_m >= SAFE_START_RING_FLOOR_M * self.energy_scale.sqrt()
+            && s.generated_high_j <= self.onset_j()
+    }
+
+    /// The energy the guard starts to damp from, J: `guard_onset_energy_j` times the
+    /// sensor noise's scale.
+    #[inline]
+    pub fn onset_j(&self) -> f64 {
+        self.onset_energy_j * self.energy_scale
+    }
+
+    /// The energy of full damping, J: `guard_full_energy_j` times the noise's scale.
+    #[inline]
+    fn full_j(&self) -> f64 {
+        self.full_energy_j * self.energy_scale
+    }
+
+    /// Scales both thresholds for the sensor's noise (`noise::SensorNoise::energy_scale`;
+    /// infinite: not read yet, no answer to energy).
+    #[inline]
+    pub fn set_energy_scale(&mut self, scale: f64) {
+        self.energy_scale = scale.max(1.0);
+        if self.energy_scale.is_finite() {
+            let a = &mut self.activity;
+            a.max_energy_scale = a.max_energy_scale.max(self.energy_scale);
+        }
     }
 
     /// Ends the safe start: from the next sample on, the damping follows the energy
@@ -232,7 +267,7 @@ impl PassivityGuard {
         self.since_burst = self.since_burst.saturating_add(1);
         if self.burst_samples_left > 0 {
             self.burst_samples_left -= 1;
-            self.excused_j = self.excused_j.max(generated_j).min(self.full_energy_j);
+            self.excused_j = self.excused_j.max(generated_j).min(self.full_j());
             let a = &mut self.activity;
             a.max_stall_burst_j = a.max_stall_burst_j.max(self.excused_j);
         } else {
@@ -251,9 +286,14 @@ impl PassivityGuard {
         // Damping in proportion to the energy generated (none while the loop absorbs it),
         // at once when it rises, released slowly when it falls.
         let generated_j = self.beyond_stall_burst(s.generated_high_j);
-        let span = (self.full_energy_j - self.onset_energy_j).max(1e-12);
-        let answer =
-            self.max_damping * ((generated_j - self.onset_energy_j) / span).clamp(0.0, 1.0);
+        // (None before the sensor's noise is read: `energy_scale` infinite.)
+        let onset = self.onset_j();
+        let answer = if onset.is_finite() {
+            let span = (self.full_j() - onset).max(1e-12);
+            self.max_damping * ((generated_j - onset) / span).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
         // Armed: at least the safe start's damping, more as energy is seen.
         let target = if self.armed {
             self.start_damping.max(answer)
@@ -279,6 +319,7 @@ impl PassivityGuard {
             excused_j: self.excused_j,
             stall_bursts: self.activity.stall_bursts,
             armed: self.armed,
+            onset_j: self.onset_j(),
         }
     }
 }

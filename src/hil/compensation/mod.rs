@@ -27,6 +27,7 @@ mod contact;
 mod estimator;
 mod guard;
 mod load_band;
+mod noise;
 mod nudge;
 mod oscillation;
 
@@ -39,6 +40,7 @@ pub use load_band::{LoadBandDelay, LoadBandEstimate};
 pub mod welch_rules {
     pub use super::load_band::{MIN_BINS, MIN_COHERENCE, MIN_RELATIVE_EXCITATION, MIN_SEGMENTS};
 }
+pub use noise::SensorNoise;
 pub use nudge::{LeadNudge, NudgeRange};
 pub use oscillation::{OscillationDelay, OscillationEstimate};
 
@@ -149,6 +151,9 @@ pub struct CompensationStatus {
     /// whole segment (None: not yet, or too few excited bins).
     pub load_band: Option<LoadBandEstimate>,
     pub guard: GuardState,
+    /// The displacement sensor's noise as read online (`noise::SensorNoise`), m; NaN
+    /// before the first reading.
+    pub sensor_noise_m: f64,
 }
 
 /// The controller's compensator: estimator, adaptation and guard around one `Compensation`.
@@ -198,6 +203,8 @@ pub struct Compensator {
     /// for while the lead moves there.
     nudge: Option<LeadNudge>,
     nudge_target: Option<f64>,
+    /// The displacement sensor's noise, which scales the guard's thresholds.
+    noise: SensorNoise,
     /// The weights' sum since the first sample (`1 - decay^n`): `missing_share /
     /// missing_weight` is the share without the start's bias towards 0.
     missing_weight: f64,
@@ -317,6 +324,7 @@ impl Compensator {
             excused_j: 0.0,
             stall_bursts: 0,
             armed,
+            onset_j: f64::INFINITY,
         };
         let compensation = Compensation {
             lead_s,
@@ -339,6 +347,7 @@ impl Compensator {
                 identified_delay_sigma_s: f64::NAN,
                 load_band: None,
                 guard,
+                sensor_noise_m: f64::NAN,
             },
             contact: ContactGain::new(lead_s, dt_s),
             missing_share: 0.0,
@@ -360,6 +369,7 @@ impl Compensator {
             last_estimate: None,
             nudge: cfg.nudge.map(|r| LeadNudge::new(r, dt_s)),
             nudge_target: None,
+            noise: SensorNoise::new(),
         }
     }
 
@@ -439,6 +449,11 @@ impl Compensator {
             _ => u64::MAX,
         };
         let now = (displacement_m, element_force_n, measured_force_n);
+        self.noise.update(displacement_m, gap == 1);
+        self.status.sensor_noise_m = self.noise.sigma_m().unwrap_or(f64::NAN);
+        if self.cfg.passivity_guard {
+            self.guard.set_energy_scale(self.noise.energy_scale());
+        }
         // The missing share: `gap - 1` samples without a setpoint, then this one.
         let d = self.missing_decay;
         if gap == u64::MAX {
@@ -523,7 +538,10 @@ impl Compensator {
             self.guard
                 .update(displacement_m, element_force_n, measured_force_n)
         } else {
-            GuardState::default()
+            GuardState {
+                onset_j: f64::NAN,
+                ..GuardState::default()
+            }
         };
         self.status.guard = guard;
         self.nudge_lead(displacement_m);
@@ -634,8 +652,7 @@ impl Compensator {
         }
         if self.cfg.adapt_lead
             && o.window_full
-            && self.status.guard.generated_j
-                >= RING_MIN_ENERGY_ONSETS * self.cfg.guard_onset_energy_j
+            && self.status.guard.generated_j >= RING_MIN_ENERGY_ONSETS * self.guard.onset_j()
             && o.fit >= OSCILLATION_MIN_FIT
             && (OSCILLATION_LOW_HZ..=self.cfg.guard_band_top_hz).contains(&o.frequency_hz)
         {

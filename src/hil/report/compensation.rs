@@ -72,6 +72,12 @@ pub struct GuardReport {
     /// specimen once; a loop that keeps generating is answered after the burst's 16 ms.
     pub stall_bursts_excused: u32,
     pub max_stall_burst_j: f64,
+    /// The displacement sensor's noise as the controller read it at the run's end, m (null:
+    /// never read), and the largest factor it put on the guard's energy thresholds (1:
+    /// none; a sensor noisier than 0.25 um raises them with its variance, so that the
+    /// guard does not answer the noise's own work: docs/compensation.md).
+    pub sensor_noise_m: Option<f64>,
+    pub max_threshold_scale: f64,
     /// The band the guard observes and acts in, Hz.
     pub band_hz: (f64, f64),
 }
@@ -235,6 +241,18 @@ impl CompensationReport {
     /// delay: the actuator's force leads its command, as a servo-hydraulic force loop's
     /// uncompensated velocity feedback through the oil's flow makes it; no lead (which
     /// cannot be negative) makes up for it, and read at the lead in effect the force per
+    /// The guard's thresholds raised for a noisy sensor, for the console ("" when not).
+    fn noise_note(&self) -> String {
+        match self.guard.sensor_noise_m {
+            Some(s) if self.guard.max_threshold_scale > 1.0 => format!(
+                ", thresholds up to {:.1} times for {:.2} um of sensor noise",
+                self.guard.max_threshold_scale,
+                s * 1e6
+            ),
+            _ => String::new(),
+        }
+    }
+
     /// command is not the delay a lead would have to make up for (docs/compensation.md).
     fn negative_delay_note(&self) -> &'static str {
         match (self.identified_delay_us, self.identified_delay_sigma_us) {
@@ -292,7 +310,7 @@ impl CompensationReport {
                     if n == 1 { "" } else { "s" },
                     self.guard.max_stall_burst_j * 1e3
                 ),
-            },
+            } + &self.noise_note(),
             band_text(self.faithful_band_hz, &self.faithful_band_limited_by),
         );
         if self.faithful_band_after_safe_start_hz.is_some()
@@ -411,6 +429,9 @@ pub struct CompensationAnalyser {
     /// Stall bursts excused (the records' running count) and the largest, J.
     stall_bursts: u32,
     max_stall_burst: f64,
+    /// The last finite noise reading, m, and the largest onset read, J.
+    sensor_noise: Option<f64>,
+    max_onset: f64,
     identified: Option<(f64, f64)>,
     /// The last law command's delay over the load band, sigma, bins, from and to (None
     /// when it had none: not yet, or no longer, identified).
@@ -442,6 +463,8 @@ impl CompensationAnalyser {
             max_generated: 0.0,
             stall_bursts: 0,
             max_stall_burst: 0.0,
+            sensor_noise: None,
+            max_onset: 0.0,
             armed_s: 0.0,
             armed_seen: false,
             armed_last: false,
@@ -488,6 +511,12 @@ impl CompensationAnalyser {
         }
         self.stall_bursts = self.stall_bursts.max(r.guard_stall_bursts);
         self.max_stall_burst = self.max_stall_burst.max(r.guard_excused_j);
+        if r.sensor_noise_m.is_finite() {
+            self.sensor_noise = Some(r.sensor_noise_m);
+        }
+        if r.guard_onset_j.is_finite() {
+            self.max_onset = self.max_onset.max(r.guard_onset_j);
+        }
         if r.identified_delay_s.is_finite() {
             self.identified = Some((r.identified_delay_s, r.identified_delay_sigma_s));
         }
@@ -608,6 +637,8 @@ impl CompensationAnalyser {
                 max_generated_j: self.max_generated,
                 stall_bursts_excused: self.stall_bursts,
                 max_stall_burst_j: self.max_stall_burst,
+                sensor_noise_m: self.sensor_noise,
+                max_threshold_scale: (self.max_onset / c.guard_onset_energy_j).max(1.0),
                 band_hz: (c.guard_band_hz, c.guard_band_top_hz),
             },
             faithful_band_hz: faithful,
@@ -1161,6 +1192,8 @@ mod tests {
             guard_excused_j: 0.0,
             guard_stall_bursts: 0,
             guard_armed: 0,
+            guard_onset_j: 0.5e-3,
+            sensor_noise_m: f64::NAN,
             identified_delay_s: f64::NAN,
             identified_delay_sigma_s: f64::NAN,
             load_band_delay_s: f64::NAN,
