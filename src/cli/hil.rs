@@ -598,8 +598,18 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
         );
     } else {
         eprintln!(
-            "  linearised loop: NOT STABLE with this lead (nearest to -1 at {:.0} Hz, |1 + L| = {:.3}): the run would end in loop-unstable unless the controller's adaptation and guard make up for it",
-            m.thinnest_frequency_hz, m.modulus_margin
+            "  linearised loop: NOT STABLE with this lead (nearest to -1 at {:.0} Hz, |1 + L| = {:.3}): the run would end in loop-unstable{}",
+            m.thinnest_frequency_hz,
+            m.modulus_margin,
+            match (
+                cfg.compensation.adapt && cfg.compensation.adapt_lead,
+                cfg.compensation.passivity_guard
+            ) {
+                (true, true) => " unless the controller's adaptation and guard make up for it",
+                (true, false) => " unless the controller's adaptation makes up for it",
+                (false, true) => " unless the passivity guard's damping makes up for it",
+                (false, false) => " (adaptation and passivity guard are off)",
+            }
         );
     }
     match lin.stable_leads(cfg.compensation.max_delay_s) {

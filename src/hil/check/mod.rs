@@ -214,7 +214,13 @@ pub fn no_stable_lead(cfg: &HilConfig) -> Option<String> {
         .map(|o| {
             format!(" at [compensation] lead_order = {order} (with lead_order = {o} some lead is; the plan from the declared actuator would raise it, with adapt = true and plan_from_actuator = true)")
         })
-        .unwrap_or_default();
+        .unwrap_or_else(|| {
+            if order < MAX_LEAD_ORDER {
+                format!(" at any prediction order from {order} to {MAX_LEAD_ORDER}")
+            } else {
+                String::new()
+            }
+        });
     Some(format!(
         "{}: [rig.actuator] {}: no lead from 0 to {:.0} us makes the linearised loop stable{hint}: {}; the run would trip loop-unstable within tens of milliseconds, and with the forces already in flight the hold would move the specimen by up to millimetres; choose another actuator, or pass --run-unstable to run it anyway",
         cfg.origin,

@@ -193,7 +193,8 @@ pub struct CompensationReport {
     /// The lead and gain sent last in force control.
     pub final_lead_us: f64,
     pub final_gain: f64,
-    /// When the lead first came and stayed within 5 % (or 10 us) of its final value, s.
+    /// When the lead first came and stayed within 5 % (or 10 us) of its final value, s (a
+    /// lead the plan fixed: when it last moved, its nudge's last step).
     pub settled_at_s: Option<f64>,
     /// With the lead fixed by the plan: how many times the nudge stepped it because the
     /// loop kept oscillating (`compensation::LeadNudge`); null when the lead was not fixed
@@ -298,9 +299,15 @@ impl CompensationReport {
             self.negative_delay_note(),
             self.final_gain,
             settled,
-            self.guard
-                .safe_start_s
-                .map_or("none".to_string(), |t| format!("{t:.2} s")),
+            self.guard.safe_start_s.map_or("none".to_string(), |t| {
+                if self.guard.max_damping_ns_per_m > 0.0 {
+                    format!("{t:.2} s")
+                } else {
+                    // A start the plan moved to a lead stable by itself: the safe start
+                    // only follows the ringing.
+                    format!("{t:.2} s without damping")
+                }
+            }),
             self.guard.active_s,
             self.guard.max_damping_ns_per_m * 1e-3,
             match self.guard.stall_bursts_excused {
@@ -576,7 +583,13 @@ impl CompensationAnalyser {
             .last_law
             .map_or((c.initial_delay_s, 1.0), |r| (r.lead_s, r.actuator_gain));
         let settled_at_s = {
-            let tol = (0.05 * final_lead).max(10e-6);
+            // A lead the plan fixed moves only by its nudge's steps (5 %, within the 5 %
+            // an adapted lead settles to): it settled when it last moved.
+            let tol = if c.adapt_lead {
+                (0.05 * final_lead).max(10e-6)
+            } else {
+                1e-6
+            };
             let mut settled = self.lead_points.first().map(|p| p.0);
             for &(t, l) in &self.lead_points {
                 if (l - final_lead).abs() > tol {
@@ -1373,6 +1386,62 @@ mod tests {
         assert!((r.final_lead_us - 900.0).abs() < 1e-6);
         assert!(!r.law_ended_in_hold);
     }
+    /// A lead the plan fixed settles when it last moved: its nudge's 5 % step (2850 ->
+    /// 2992.5 us at 2.42 s) is within the 5 % an adapted lead settles to, yet it is the
+    /// moment the lead settled. An adapted lead that moved as much settled at its start.
+    #[test]
+    fn a_fixed_leads_nudge_is_when_it_settled() {
+        let run = |adapt_lead: bool| {
+            let mut cfg = crate::hil::config::default_hil_config().expect("embedded config");
+            cfg.compensation.adapt_lead = adapt_lead;
+            let mut a = CompensationAnalyser::new(1.0 / 4096.0, 6.0);
+            for k in 0..12 {
+                let t = 0.22 * k as f64;
+                let lead = if k >= 11 { 2992.5e-6 } else { 2850e-6 };
+                a.controller(&command(t, command_mode::LAW, lead));
+            }
+            a.controller(&command(3.0, command_mode::LAW, 2992.5e-6));
+            a.finish(&cfg).settled_at_s.expect("settled")
+        };
+        assert!((run(false) - 2.42).abs() < 1e-12, "{}", run(false));
+        assert_eq!(run(true), 0.0);
+    }
+
+    /// A sensor noisier than the guard's thresholds were chosen at: the report keeps the
+    /// last reading and the largest scale, and the console says it; at the shipped noise
+    /// it says nothing.
+    #[test]
+    fn a_noisy_sensors_scale_on_the_guard_is_reported() {
+        let cfg = crate::hil::config::default_hil_config().expect("embedded config");
+        let onset = cfg.compensation.guard_onset_energy_j;
+        let mut a = CompensationAnalyser::new(1.0 / 4096.0, 1.0);
+        for (k, (noise, scale)) in [(f64::NAN, f64::INFINITY), (1.3e-6, 27.0), (1.0e-6, 16.0)]
+            .into_iter()
+            .enumerate()
+        {
+            let mut c = command(k as f64 * 0.01, command_mode::LAW, 252e-6);
+            c.sensor_noise_m = noise;
+            c.guard_onset_j = onset * scale;
+            a.controller(&c);
+        }
+        let r = a.finish(&cfg);
+        assert_eq!(r.guard.sensor_noise_m, Some(1.0e-6));
+        assert!((r.guard.max_threshold_scale - 27.0).abs() < 1e-9);
+        assert!(
+            r.describe()
+                .contains("thresholds up to 27.0 times for 1.00 um of sensor noise"),
+            "{}",
+            r.describe()
+        );
+        let mut quiet = CompensationAnalyser::new(1.0 / 4096.0, 1.0);
+        let mut c = command(0.0, command_mode::LAW, 252e-6);
+        c.sensor_noise_m = 0.1e-6;
+        quiet.controller(&c);
+        let r = quiet.finish(&cfg);
+        assert_eq!(r.guard.max_threshold_scale, 1.0);
+        assert!(!r.describe().contains("sensor noise"));
+    }
+
     /// The identified delay is the load band's when the last law command carried one, with
     /// its bins and span on the console; a run whose load band was never (or is no longer)
     /// identified falls back to the lead's estimator, and the JSON and the console say so.

@@ -148,7 +148,8 @@ impl InstabilityTracker {
                 (
                     e.t_s,
                     InstabilitySeen {
-                        window_s,
+                        // Never longer than the run before the trip.
+                        window_s: window_s.min(e.t_s.max(0.0)),
                         peak_generated_energy_j: 0.0,
                         max_generated_energy_j: bounds.max_generated_energy_j,
                         peak_oscillation_m: 0.0,
