@@ -544,20 +544,20 @@ impl Compensator {
             }
         };
         self.status.guard = guard;
-        self.nudge_lead(displacement_m);
+        self.nudge_lead(displacement_m, element_force_n);
     }
 
     /// The planned fixed lead's nudge (`nudge::LeadNudge`): a step asked for is taken at
     /// `OSCILLATION_MAX_RATE` (140 us in 1.4 ms), as a ring's target is.
     #[inline]
-    fn nudge_lead(&mut self, displacement_m: f64) {
+    fn nudge_lead(&mut self, displacement_m: f64, element_force_n: f64) {
         if self.cfg.adapt_lead {
             return;
         }
         let Some(n) = &mut self.nudge else {
             return;
         };
-        if let Some(target) = n.update(displacement_m, self.lead_s) {
+        if let Some(target) = n.update(displacement_m, element_force_n, self.lead_s) {
             self.nudge_target = Some(target);
         }
         if let Some(target) = self.nudge_target {

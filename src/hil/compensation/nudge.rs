@@ -54,6 +54,19 @@ const NUDGE_MAX_STEPS: u32 = 3;
 /// The band the displacement is watched in, Hz: above the programme's harmonics, below
 /// the sensor's noise.
 const NUDGE_BAND_HZ: (f64, f64) = (10.0, 600.0);
+/// The programme's own drive: while the element's force, low-passed at `NUDGE_LOAD_HZ`
+/// (second order), changes faster than `NUDGE_LOAD_RATE_N_PER_S`, and for
+/// `NUDGE_LOAD_HOLD_S` after, no block counts: an axle's passage drives the band itself,
+/// and a loop at its edge is one that keeps oscillating under a quiet load. The default
+/// programme (`fatigue-150kn` seed 202, `fastemu hil`, 2026-11-28): 57-155 kN/s outside
+/// the axles (the 2 Hz harmonic, the loop's own rings filtered out: a 38 Hz ring of 50 um
+/// passes as about 50 kN/s, a 20 Hz one as 90 kN/s), 3.4 MN/s in their passage at 2.0-2.4
+/// s, whose 30-90 Hz content of 50-65 um met the sustain rule, read as a lead too short,
+/// and stepped the lead from 2850 to 2992 us, away from the truth's stable leads
+/// (2020-2620 us); its 230 Hz mode then grew and tripped `loop-unstable` at 3.66 s.
+const NUDGE_LOAD_HZ: f64 = 10.0;
+const NUDGE_LOAD_RATE_N_PER_S: f64 = 1.0e6;
+const NUDGE_LOAD_HOLD_S: f64 = 0.1;
 
 /// The detector (`LeadNudge::update`).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -74,6 +87,11 @@ pub struct LeadNudge {
     /// Samples left before the filters have settled, or the loop has rung down after a
     /// step.
     wait: u32,
+    /// The element's force low-passed (`NUDGE_LOAD_HZ`), its last value, and the samples
+    /// left while the programme drives the band (`NUDGE_LOAD_RATE_N_PER_S`).
+    load_lp: LowPass2,
+    last_load_n: f64,
+    loud: u32,
     /// Steps taken.
     pub steps: u32,
 }
@@ -94,6 +112,9 @@ impl LeadNudge {
             crossings: [0; NUDGE_BLOCKS],
             blocks: 0,
             wait: (NUDGE_REFRACTORY_S / dt_s) as u32,
+            load_lp: LowPass2::low_pass(NUDGE_LOAD_HZ, dt_s),
+            last_load_n: f64::NAN,
+            loud: 0,
             steps: 0,
         }
     }
@@ -106,18 +127,42 @@ impl LeadNudge {
         };
     }
 
-    /// One rig sample's displacement, with the lead in effect; returns the lead to move
-    /// to when the loop keeps oscillating (one step, within the range), once per
-    /// `NUDGE_REFRACTORY_S`.
+    /// One rig sample's displacement and the element's force there, with the lead in
+    /// effect; returns the lead to move to when the loop keeps oscillating under a quiet
+    /// load (one step, within the range), once per `NUDGE_REFRACTORY_S`.
     #[inline]
-    pub fn update(&mut self, displacement_m: f64, lead_s: f64) -> Option<f64> {
+    pub fn update(
+        &mut self,
+        displacement_m: f64,
+        element_force_n: f64,
+        lead_s: f64,
+    ) -> Option<f64> {
         if self.steps >= NUDGE_MAX_STEPS {
             return None;
         }
         let y = self.low_pass.step(self.high_pass.step(displacement_m));
+        if self.last_load_n.is_nan() {
+            self.load_lp.reset(element_force_n);
+            self.last_load_n = element_force_n;
+        }
+        let load = self.load_lp.step(element_force_n);
+        if ((load - self.last_load_n) / self.dt_s).abs() > NUDGE_LOAD_RATE_N_PER_S {
+            self.loud = (NUDGE_LOAD_HOLD_S / self.dt_s) as u32;
+        }
+        self.last_load_n = load;
         if self.wait > 0 {
             self.wait -= 1;
             self.last_value = y;
+            return None;
+        }
+        if self.loud > 0 {
+            // The programme drives the band: the blocks start afresh after it.
+            self.loud -= 1;
+            self.last_value = y;
+            self.blocks = 0;
+            self.block_samples = 0;
+            self.block_peak_m = 0.0;
+            self.block_crossings = 0;
             return None;
         }
         if (y > 0.0) != (self.last_value > 0.0) {
@@ -183,7 +228,7 @@ mod tests {
         let mut n = LeadNudge::new(RANGE, DT);
         (0..(secs / DT) as usize).find_map(|i| {
             let t = i as f64 * DT;
-            n.update(z(t), lead_s).map(|target| (t, target))
+            n.update(z(t), 20e3, lead_s).map(|target| (t, target))
         })
     }
 
@@ -209,12 +254,54 @@ mod tests {
         let mut n = LeadNudge::new(RANGE, DT);
         let mut lead = 2.5e-3;
         for i in 0..(3.0 / DT) as usize {
-            if let Some(t) = n.update(low(i as f64 * DT), lead) {
+            if let Some(t) = n.update(low(i as f64 * DT), 20e3, lead) {
                 lead = t;
             }
         }
         assert_eq!(n.steps, NUDGE_MAX_STEPS);
         assert!((lead - 2.5e-3 * 1.05f64.powi(3)).abs() < 1e-12, "{lead}");
+    }
+
+    /// An oscillation the programme drives: axle-like pulses of 50 kN in 40 ms every 0.1 s
+    /// from 0.3 to 0.8 s, with a 33 Hz oscillation of 0.2 mm while they last, steps
+    /// nothing (without the load's gate it stepped at 0.43 s); the same oscillation going
+    /// on after the pulses, under a quiet load, steps the lead once the gate's 0.1 s after
+    /// the last pulse and four blocks have passed.
+    #[test]
+    fn an_oscillation_the_programme_drives_does_not_step_the_lead() {
+        let load = |t: f64| {
+            let since = (t - 0.3) % 0.1;
+            if (0.3..0.8).contains(&t) && since < 0.04 {
+                20e3 + 25e3 * (1.0 - (2.0 * PI * since / 0.04).cos())
+            } else {
+                20e3
+            }
+        };
+        let z = |t: f64, until: f64| {
+            0.4e-3
+                + if (0.3..until).contains(&t) {
+                    0.2e-3 * (2.0 * PI * 33.0 * t).sin()
+                } else {
+                    0.0
+                }
+        };
+        let run = |until: f64, gated: bool| {
+            let mut n = LeadNudge::new(RANGE, DT);
+            (0..(2.0 / DT) as usize).find_map(|i| {
+                let t = i as f64 * DT;
+                let f = if gated { load(t) } else { 20e3 };
+                n.update(z(t, until), f, 2.85e-3).map(|_| t)
+            })
+        };
+        assert_eq!(run(0.8, true), None);
+        let ungated = run(0.8, false).expect("a step without the gate");
+        assert!(ungated < 0.8, "{ungated}");
+        let after = run(2.0, true).expect("a step under the quiet load");
+        // The last pulse ends at 0.74 s; the gate's 0.1 s, then four 30 ms blocks.
+        assert!(
+            (0.74 + 0.1 + 0.1..0.74 + 0.1 + 0.16).contains(&after),
+            "{after}"
+        );
     }
 
     /// What a stable planned loop does at an axle: a ring at 38 Hz of 80 um that halves
