@@ -86,7 +86,12 @@ impl SensorNoise {
     /// sample between (not bridged, not after a gap).
     #[inline]
     pub fn update(&mut self, z_m: f64, consecutive: bool) {
-        if !consecutive || !z_m.is_finite() {
+        if !z_m.is_finite() {
+            // Never differenced, never kept: the next three samples start afresh.
+            self.valid = 0;
+            return;
+        }
+        if !consecutive {
             self.valid = 0;
         }
         if self.valid >= 3 {
@@ -209,6 +214,24 @@ mod tests {
         assert!((q / sigma - 1.0).abs() < 0.2, "{q}");
         let r = ringing.sigma_m().unwrap();
         assert!(r < 1.2 * sigma, "{r}");
+    }
+
+    /// A sample that is not finite (a sensor's fault) is skipped, not differenced, not
+    /// kept: the estimate stays finite and at the noise.
+    #[test]
+    fn a_sample_that_is_not_finite_is_skipped() {
+        let mut n = SensorNoise::new();
+        let mut seed = 5u64;
+        for i in 0..2048 {
+            let z = if i % 300 == 17 {
+                f64::NAN
+            } else {
+                noise(&mut seed, 0.2e-6)
+            };
+            n.update(z, true);
+        }
+        let s = n.sigma_m().unwrap();
+        assert!((s / 0.2e-6 - 1.0).abs() < 0.1, "{s}");
     }
 
     /// Samples that are not consecutive are not differenced: steps of 50 um every 100
