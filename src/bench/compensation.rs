@@ -158,6 +158,19 @@ pub fn controller_work(cfg: &HilConfig, rounds: usize) -> ControllerWork {
 
 /// One in-process run of `cfg` for `duration_s`, summarised.
 pub fn fidelity_cell(cfg: &HilConfig, actuator: &str, duration_s: f64) -> FidelityCell {
+    fidelity_cell_recorded(cfg, actuator, duration_s, None)
+        .expect("a run without records cannot fail to write them")
+}
+
+/// As [`fidelity_cell`], and with `records = Some((dir, config_text))` the run's records
+/// written to `dir` as a `fastemu hil` run's (`records.mcap`, for `export`, `replay`,
+/// `diagnose --run`).
+pub fn fidelity_cell_recorded(
+    cfg: &HilConfig,
+    actuator: &str,
+    duration_s: f64,
+    records: Option<(&std::path::Path, &str)>,
+) -> anyhow::Result<FidelityCell> {
     let run = run_in_process(
         cfg,
         &InProcessScript {
@@ -166,6 +179,12 @@ pub fn fidelity_cell(cfg: &HilConfig, actuator: &str, duration_s: f64) -> Fideli
             ..InProcessScript::default()
         },
     );
+    if let Some((dir, text)) = records {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", dir.display()))?;
+        run.write_records(dir, cfg, text)
+            .map_err(|e| anyhow::anyhow!("{}: {}", e.path, e.message))?;
+    }
     let fault = run
         .events
         .iter()
@@ -200,7 +219,7 @@ pub fn fidelity_cell(cfg: &HilConfig, actuator: &str, duration_s: f64) -> Fideli
         }
         settled.finish(cfg.loop_.dt_s(), &mut c);
     }
-    FidelityCell {
+    Ok(FidelityCell {
         actuator: actuator.to_string(),
         initial_delay_us: cfg.compensation.initial_delay_s * 1e6,
         planned_lead_us: run
@@ -238,7 +257,7 @@ pub fn fidelity_cell(cfg: &HilConfig, actuator: &str, duration_s: f64) -> Fideli
         faithful_band_after_safe_start_hz: c.faithful_band_after_safe_start_hz,
         guard_active_s: c.guard.active_s,
         guard_max_damping_ns_per_m: c.guard.max_damping_ns_per_m,
-    }
+    })
 }
 
 /// The fidelity table as text.

@@ -129,6 +129,10 @@ pub struct CompensationBenchArgs {
     /// Print one JSON object instead of the tables.
     #[arg(long)]
     pub json: bool,
+    /// Also write each fidelity run's records into DIR/<actuator>-<guess>us (as a
+    /// `fastemu hil` run's `records.mcap`, for `export`, `replay` and `diagnose --run`).
+    #[arg(long, value_name = "DIR")]
+    pub records: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -385,8 +389,13 @@ fn run_ride_through(args: RideThroughArgs) -> anyhow::Result<ExitCode> {
 }
 
 fn run_compensation(args: CompensationBenchArgs) -> anyhow::Result<ExitCode> {
-    use crate::bench::compensation::{controller_work, fidelity_cell, fidelity_table};
+    use crate::bench::compensation::{controller_work, fidelity_cell_recorded, fidelity_table};
     let cfg = crate::hil::config::load_or_default(args.config.as_deref())?;
+    let config_text = match &args.config {
+        Some(p) => std::fs::read_to_string(p)
+            .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", p.display()))?,
+        None => crate::hil::config::DEFAULT_CONFIG_TOML.to_string(),
+    };
     anyhow::ensure!(
         args.duration_s > 0.0 && args.duration_s.is_finite(),
         "--duration-s must be a positive number of seconds, got {}",
@@ -429,7 +438,21 @@ fn run_compensation(args: CompensationBenchArgs) -> anyhow::Result<ExitCode> {
                     "bench compensation: {name}, initial delay {:.0} us",
                     guess * 1e6
                 );
-                cells.push(fidelity_cell(&c, &name, args.duration_s));
+                let dir = args.records.as_ref().map(|d| {
+                    let safe: String = name
+                        .chars()
+                        .map(|ch| {
+                            if ch.is_ascii_alphanumeric() || ch == '-' {
+                                ch
+                            } else {
+                                '_'
+                            }
+                        })
+                        .collect();
+                    d.join(format!("{safe}-{:.0}us", guess * 1e6))
+                });
+                let records = dir.as_deref().map(|d| (d, config_text.as_str()));
+                cells.push(fidelity_cell_recorded(&c, &name, args.duration_s, records)?);
             }
         }
     }
