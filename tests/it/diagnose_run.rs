@@ -348,3 +348,70 @@ fn a_strongly_self_heating_run_reports_its_warming_and_stays_faithful() {
     let error = analysis.fidelity.displacement_rel_rms;
     assert!(error < 1e-3, "displacement error {error}, {thermal:?}");
 }
+
+/// `bench compensation --records` writes each fidelity run's records as a `fastemu hil`
+/// run's: `export` reads them, and the lead the controller recorded last is the one the
+/// bench's summary reports.
+#[test]
+fn bench_compensations_records_are_read_as_a_runs() {
+    let dir = TempDir::new("bench-comp-records");
+    let out = Command::new(FASTEMU)
+        .args([
+            "bench",
+            "compensation",
+            "--only-config",
+            "--guess-us",
+            "100",
+            "--rounds",
+            "1",
+            "--duration-s",
+            "1",
+            "--json",
+            "--records",
+        ])
+        .arg(dir.path.join("recs"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let cell = &json["fidelity"][0];
+    let run_dir = dir.path.join("recs/config__lag-delay-100us");
+    assert!(run_dir.join("records.mcap").is_file());
+    let export = Command::new(FASTEMU)
+        .args(["export", "--record"])
+        .arg(&run_dir)
+        .arg("--out")
+        .arg(dir.path.join("csv"))
+        .output()
+        .unwrap();
+    assert!(
+        export.status.success(),
+        "{}",
+        String::from_utf8_lossy(&export.stderr)
+    );
+    let text = std::fs::read_to_string(dir.path.join("csv/controller.csv")).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let lead_col = header.iter().position(|c| *c == "lead_s").unwrap();
+    let rows: Vec<&str> = lines.collect();
+    // One command per period of the 1 s programme at 4096 Hz (less the transport's few).
+    assert!((4000..=4096).contains(&rows.len()), "{} rows", rows.len());
+    let first: f64 = rows[0].split(',').nth(lead_col).unwrap().parse().unwrap();
+    let last: f64 = rows[rows.len() - 1]
+        .split(',')
+        .nth(lead_col)
+        .unwrap()
+        .parse()
+        .unwrap();
+    // The run started at the guess (the plan keeps a guess the declaration finds stable
+    // or moves it; either way it is what the summary says it started at) ...
+    let started_us = cell["planned_start_us"].as_f64().unwrap_or(100.0);
+    assert!((first * 1e6 - started_us).abs() < 1e-6, "{first} vs {cell}");
+    // ... and ended at the lead the summary reports.
+    let final_us = cell["final_lead_us"].as_f64().unwrap();
+    assert!((last * 1e6 - final_us).abs() < 1e-3, "{last} vs {final_us}");
+}
