@@ -432,6 +432,53 @@ fn a_loop_ringing_from_a_guess_of_zero_finds_its_lead_in_the_ringing() {
     assert!(error < 1e-3, "displacement error {:.3} %", 100.0 * error);
 }
 
+/// The guard's damping at a long lead (`compensation::DampingByLead`). An undeclared
+/// `lag-delay` of 720 + 359 us (an actuator drawn at random; 1.2 ms with the hold) from
+/// the shipped 252 us: the ring read at the start takes the lead to about 1.1 ms, inside
+/// the loop's stable leads without damping (1000-1300 us by the linearised loop on this
+/// actuator) but not with the guard's full damping (stable below 820 us with 40 kN s/m,
+/// below 1060 us with 20). Uncapped, the guard answered the start's dying ring with 18-40
+/// kN s/m there and `loop-unstable` tripped at 0.06 s. Now every damping the guard adds
+/// after the safe start is one with which this actuator's linearised loop at that
+/// command's lead is stable (judged here on the actuator itself, which the cap never saw),
+/// and the run ends without a fault within 1 %.
+#[test]
+fn the_guards_damping_at_a_long_lead_is_one_the_loop_stays_stable_with() {
+    use fastemu::hil::check::LinearLoop;
+    let mut cfg = config_with_actuator(
+        "kind = \"lag-delay\"\ntransport_delay_us = 720.0\nlag_us = 359.0\nforce_max_n = 150000.0",
+        252.0,
+        true,
+        true,
+    );
+    cfg.compensation.plan_from_actuator = false;
+    let run = run_in_process(&cfg, &script(3.0));
+    assert!(faults(&run).is_empty(), "{:?}", faults(&run));
+    let plant = fastemu::rig::actuator::ActuatorPlant::from_config(&cfg.rig.actuator);
+    let (law, start) = safe_start(&run);
+    assert!(law[start].lead_s > 1e-3, "{}", law[start].lead_s);
+    // One command in every 41 (10 ms) that added damping after the safe start.
+    let damped: Vec<_> = law[start..]
+        .iter()
+        .step_by(41)
+        .filter(|r| r.guard_damping_ns_per_m > 0.0)
+        .collect();
+    assert!(damped.len() >= 5, "{}", damped.len());
+    for r in damped {
+        let mut l = LinearLoop::for_plant(&cfg, &plant, r.lead_s, 1.0);
+        l.guard_damping_ns_per_m = r.guard_damping_ns_per_m;
+        assert!(
+            l.is_stable(0.0, 1.0),
+            "{} N s/m at {} us, {} s",
+            r.guard_damping_ns_per_m,
+            r.lead_s * 1e6,
+            r.t_s
+        );
+    }
+    let error = displacement_error(&cfg, &run);
+    assert!(error < 1e-2, "displacement error {:.3} %", 100.0 * error);
+}
+
 /// A servo-hydraulic force loop the launcher makes no plan for (an external rig's actuator
 /// is not declared: here `fatigue-150kn` with `plan_from_actuator = false`), from the
 /// shipped guess of 252 us: the loop rings at 30-40 Hz at once (its stable leads are

@@ -150,6 +150,15 @@ impl LinearLoop {
         self.with_loads(cfg, &loads)
     }
 
+    /// The same loop in front of another actuator (`actuator(w)` as in `new`), on the same
+    /// grid: the scans that judge many actuators need not recompute the element.
+    pub fn set_actuator(&mut self, actuator: impl Fn(f64) -> (Complex64, Complex64)) {
+        for (i, &w) in self.omega.iter().enumerate() {
+            (self.actuator_u[i], self.actuator_v[i]) = actuator(w);
+        }
+        self.actuator_unstable_poles = 0;
+    }
+
     /// The configured loop in front of `plant`: its responses and its own unstable poles.
     pub fn for_plant(cfg: &HilConfig, plant: &ActuatorPlant, lead_s: f64, gain: f64) -> Self {
         let p = *plant;

@@ -12,7 +12,9 @@ use std::f64::consts::PI;
 
 use realfft::num_complex::Complex64;
 
-use crate::hil::compensation::NudgeRange;
+use crate::hil::compensation::{
+    DampingByLead, DampingEdges, NudgeRange, DAMPING_LEVELS, DAMPING_REPRESENTATIVE_LAGS,
+};
 use crate::hil::config::HilConfig;
 use crate::model::equiv::equivalent;
 use crate::plot::{draw_png, Panel, Series};
@@ -374,6 +376,63 @@ mod tests {
     /// The starting lead's cap and the safe start's damping are judged at the prediction
     /// order the run uses: the plan's raised order with the plan, the configured one
     /// without (an external rig's undeclared actuator); before, always at the raised one.
+    /// The guard's most damping by the lead (`guard_damping_by_lead`), judged against
+    /// lag-and-delay actuators that are none of its representatives (lag shares of 0.1,
+    /// 0.35 and 0.6 of the effective delay, the lead less the hold): wherever it caps the
+    /// damping and the loop at the lead is stable without damping, it is stable with the
+    /// cap; and the cap is what keeps it so, the full damping being unstable at some of
+    /// those leads. The shipped lead keeps the full damping (the default run unchanged), a
+    /// lead of 1106 us in front of 720 + 359 us (the undeclared draw that tripped) gets at
+    /// most 10 kN s/m, with which that loop is stable (20 kN s/m is not), and a run whose
+    /// lead does not adapt (the plan's fixed lead) no cap.
+    #[test]
+    fn the_guards_damping_is_capped_where_the_lead_in_effect_would_turn_it_into_energy() {
+        let cfg = crate::hil::config::default_hil_config().unwrap();
+        let c = starting_compensation(&cfg, None);
+        let by_lead = c.guard_damping_by_lead;
+        let full = cfg.compensation.guard_max_damping_ns_per_m;
+        assert_eq!(by_lead.cap(full, 252e-6), full);
+        let hold = 0.5 * cfg.loop_.dt_s();
+        let (mut capped, mut full_unstable) = (0, 0);
+        for share in [0.1, 0.35, 0.6] {
+            for i in 0..=30 {
+                let lead = 300e-6 + 50e-6 * f64::from(i);
+                let cap = by_lead.cap(full, lead);
+                let effective = lead - hold;
+                let actuator = lag_delay(effective * (1.0 - share), effective * share);
+                let mut l = LinearLoop::new(&cfg, actuator, lead, 1.0);
+                if cap >= full || !l.is_stable(0.0, 1.0) {
+                    continue;
+                }
+                capped += 1;
+                l.guard_damping_ns_per_m = cap;
+                assert!(
+                    l.is_stable(0.0, 1.0),
+                    "share {share}, lead {lead}, cap {cap}"
+                );
+                l.guard_damping_ns_per_m = full;
+                full_unstable += usize::from(!l.is_stable(0.0, 1.0));
+            }
+        }
+        assert!(
+            capped >= 20 && full_unstable >= 10,
+            "{capped} {full_unstable}"
+        );
+        // The draw that tripped.
+        let truth = lag_delay(720e-6, 359e-6);
+        let mut l = LinearLoop::new(&cfg, truth, 1106e-6, 1.0);
+        let cap = by_lead.cap(full, 1106e-6);
+        assert!(cap > 0.0 && cap <= 10e3, "{cap}");
+        l.guard_damping_ns_per_m = cap;
+        assert!(l.is_stable(0.0, 1.0));
+        l.guard_damping_ns_per_m = 20e3;
+        assert!(!l.is_stable(0.0, 1.0));
+        // A lead the plan fixes: no cap.
+        let mut fixed = cfg.compensation;
+        fixed.adapt_lead = false;
+        assert_eq!(guard_damping_by_lead(&cfg, &fixed), DampingByLead::NONE);
+    }
+
     #[test]
     fn the_start_is_judged_at_the_order_the_run_predicts_with() {
         let text = crate::hil::config::DEFAULT_CONFIG_TOML

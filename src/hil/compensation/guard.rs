@@ -41,6 +41,98 @@ pub struct GuardActivity {
     pub max_energy_scale: f64,
 }
 
+/// The guard's damping, N s/m, by the levels it may take: the full damping
+/// (`guard_max_damping_ns_per_m`) and its halves down to a sixteenth.
+pub const DAMPING_LEVELS: usize = 5;
+
+/// One actuator the guard's damping is judged in front of (`DampingByLead`): the longest
+/// lead, s, up to which the linearised loop is stable with each damping level
+/// (`DAMPING_LEVELS`) and without damping, when the actuator's effective delay is the lead.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DampingEdges {
+    pub damped_s: [f64; DAMPING_LEVELS],
+    pub undamped_s: f64,
+}
+
+/// The most damping the guard may add at the lead in effect (`check::guard_damping_by_lead`).
+/// The guard damps the velocity predicted over the lead, and the prediction's gain at the
+/// band's top grows with the lead: in front of an actuator as slow as the lead, damping
+/// that holds a short lead's loop makes a long lead's generate energy. `lag-delay` 720 +
+/// 359 us (a random draw, undeclared, from 252 us): the ring read at the start took the
+/// lead to 1106 us, inside the loop's stable leads without damping (1000-1300 us); the
+/// ring the start had grown was still dying, the guard answered it with 18-40 kN s/m, with
+/// which the loop is stable only below 1060 (20 kN s/m) or 820 us (40), and
+/// `loop-unstable` tripped 30 ms later. Judged in front of representative actuators
+/// whose effective delay is the lead: a pure delay (the most exposed, no lag's roll-off)
+/// and lags of a quarter and a half of it (`cap`). Where none is stable even undamped (a
+/// lead beyond about 1.5 ms at the shipped specimen, a servo-hydraulic loop's) the
+/// lag-and-delay picture says nothing and the full damping stays: a lag of three
+/// quarters as a fourth representative capped the undeclared servo-hydraulic presets'
+/// damping at their 1.7-2.5 ms leads, where their velocity feedback takes damping well,
+/// and 10 of their 117 undeclared runs (nominal and `perturb = 0.3` seeds 1-12, three
+/// guesses) tripped that had not (2026-11-28, thirtieth session).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DampingByLead {
+    pub representatives: [DampingEdges; DAMPING_REPRESENTATIVES],
+}
+
+/// The representative actuators' lag, as a share of the effective delay (the rest is
+/// transport delay), most exposed first.
+pub const DAMPING_REPRESENTATIVE_LAGS: [f64; DAMPING_REPRESENTATIVES] = [0.0, 0.25, 0.5];
+pub const DAMPING_REPRESENTATIVES: usize = 3;
+
+impl DampingByLead {
+    /// No cap: the full damping at every lead (a run without adaptation of the lead, the
+    /// plan's fixed lead, or a unit test's guard).
+    pub const NONE: DampingByLead = DampingByLead {
+        representatives: [DampingEdges {
+            damped_s: [f64::INFINITY; DAMPING_LEVELS],
+            undamped_s: f64::INFINITY,
+        }; DAMPING_REPRESENTATIVES],
+    };
+
+    /// The most damping at `lead_s`, N s/m, of `full`. Below the most exposed
+    /// representative's undamped edge, its edges; between two representatives' undamped
+    /// edges, the edges interpolated to the actuator whose undamped edge is the lead (the
+    /// most exposed the lead can be stable for: edges rise with the lag's share); beyond
+    /// the last, the full damping.
+    #[inline]
+    pub fn cap(&self, full: f64, lead_s: f64) -> f64 {
+        let r = &self.representatives;
+        let level = |edges: &dyn Fn(usize) -> f64| {
+            let mut level = full;
+            for k in 0..DAMPING_LEVELS {
+                if lead_s <= edges(k) {
+                    return level;
+                }
+                level *= 0.5;
+            }
+            0.0
+        };
+        if lead_s <= r[0].undamped_s {
+            return level(&|k| r[0].damped_s[k]);
+        }
+        for i in 1..DAMPING_REPRESENTATIVES {
+            let (a, b) = (&r[i - 1], &r[i]);
+            if lead_s <= b.undamped_s {
+                if !b.undamped_s.is_finite() {
+                    return level(&|k| b.damped_s[k]);
+                }
+                let t = (lead_s - a.undamped_s) / (b.undamped_s - a.undamped_s);
+                return level(&|k| {
+                    let (ea, eb) = (a.damped_s[k], b.damped_s[k]);
+                    if eb.is_finite() {
+                        ea + t * (eb - ea)
+                    } else {
+                        eb
+                    }
+                });
+            }
+        }
+        full
+    }
+}
+
 /// Time-domain passivity controller above the load band.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PassivityGuard {
@@ -50,6 +142,8 @@ pub struct PassivityGuard {
     /// The factor on both thresholds for the sensor's noise (`noise::SensorNoise`), >= 1.
     energy_scale: f64,
     max_damping: f64,
+    /// The most damping by the lead in effect (`DampingByLead`).
+    by_lead: DampingByLead,
     /// The safe start's damping (`safe_start_damping`).
     start_damping: f64,
     release: f64,
@@ -156,6 +250,7 @@ impl PassivityGuard {
             full_energy_j: cfg.guard_full_energy_j,
             energy_scale: 1.0,
             max_damping: cfg.guard_max_damping_ns_per_m,
+            by_lead: cfg.guard_damping_by_lead,
             start_damping: safe_start_damping(cfg),
             release: (-dt_s / cfg.guard_release_s).exp(),
             damping: 0.0,
@@ -276,9 +371,15 @@ impl PassivityGuard {
         generated_j - self.excused_j
     }
 
-    /// One consecutive rig sample in force control.
+    /// One consecutive rig sample in force control, with the lead in effect.
     #[inline]
-    pub fn update(&mut self, z_m: f64, element_force_n: f64, measured_force_n: f64) -> GuardState {
+    pub fn update(
+        &mut self,
+        z_m: f64,
+        element_force_n: f64,
+        measured_force_n: f64,
+        lead_s: f64,
+    ) -> GuardState {
         let s = self.observer.update(z_m, element_force_n, measured_force_n);
         if self.armed && self.damping_rings(&s) {
             self.disarm();
@@ -288,19 +389,22 @@ impl PassivityGuard {
         let generated_j = self.beyond_stall_burst(s.generated_high_j);
         // (None before the sensor's noise is read: `energy_scale` infinite.)
         let onset = self.onset_j();
+        let most = self.by_lead.cap(self.max_damping, lead_s);
         let answer = if onset.is_finite() {
             let span = (self.full_j() - onset).max(1e-12);
-            self.max_damping * ((generated_j - onset) / span).clamp(0.0, 1.0)
+            most * ((generated_j - onset) / span).clamp(0.0, 1.0)
         } else {
             0.0
         };
-        // Armed: at least the safe start's damping, more as energy is seen.
-        let target = if self.armed {
-            self.start_damping.max(answer)
+        // Armed: at least the safe start's damping (judged at the starting lead), more as
+        // energy is seen; released, never above what the lead in effect stays stable with.
+        self.damping = if self.armed {
+            self.start_damping
+                .max(answer)
+                .max(self.damping * self.release)
         } else {
-            answer
+            answer.max(self.damping * self.release).min(most)
         };
-        self.damping = target.max(self.damping * self.release);
         if self.damping < 1.0 {
             self.damping = 0.0;
         }

@@ -106,6 +106,8 @@ pub struct CompensationConfig {
     pub guard_full_energy_j: f64,
     /// Largest damping the guard adds, N s/m.
     pub guard_max_damping_ns_per_m: f64,
+    /// The most damping by the lead in effect (`check::guard_damping_by_lead`; not a key).
+    pub guard_damping_by_lead: DampingByLead,
     /// Time constant of the guard's release once the energy is gone, s.
     pub guard_release_s: f64,
 }
@@ -135,6 +137,7 @@ impl CompensationConfig {
             guard_onset_energy_j: 0.5e-3,
             guard_full_energy_j: 5.0e-3,
             guard_max_damping_ns_per_m: 40.0e3,
+            guard_damping_by_lead: DampingByLead::NONE,
             guard_release_s: 0.25,
         }
     }
@@ -535,8 +538,12 @@ impl Compensator {
             }
         }
         let guard = if self.cfg.passivity_guard {
-            self.guard
-                .update(displacement_m, element_force_n, measured_force_n)
+            self.guard.update(
+                displacement_m,
+                element_force_n,
+                measured_force_n,
+                self.lead_s,
+            )
         } else {
             GuardState {
                 onset_j: f64::NAN,
@@ -1057,14 +1064,14 @@ mod tests {
         // A passive rendering: no damping.
         for i in 0..4096 {
             let z = ring_z(i, 0.0);
-            let s = g.update(z, k * z, k * z);
+            let s = g.update(z, k * z, k * z, 0.0);
             assert_eq!(s.damping_ns_per_m, 0.0);
         }
         // 200 us late at 155 Hz: energy generated, damping rises.
         let mut max_d: f64 = 0.0;
         for i in 4096..8192 {
             let (z, zl) = (ring_z(i, 0.0), ring_z(i, 2e-4));
-            max_d = max_d.max(g.update(z, k * z, k * zl).damping_ns_per_m);
+            max_d = max_d.max(g.update(z, k * z, k * zl, 0.0).damping_ns_per_m);
         }
         assert!(max_d > 0.5 * cfg.guard_max_damping_ns_per_m, "{max_d}");
         assert!(g.activity.active_samples > 0);
@@ -1074,7 +1081,7 @@ mod tests {
         let mut last = f64::NAN;
         for i in 0..n {
             let z = ring_z(8192 + i, 0.0);
-            last = g.update(z, k * z, k * z).damping_ns_per_m;
+            last = g.update(z, k * z, k * z, 0.0).damping_ns_per_m;
         }
         assert!(last < 0.03 * max_d, "{last}");
     }
@@ -1112,7 +1119,7 @@ mod tests {
                     0.0
                 };
                 let z = ring_z(i, 0.0);
-                let s = g.update(z, k * z, k * ring_z(i, late));
+                let s = g.update(z, k * z, k * ring_z(i, late), 0.0);
                 max_generated = max_generated.max(s.generated_j);
                 if s.damping_ns_per_m > 0.0 && first_damped.is_none() {
                     first_damped = Some(i);
@@ -1143,6 +1150,7 @@ mod tests {
                 big(0.0),
                 k * big(0.0),
                 k * big(if i >= 2048 { 2e-4 } else { 0.0 }),
+                0.0,
             );
             if s.damping_ns_per_m > 0.0 && answered_at.is_none() {
                 answered_at = Some(i);
@@ -1161,7 +1169,7 @@ mod tests {
             }
             let burst = (1000..1040).contains(&i) || (1410..1450).contains(&i);
             let z = ring_z(i, 0.0);
-            let s = g.update(z, k * z, k * ring_z(i, if burst { 2e-4 } else { 0.0 }));
+            let s = g.update(z, k * z, k * ring_z(i, if burst { 2e-4 } else { 0.0 }), 0.0);
             damped |= s.damping_ns_per_m > 0.0;
         }
         assert!(
@@ -1192,14 +1200,14 @@ mod tests {
         let k = 5.7e7;
         for i in 0..4096 {
             let z = ring_z(i, 0.0);
-            let s = g.update(z, k * z, k * z);
+            let s = g.update(z, k * z, k * z, 0.0);
             assert!(s.armed);
             assert_eq!(s.damping_ns_per_m, 10e3);
         }
         let mut max_d: f64 = 0.0;
         for i in 4096..8192 {
             let (z, zl) = (ring_z(i, 0.0), ring_z(i, 2e-4));
-            let s = g.update(z, k * z, k * zl);
+            let s = g.update(z, k * z, k * zl, 0.0);
             assert!(s.armed && s.damping_ns_per_m >= 10e3);
             max_d = max_d.max(s.damping_ns_per_m);
         }
