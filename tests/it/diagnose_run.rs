@@ -134,14 +134,7 @@ fn a_law_lead_set_125_us_too_long_is_named_from_the_run_records() {
     assert!(dir.path.join("diagnosis/histories.png").is_file());
 
     // The records exported as CSV (`fastemu export`) give the same diagnosis.
-    let export = Command::new(FASTEMU)
-        .args(["export", "--record"])
-        .arg(&run_dir)
-        .arg("--out")
-        .arg(dir.path.join("csv"))
-        .output()
-        .unwrap();
-    assert!(export.status.success());
+    export_csv(&run_dir, &dir.path.join("csv"));
     let from_csv = diagnose(&dir.path.join("csv"), &dir.path.join("diagnosis-csv"));
     assert_eq!(from_csv["effects"], json["effects"]);
     let lag_csv = from_csv["force_lag_s"].as_f64().unwrap();
@@ -381,18 +374,7 @@ fn bench_compensations_records_are_read_as_a_runs() {
     let cell = &json["fidelity"][0];
     let run_dir = dir.path.join("recs/config__lag-delay-100us");
     assert!(run_dir.join("records.mcap").is_file());
-    let export = Command::new(FASTEMU)
-        .args(["export", "--record"])
-        .arg(&run_dir)
-        .arg("--out")
-        .arg(dir.path.join("csv"))
-        .output()
-        .unwrap();
-    assert!(
-        export.status.success(),
-        "{}",
-        String::from_utf8_lossy(&export.stderr)
-    );
+    export_csv(&run_dir, &dir.path.join("csv"));
     let text = std::fs::read_to_string(dir.path.join("csv/controller.csv")).unwrap();
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().unwrap().split(',').collect();
@@ -414,4 +396,20 @@ fn bench_compensations_records_are_read_as_a_runs() {
     // ... and ended at the lead the summary reports.
     let final_us = cell["final_lead_us"].as_f64().unwrap();
     assert!((last * 1e6 - final_us).abs() < 1e-3, "{last} vs {final_us}");
+}
+
+/// `fastemu export --record run_dir --out out`, which must succeed.
+fn export_csv(run_dir: &std::path::Path, out: &std::path::Path) {
+    let export = Command::new(FASTEMU)
+        .args(["export", "--record"])
+        .arg(run_dir)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap();
+    assert!(
+        export.status.success(),
+        "{}",
+        String::from_utf8_lossy(&export.stderr)
+    );
 }
