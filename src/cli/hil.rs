@@ -451,6 +451,16 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     // The plan for the simulated rig's declared actuator; the rest is judged as planned.
     let declared = crate::hil::check::declares_the_rig(cfg, args.rig.external());
     let plan = crate::hil::check::plan_for_rig(cfg, args.rig.external());
+    // What the controller starts with: the guard's most damping by the lead among it.
+    let starting = crate::hil::check::starting_compensation(cfg, plan.as_ref());
+    let damping_steps =
+        (starting.adapt && starting.adapt_lead && starting.passivity_guard).then(|| {
+            crate::hil::check::damping_by_lead_steps(
+                &starting.guard_damping_by_lead,
+                starting.guard_max_damping_ns_per_m,
+                starting.max_delay_s,
+            )
+        });
     let original_lead_s = cfg
         .compensation
         .initial_delay_s
@@ -521,6 +531,10 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                 "starting_lead_capped": cap_s.is_finite(),
                 "lead_order": cfg.compensation.lead_order,
                 "safe_start_stable": safe_start,
+                "guard_damping_by_lead": damping_steps.as_ref().map(|steps| steps
+                    .iter()
+                    .map(|&(up_to, d)| json!({"up_to_us": (up_to * 1e6).round(), "damping_ns_per_m": d}))
+                    .collect::<Vec<_>>()),
                 "starts_stable": starts_stable,
                 "actuator_cannot_hold": cannot_hold,
                 "no_stable_lead": no_stable_lead,
@@ -704,6 +718,23 @@ fn check(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                 (true, false) => ": it holds the loop while the lead is learned",
                 (false, true) => ": the actuator's lag there turns damping into energy; with a lead you trust, adapt = false starts without it",
                 _ => "",
+            }
+        );
+    }
+    if let Some(steps) = &damping_steps {
+        let at = |lead: f64| {
+            starting
+                .guard_damping_by_lead
+                .cap(starting.guard_max_damping_ns_per_m, lead)
+                * 1e-3
+        };
+        eprintln!(
+            "  the passivity guard's most damping by the lead in effect (more would turn into energy in front of an actuator as slow as the lead: a pure delay, or a lag of a quarter or half of it): {}; at this lead {:.1} kN s/m{}",
+            crate::hil::check::describe_damping_by_lead(steps),
+            at(lead_s),
+            match best {
+                Some((lead, _)) => format!(", at the most faithful stable lead ({:.0} us) {:.1} kN s/m", lead * 1e6, at(lead)),
+                None => String::new(),
             }
         );
     }

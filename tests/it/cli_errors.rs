@@ -762,6 +762,25 @@ fn hil_check_json_says_where_the_specimen_starts_and_the_programmes_loads() {
         Some(40e3),
         "the shipped guess keeps all of the guard's damping"
     );
+    // The guard's most damping by the lead: the full damping at the shipped lead, halved
+    // step by step as the lead grows, none, then the full again beyond the leads any
+    // lag-and-delay actuator as slow as the lead is stable at; the last step to the
+    // adaptation's longest lead.
+    let steps = j["guard_damping_by_lead"].as_array().unwrap();
+    let step = |i: usize| (f(&steps[i]["up_to_us"]), f(&steps[i]["damping_ns_per_m"]));
+    assert!(step(0).0 > 252.0 && step(0).1 == 40e3, "{steps:?}");
+    assert_eq!(step(steps.len() - 1), (10000.0, 40e3), "{steps:?}");
+    let none = steps.len() - 2;
+    assert_eq!(step(none).1, 0.0, "{steps:?}");
+    for i in 1..=none {
+        assert!(step(i).0 > step(i - 1).0, "{steps:?}");
+        assert!(step(i).1 < step(i - 1).1, "{steps:?}");
+    }
+    assert!(
+        stderr.contains("the passivity guard's most damping by the lead in effect")
+            && stderr.contains("at this lead 40.0 kN s/m"),
+        "{stderr}"
+    );
     assert!(out.join("check.png").exists());
 
     let edge = dir.write(

@@ -433,6 +433,47 @@ mod tests {
         assert_eq!(guard_damping_by_lead(&cfg, &fixed), DampingByLead::NONE);
     }
 
+    /// `hil --check`'s steps of the guard's most damping by the lead: one per level, at the
+    /// edges the cap was given (to the 10 us resolution it reads them at), none between the
+    /// undamped edge and the next representative's, the full damping beyond.
+    #[test]
+    fn the_damping_by_lead_steps_are_the_caps_edges() {
+        let mut by = DampingByLead::NONE;
+        by.representatives[0] = DampingEdges {
+            // Between the 10 us reads, so no read falls on an edge.
+            damped_s: [505e-6, 605e-6, 705e-6, 805e-6, 905e-6],
+            undamped_s: 1005e-6,
+        };
+        let steps = damping_by_lead_steps(&by, 40e3, 3000e-6);
+        let want = [
+            (500e-6, 40e3),
+            (600e-6, 20e3),
+            (700e-6, 10e3),
+            (800e-6, 5e3),
+            (900e-6, 2.5e3),
+            (1000e-6, 0.0),
+            (3000e-6, 40e3),
+        ];
+        assert_eq!(steps.len(), want.len(), "{steps:?}");
+        for ((up_to, d), (want_up_to, want_d)) in steps.iter().zip(want) {
+            assert!((up_to - want_up_to).abs() < 1e-9, "{steps:?}");
+            assert_eq!(*d, want_d, "{steps:?}");
+        }
+        let text = describe_damping_by_lead(&steps);
+        assert!(
+            text.starts_with("40.0 kN s/m up to 500 us, 20.0 kN s/m up to 600 us"),
+            "{text}"
+        );
+        assert!(
+            text.contains("none up to 1000 us, 40.0 kN s/m beyond"),
+            "{text}"
+        );
+        // No cap: the full damping at every lead, one step.
+        let none = damping_by_lead_steps(&DampingByLead::NONE, 40e3, 3000e-6);
+        assert_eq!(none, vec![(3000e-6, 40e3)]);
+        assert_eq!(describe_damping_by_lead(&none), "40.0 kN s/m at every lead");
+    }
+
     #[test]
     fn the_start_is_judged_at_the_order_the_run_predicts_with() {
         let text = crate::hil::config::DEFAULT_CONFIG_TOML

@@ -134,6 +134,49 @@ pub fn guard_damping_by_lead(
     out
 }
 
+/// The guard's most damping (`by.cap` of `full`, N s/m) over leads from 0 to `max_s`, as
+/// steps: each `(up_to_s, damping)` holds from the step before it up to `up_to_s`, the last
+/// to `max_s`. Read in `DAMPING_EDGE_RESOLUTION_S` steps, the resolution its edges were
+/// found to (`hil --check` prints it).
+pub fn damping_by_lead_steps(by: &DampingByLead, full: f64, max_s: f64) -> Vec<(f64, f64)> {
+    let n = (max_s / DAMPING_EDGE_RESOLUTION_S).ceil().max(1.0) as usize;
+    let mut steps: Vec<(f64, f64)> = Vec::new();
+    for i in 0..=n {
+        let lead = (i as f64 * DAMPING_EDGE_RESOLUTION_S).min(max_s);
+        let d = by.cap(full, lead);
+        match steps.last_mut() {
+            Some((up_to, last)) if *last == d => *up_to = lead,
+            _ => steps.push((lead, d)),
+        }
+    }
+    steps
+}
+
+/// `damping_by_lead_steps` in words: "40 kN s/m up to 730 us, 20 up to 940 us, ...".
+pub fn describe_damping_by_lead(steps: &[(f64, f64)]) -> String {
+    steps
+        .iter()
+        .enumerate()
+        .map(|(i, &(up_to, d))| {
+            let amount = if d > 0.0 {
+                format!("{:.1} kN s/m", d * 1e-3)
+            } else {
+                "none".to_string()
+            };
+            if i + 1 == steps.len() {
+                if i == 0 {
+                    format!("{amount} at every lead")
+                } else {
+                    format!("{amount} beyond (no actuator as slow as the lead is stable there even undamped: the cap does not apply)")
+                }
+            } else {
+                format!("{amount} up to {:.0} us", up_to * 1e6)
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 /// How closely `guard_damping_by_lead` finds each edge, s.
 const DAMPING_EDGE_RESOLUTION_S: f64 = 10e-6;
 
