@@ -558,6 +558,41 @@ mod tests {
                 && e.contains("0, 1, 2 or 3"),
             "{e}"
         );
+        // A guess beyond the longest lead: the bound as the key was written.
+        let text = DEFAULT_CONFIG_TOML.replace(
+            "initial_delay_us = 252.0",
+            "initial_delay_us = 252.0\nmax_delay_us = 100",
+        );
+        let e = parse_hil_config(&text, "x.toml", None)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("compensation.initial_delay_us")
+                && e.contains("252 is not valid: expected at most max_delay_us = 100 us"),
+            "{e}"
+        );
+        // The dynamic error's bound is a key of its own, checked as the others.
+        let text = DEFAULT_CONFIG_TOML.replace(
+            "max_transient_m = 20.0e-6",
+            "max_transient_m = 20.0e-6\nmax_dynamic_displacement_error = -0.04",
+        );
+        let e = parse_hil_config(&text, "x.toml", None)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("safety.max_dynamic_displacement_error"), "{e}");
+        let text = DEFAULT_CONFIG_TOML.replace(
+            "max_transient_m = 20.0e-6",
+            "max_transient_m = 20.0e-6\nmax_dynamic_displacement_error = 0.02",
+        );
+        let c = parse_hil_config(&text, "x.toml", None).unwrap();
+        assert_eq!(c.safety.max_dynamic_displacement_error, 0.02);
+        assert_eq!(
+            default_hil_config()
+                .unwrap()
+                .safety
+                .max_dynamic_displacement_error,
+            0.04
+        );
     }
 
     #[test]
@@ -672,6 +707,16 @@ mod tests {
             e.contains("rig.actuator.lag_us") && e.contains("missing"),
             "{e}"
         );
+        // A share: the servo controller's velocity compensation, 0 to 1.
+        let e = with_actuator("preset = \"fatigue-150kn\"\nvelocity_compensation = 1.5")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("rig.actuator.velocity_compensation")
+                && e.contains("1.5 is not valid: expected a share from 0 to 1"),
+            "{e}"
+        );
+        assert!(with_actuator("preset = \"fatigue-150kn\"\nvelocity_compensation = 0.5").is_ok());
         let e = with_actuator("preset = \"fatigue-150kn\"\nbulk_modulus_pa = -1.0")
             .unwrap_err()
             .to_string();

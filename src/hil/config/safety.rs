@@ -24,6 +24,8 @@ pub(super) struct RawSafety {
     #[serde(default)]
     max_displacement_error: Option<f64>,
     #[serde(default)]
+    max_dynamic_displacement_error: Option<f64>,
+    #[serde(default)]
     stability_band_low_hz: Option<f64>,
     #[serde(default)]
     stability_band_high_hz: Option<f64>,
@@ -56,6 +58,14 @@ pub struct SafetyConfig {
     /// A run whose displacement error (relative RMS against the offline reference) exceeds
     /// this is not clean (default 0.01).
     pub max_displacement_error: f64,
+    /// A run whose dynamic displacement error (the same with the means removed: the
+    /// static deflection under the preload left out) exceeds this is not clean (default
+    /// 0.04). On the shipped programme the dynamic error is about 4 times the whole one
+    /// (0.135 against 0.034 % on the shipped actuator; 3.2 against 0.82 % on a
+    /// `shaker-150kn` draw), so the two bounds agree there; a higher preload or a long
+    /// quiet stretch dilutes the whole displacement's error and not this one as much
+    /// (`fatigue-150kn` at a 60 kN preload: 0.70 % whole, 8.0 % dynamic, faithful to 1 Hz).
+    pub max_dynamic_displacement_error: f64,
     /// The online stability monitor's bounds (`loop-unstable`).
     pub stability: StabilityBounds,
 }
@@ -111,6 +121,10 @@ pub(super) fn parse_safety(check: &Check, s: &RawSafety) -> Result<SafetyConfig,
         max_displacement_error: match s.max_displacement_error {
             Some(v) => check.positive("safety.max_displacement_error", v)?,
             None => 0.01,
+        },
+        max_dynamic_displacement_error: match s.max_dynamic_displacement_error {
+            Some(v) => check.positive("safety.max_dynamic_displacement_error", v)?,
+            None => 0.04,
         },
         stability: parse_stability(check, s)?,
     })
