@@ -725,7 +725,14 @@ pub fn run_processes(
                     let elapsed_s = now.duration_since(t).as_secs_f64();
                     if sup.first_fault_at.is_some() {
                         // The programme stopped at the fault; the hold runs its own time.
-                        eprintln!("hil: t = {elapsed_s:.1} s (fault: holding)");
+                        // A fault whose action is "indicate" leaves the rig running.
+                        if sup.outcome.rig_hold_seen.is_some() {
+                            eprintln!("hil: t = {elapsed_s:.1} s (fault: holding)");
+                        } else {
+                            eprintln!(
+                                "hil: t = {elapsed_s:.1} s (fault indicated; the rig is not holding)"
+                            );
+                        }
                     } else {
                         eprintln!(
                             "hil: t = {elapsed_s:.1} s of {:.1} s{}",

@@ -131,6 +131,13 @@ pub(super) fn parse_actuator(
         values[i] = match k.rule {
             Rule::Positive => check.positive(&full, value)?,
             Rule::NonNegative => check.non_negative(&full, value)?,
+            Rule::Fraction if (0.0..=1.0).contains(&value) => value,
+            Rule::Fraction => {
+                return Err(check.err(
+                    &full,
+                    format!("{value} is not valid: expected a share from 0 to 1"),
+                ))
+            }
         };
     }
     let params = ActuatorParams::from_config_units(kind, &values[..keys.len()]);

@@ -75,7 +75,8 @@ pub(super) fn parse_compensation(
             format!(
                 "{} is not valid: expected at most max_delay_us = {} us",
                 c.initial_delay_us,
-                max_delay_s * 1e6
+                // As the key was written (the seconds' rounding left out).
+                (max_delay_s * 1e6 * 1e6).round() / 1e6
             ),
         ));
     }

@@ -16,6 +16,8 @@ pub enum ActuatorKind {
 pub enum Rule {
     Positive,
     NonNegative,
+    /// A share, 0 to 1.
+    Fraction,
 }
 
 /// One parameter key of a kind, as written in `[rig.actuator]`.
@@ -73,7 +75,7 @@ const SERVO_HYDRAULIC_KEYS: [ParamKey; 10] = [
     ParamKey {
         physical: false,
         default: Some(1.0),
-        ..key("velocity_compensation", 1.0, Rule::NonNegative)
+        ..key("velocity_compensation", 1.0, Rule::Fraction)
     },
 ];
 
