@@ -37,6 +37,20 @@ pub(super) fn not_clean_because(
                     error * 100.0
                 ));
             }
+            // A long run is judged by its worst stretch too: quiet ones dilute the rest.
+            if let Some(w) = a.fidelity.dynamic_worst_window {
+                if w.rel_rms > cfg.safety.max_dynamic_displacement_error {
+                    why.push(format!(
+                        "dynamic displacement error {:.3} % over the {:.0} s from {:.1} s > [safety] max_dynamic_displacement_error = {:.3} % (the worst {:.0} s stretch; over the whole run {:.3} %)",
+                        w.rel_rms * 100.0,
+                        w.window_s,
+                        w.from_s,
+                        cfg.safety.max_dynamic_displacement_error * 100.0,
+                        w.window_s,
+                        dynamic * 100.0
+                    ));
+                }
+            }
             if a.loop_energy.not_passive() {
                 why.push(a.loop_energy.describe());
             }
@@ -272,7 +286,7 @@ pub(super) fn summarise(
             ),
         };
         eprintln!(
-            "hil: {} steps, {deadline_misses} emulator deadline misses ({:.1e}; {rig_timing}), {} stalls ridden through (longest {:.1} ms{}), largest transient {:.2} um of {:.1} um allowed ({:.2} um after a stall, {:.2} um above the residual before it), displacement rel. RMS error {:.3} % (dynamic, means removed: {:.3} %), stable {}, end-to-end p50 {} us p99 {} us",
+            "hil: {} steps, {deadline_misses} emulator deadline misses ({:.1e}; {rig_timing}), {} stalls ridden through (longest {:.1} ms{}), largest transient {:.2} um of {:.1} um allowed ({:.2} um after a stall, {:.2} um above the residual before it), displacement rel. RMS error {:.3} % (dynamic, means removed: {:.3} %{}), stable {}, end-to-end p50 {} us p99 {} us",
             a.steps,
             deadline_misses as f64 / a.steps.max(1) as f64,
             a.stalls.count,
@@ -291,6 +305,12 @@ pub(super) fn summarise(
             a.stalls.largest_rise_m.max(0.0) * 1e6,
             a.fidelity.displacement_rel_rms * 100.0,
             a.fidelity.displacement_dynamic_rel_rms * 100.0,
+            a.fidelity.dynamic_worst_window.map_or(String::new(), |w| format!(
+                "; the worst {:.0} s, from {:.1} s: {:.3} %",
+                w.window_s,
+                w.from_s,
+                w.rel_rms * 100.0
+            )),
             // As summary.json's `stable`: a fault makes a run not stable, whatever the
             // residual before it showed (`stability.stable`).
             match (summary["stable"] == true, a.stability.stable) {
