@@ -30,6 +30,27 @@ pub fn describe(text: &str, e: &toml::de::Error) -> String {
     if let Some(guess) = closest_known_field(&message) {
         out.push_str(&format!(" (did you mean `{guess}`?)"));
     }
+    // The table the error is in: the line itself when it is a header.
+    let header = table.map(|t| t.trim_matches(['[', ']']));
+    if message.starts_with("invalid type: map, expected a sequence")
+        && line.starts_with('[')
+        && !line.starts_with("[[")
+    {
+        out.push_str(&format!(
+            " (a list of tables: write `[[{}]]`, one per entry)",
+            line.trim_matches(['[', ']'])
+        ));
+    } else if let (Some(field), Some(t)) = (
+        message
+            .strip_prefix("missing field `")
+            .and_then(|r| r.split_once('`'))
+            .map(|(f, _)| f),
+        header,
+    ) {
+        out.push_str(&format!(
+            " (add `{field}` to [{t}]: `{field} = ...`, or its own table `[{t}.{field}]` when it is one)"
+        ));
+    }
     out
 }
 
@@ -119,6 +140,40 @@ mod tests {
         let e = error_of("[loop]\nrate_hz = \"fast\"\nspin_us = 1.0\n");
         assert!(
             e.starts_with("at line 2 in [loop] (`rate_hz = \"fast\"`): invalid type"),
+            "{e}"
+        );
+    }
+
+    #[derive(serde::Deserialize, Debug)]
+    #[allow(dead_code)]
+    struct Lists {
+        rig: Rig,
+        #[serde(default)]
+        inject: Vec<Loop>,
+    }
+    #[derive(serde::Deserialize, Debug)]
+    #[allow(dead_code)]
+    struct Rig {
+        seed: u64,
+        actuator: Loop,
+    }
+
+    /// A table written for a list of tables, and a missing table, say what to write.
+    #[test]
+    fn a_list_written_as_a_table_and_a_missing_table_say_what_to_write() {
+        let of = |text: &str| describe(text, &toml::from_str::<Lists>(text).unwrap_err());
+        let e = of("[rig]\nseed = 1\n[rig.actuator]\nrate_hz = 1.0\nspin_us = 1.0\n[inject]\nrate_hz = 1.0\nspin_us = 1.0\n");
+        assert!(
+            e.starts_with("at line 6 (`[inject]`): invalid type: map, expected a sequence")
+                && e.ends_with("(a list of tables: write `[[inject]]`, one per entry)"),
+            "{e}"
+        );
+        let e = of("[rig]\nseed = 1\n");
+        assert!(
+            e.contains("missing field `actuator`")
+                && e.ends_with(
+                    "(add `actuator` to [rig]: a key `actuator = ...` or a table `[rig.actuator]`)"
+                ),
             "{e}"
         );
     }
