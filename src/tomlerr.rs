@@ -172,7 +172,7 @@ mod tests {
         assert!(
             e.contains("missing field `actuator`")
                 && e.ends_with(
-                    "(add `actuator` to [rig]: a key `actuator = ...` or a table `[rig.actuator]`)"
+                    "(add `actuator` to [rig]: `actuator = ...`, or its own table `[rig.actuator]` when it is one)"
                 ),
             "{e}"
         );
