@@ -18,3 +18,4 @@ pub mod rig;
 pub mod rt;
 pub mod tomlerr;
 pub mod track;
+pub mod utc;
