@@ -730,7 +730,7 @@ pub fn run_processes(
                             eprintln!("hil: t = {elapsed_s:.1} s (fault: holding)");
                         } else {
                             eprintln!(
-                                "hil: t = {elapsed_s:.1} s (fault indicated; the rig is not holding)"
+                                "hil: t = {elapsed_s:.1} s (fault; the rig has not reported a hold: an \"indicate\" action leaves it running)"
                             );
                         }
                     } else {
