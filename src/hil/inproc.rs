@@ -200,6 +200,15 @@ impl InProcessRun {
                 .copied()
                 .collect();
             let _events = write_all(&mut builder, &events);
+            // The rig records its actuator's truth once, as `rig::process` does (the
+            // same configuration draws the same truth).
+            let _truth = (process == "rig").then(|| {
+                let (truth, params) = crate::rig::core::RigCore::new(cfg).actuator_truth(cfg);
+                (
+                    write_all(&mut builder, &[truth]),
+                    write_all(&mut builder, &params),
+                )
+            });
             let (_rig, _emulator, _controller) = match process {
                 "rig" => (Some(write_all(&mut builder, &self.rig)), None, None),
                 "emulator" => (None, Some(write_all(&mut builder, &self.emulator)), None),

@@ -171,6 +171,89 @@ fn a_lead_100_us_short_without_adaptation_or_guard_trips_loop_unstable_and_holds
         .any(|r| r.guard_damping_ns_per_m > 0.0));
 }
 
+/// After a `loop-unstable` trip the report judges the lead at the trip against the leads
+/// that hold the linearised loop in front of the rig's recorded actuator
+/// (`check::after_trip`), at the preload and at the programme's loads. The limit
+/// cycle (lead 100 us short, nothing adapting): the leads exist and hold 252 us, the lead
+/// at the trip (152 us) is outside them. A `lag-delay` actuator of 738 + 552 us that
+/// nothing declares, from the shipped guess: it trips, and the report says that no lead
+/// holds it at every load of the programme (the leads at the preload alone, 1190-1350 us
+/// by `hil --check`, do not hold the axles' 72 kN).
+#[test]
+fn a_trips_report_says_whether_any_lead_would_have_held_the_loop() {
+    use fastemu::hil::check::after_trip::{JudgedActuator, LeadVerdict};
+    const DEFAULT: &str = include_str!("../../configs/hil-default.toml");
+    let slow = DEFAULT
+        .replace(
+            "transport_delay_us = 50.0\n",
+            "transport_delay_us = 738.8\n",
+        )
+        .replace("lag_us = 80.0\n", "lag_us = 551.8\n")
+        .replace("plan_from_actuator = true", "plan_from_actuator = false");
+    assert_ne!(slow, DEFAULT);
+    let short = DEFAULT
+        .replace("initial_delay_us = 252.0", "initial_delay_us = 152.0")
+        .replace("adapt = true", "adapt = false")
+        .replace("passivity_guard = true", "passivity_guard = false");
+    for (name, text) in [("short", short), ("slow", slow)] {
+        let cfg = fastemu::hil::config::parse_hil_config(&text, "trip.toml", None).unwrap();
+        let run = run_in_process(&cfg, &script(4.0));
+        let dir = crate::common::TempDir::new(&format!("after-trip-{name}"));
+        run.write_records(&dir.path, &cfg, &text).unwrap();
+        let analysis = fastemu::hil::report::analyse_run(&cfg, &dir.path).unwrap();
+        let trip = analysis
+            .safety
+            .faults
+            .iter()
+            .find(|f| f.fault == "loop-unstable")
+            .unwrap_or_else(|| panic!("{name}: no loop-unstable: {:?}", faults(&run)));
+        let judged = trip.leads_after_trip.as_ref().expect("judged");
+        assert_eq!(judged.judged, JudgedActuator::RecordedTruth, "{name}");
+        // The lead at the trip is the last one the controller sent in force control.
+        let last_law = law_commands(&run)
+            .iter()
+            .rev()
+            .find(|r| r.t_s <= trip.detected_at_s)
+            .map(|r| r.lead_s)
+            .unwrap();
+        assert!(
+            (judged.lead_at_trip_us - last_law * 1e6).abs() < 1.0,
+            "{name}: {} vs {}",
+            judged.lead_at_trip_us,
+            last_law * 1e6
+        );
+        match name {
+            "short" => {
+                assert_eq!(judged.verdict, LeadVerdict::LeadOutside, "{judged:?}");
+                let (a, b) = judged.leads[0].at_every_load_us.unwrap();
+                assert!(a > 152.0 && a <= 252.0 && b >= 252.0, "{a}-{b}");
+            }
+            _ => {
+                assert!(
+                    matches!(judged.verdict, LeadVerdict::NoLeadAtEveryLoad),
+                    "{judged:?}"
+                );
+                let (a, b) = judged.leads[0].at_preload_us.unwrap();
+                assert!(
+                    (1100.0..1300.0).contains(&a) && (1300.0..1450.0).contains(&b),
+                    "{a}-{b}"
+                );
+                assert!(
+                    (judged.effective_delay_us - 1412.0).abs() < 10.0,
+                    "{judged:?}"
+                );
+            }
+        }
+        // The other processes' faults are not judged again.
+        assert!(analysis
+            .safety
+            .faults
+            .iter()
+            .filter(|f| f.fault != "loop-unstable")
+            .all(|f| f.leads_after_trip.is_none()));
+    }
+}
+
 /// The run's law commands and how many of the first were sent with the guard armed (the
 /// safe start).
 fn safe_start(run: &InProcessRun) -> (Vec<&fastemu::hil::controller::ControllerRecord>, usize) {

@@ -365,6 +365,9 @@ pub(super) fn summarise(
             if let Some(seen) = &f.instability {
                 eprintln!("hil:   it tripped on {}", seen.describe());
             }
+            if let Some(l) = &f.leads_after_trip {
+                eprintln!("hil:   {}", l.describe());
+            }
         }
         if let Some(note) = &a.safety.hold_not_recorded {
             eprintln!("hil: {note}");
@@ -449,6 +452,7 @@ mod tests {
             time_to_rest_s: None,
             already_held_since_s: None,
             instability: None,
+            leads_after_trip: None,
         };
         let records = [
             dated("emulator", "emulator-stalled", 2.4),

@@ -4,7 +4,8 @@
 //! compensation (the rig's prediction over the lead, the zero-order hold, the identified
 //! gain); the refusals (no stable lead, an actuator that cannot hold the programme's
 //! peak) and the prediction's order. `linear_loop` is the loop, `plan` the plan from the
-//! declared actuator, `start` how a run starts.
+//! declared actuator, `start` how a run starts, `after_trip` the report's judgement of a
+//! `loop-unstable` trip.
 //!
 //! Must not: run anything or touch the loop (pure numbers and one plot).
 
@@ -21,6 +22,7 @@ use crate::plot::{draw_png, Panel, Series};
 use crate::rig::actuator::ActuatorPlant;
 use crate::rig::servo::lead_weights;
 
+pub mod after_trip;
 mod linear_loop;
 mod plan;
 mod start;

@@ -2,7 +2,9 @@
 
 use serde::Serialize;
 
-use crate::rig::actuator::{ActuatorKind, ActuatorParamRecord, ActuatorTruthRecord, PRESETS};
+use crate::rig::actuator::{
+    ActuatorKind, ActuatorParamRecord, ActuatorParams, ActuatorPlant, ActuatorTruthRecord, PRESETS,
+};
 
 /// One actuator parameter, in its key's unit.
 #[derive(Debug, Clone, Serialize, PartialEq)]
@@ -74,6 +76,24 @@ impl ActuatorTruth {
                 })
                 .collect(),
         })
+    }
+
+    /// The recorded actuator as a plant (its truth, its controller tuned on the nominal),
+    /// for the report's linearised judgements; `None` when a parameter is missing.
+    pub fn plant(&self) -> Option<ActuatorPlant> {
+        let kind = ActuatorKind::from_name(&self.kind)?;
+        let values = |nominal: bool| -> Option<Vec<f64>> {
+            kind.keys()
+                .iter()
+                .map(|k| {
+                    let p = self.parameters.iter().find(|p| p.key == k.name)?;
+                    Some(if nominal { p.nominal } else { p.truth })
+                })
+                .collect()
+        };
+        let truth = ActuatorParams::from_config_units(kind, &values(false)?);
+        let nominal = ActuatorParams::from_config_units(kind, &values(true)?);
+        Some(ActuatorPlant::new(&truth, &nominal))
     }
 
     /// One line for the summary.

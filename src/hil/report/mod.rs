@@ -616,6 +616,22 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
         end_s,
         completed,
     };
+    let actuator_truth = actuator::ActuatorTruth::from_records(
+        side.actuator_truth.as_ref(),
+        &side.actuator_params,
+        cfg.loop_.dt_s(),
+    );
+    let mut safety = if side.rig_records > 0 {
+        rig.safety
+    } else {
+        external_rig_named(rig.safety)
+    };
+    attach_leads_after_trip(
+        cfg,
+        &mut safety,
+        actuator_truth.as_ref(),
+        &compensation_report,
+    );
     Ok(Analysis {
         programme,
         steps: side.emulator_steps,
@@ -624,11 +640,7 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
         largest_transient_m: stability.resonant_residual_max_m,
         stability,
         latency_ns,
-        safety: if side.rig_records > 0 {
-            rig.safety
-        } else {
-            external_rig_named(rig.safety)
-        },
+        safety,
         stalls: rig.stalls,
         loop_energy: rig.loop_energy,
         compensation: compensation_report,
@@ -654,13 +666,52 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
             RIG_VIEW_EXTERNAL
         }
         .to_string(),
-        actuator_truth: actuator::ActuatorTruth::from_records(
-            side.actuator_truth.as_ref(),
-            &side.actuator_params,
-            cfg.loop_.dt_s(),
-        ),
+        actuator_truth,
         element_thermal,
     })
+}
+
+/// For each `loop-unstable` trip in law mode, whether any lead would have held the
+/// linearised loop (`check::after_trip`): in front of the rig's recorded actuator when it
+/// recorded one, else of delay-and-lag actuators of the identified delay (none when
+/// nothing was identified).
+fn attach_leads_after_trip(
+    cfg: &HilConfig,
+    safety: &mut safety::Safety,
+    truth: Option<&actuator::ActuatorTruth>,
+    compensation: &compensation::CompensationReport,
+) {
+    use crate::hil::check::after_trip;
+    if cfg.controller.command_mode != crate::hil::config::CommandMode::Law {
+        return;
+    }
+    let lead_s = compensation.final_lead_us * 1e-6;
+    let mut judged = None;
+    for f in safety
+        .faults
+        .iter_mut()
+        .filter(|f| f.fault == "loop-unstable")
+    {
+        if judged.is_none() {
+            judged = match (
+                truth.and_then(|t| t.plant().map(|p| (t, p))),
+                compensation.identified_delay_us,
+            ) {
+                (Some((t, plant)), _) => Some(after_trip::leads_after_trip_truth(
+                    cfg,
+                    &plant,
+                    t.effective_delay_s,
+                    lead_s,
+                    compensation.final_gain,
+                )),
+                (None, Some(d)) if d.is_finite() && d > 0.0 => Some(
+                    after_trip::leads_after_trip_identified(cfg, d * 1e-6, lead_s),
+                ),
+                _ => None,
+            };
+        }
+        f.leads_after_trip = judged.clone();
+    }
 }
 
 /// `element.png`: the element's temperature rise and the modulus it leaves.

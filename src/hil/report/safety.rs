@@ -41,6 +41,9 @@ pub struct FaultReport {
     pub already_held_since_s: Option<f64>,
     /// For `loop-unstable`: what the emulator's stability monitor saw before the trip.
     pub instability: Option<InstabilitySeen>,
+    /// For `loop-unstable` in law mode: whether any lead would have held the linearised
+    /// loop in front of the actuator the run met (`check::after_trip`).
+    pub leads_after_trip: Option<crate::hil::check::after_trip::LeadsAfterTrip>,
 }
 
 /// What the stability monitor saw in the window before a `loop-unstable` trip (from the
@@ -340,6 +343,7 @@ impl SafetyTracker {
                         time_to_rest_s: None,
                         already_held_since_s: None,
                         instability: None,
+                        leads_after_trip: None,
                     },
                     seen: false,
                     after_min: f64::INFINITY,
@@ -673,6 +677,7 @@ mod tests {
                 time_to_rest_s: None,
                 already_held_since_s: None,
                 instability: None,
+                leads_after_trip: None,
             }],
             ..Safety::default()
         };

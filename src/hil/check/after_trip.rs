@@ -1,0 +1,297 @@
+//! After a `loop-unstable` trip: whether any lead would have held the linearised loop in
+//! front of the actuator the run met (the simulated rig's recorded truth, or, for a rig of
+//! its own, delay-and-lag actuators of the identified delay), at the preload and at every
+//! load of the programme. Must not: run anything or touch the loop (offline, for the report).
+
+use serde::Serialize;
+
+use super::*;
+
+/// What the judged actuator was.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum JudgedActuator {
+    /// The simulated rig's actuator as it recorded it (`/rig/actuator`, its drawn truth).
+    RecordedTruth,
+    /// A rig of its own: actuators whose effective delay is the identified one, a pure
+    /// delay and lags of a quarter and a half of it (`DAMPING_REPRESENTATIVE_LAGS`).
+    IdentifiedDelay,
+}
+
+/// Where the lead at the trip stood against the leads that hold the loop.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LeadVerdict {
+    /// No lead holds the loop even at the preload: the actuator is too slow for this
+    /// specimen (SPEC 6.1), whatever the compensation learns.
+    NoLead,
+    /// Some leads hold it at the preload, none at every load of the programme (the element
+    /// stiffens under an axle's load): too slow an actuator for this programme; the lead at
+    /// the trip was inside the preload's leads or not (`lead_stable_at_preload`).
+    NoLeadAtEveryLoad,
+    /// Some leads hold it at every load, and the lead at the trip was not among them: the
+    /// adaptation did not find them.
+    LeadOutside,
+    /// The lead at the trip was among them: the linearised loop was stable there, so a
+    /// transient (the start's ring, a stall, the guard's damping) tripped it.
+    LeadInside,
+}
+
+/// One judged actuator's stable leads, us (10 us steps, first and last of the range;
+/// `None`: no lead is stable).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct JudgedLeads {
+    /// The share of its effective delay that is a first-order lag (the recorded truth:
+    /// `None`, it is what the rig recorded).
+    pub lag_share: Option<f64>,
+    pub at_preload_us: Option<(f64, f64)>,
+    pub at_every_load_us: Option<(f64, f64)>,
+}
+
+/// The report's answer (`FaultReport::leads_after_trip`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LeadsAfterTrip {
+    pub judged: JudgedActuator,
+    /// The judged actuator's effective delay over 1-20 Hz, hold included, us.
+    pub effective_delay_us: f64,
+    /// The lead sent last before the trip, us.
+    pub lead_at_trip_us: f64,
+    /// The programme's loads judged besides the preload, N (`programme_loads_n`).
+    pub other_loads_n: Vec<f64>,
+    pub leads: Vec<JudgedLeads>,
+    /// Whether the lead at the trip is among some judged actuator's leads stable at the
+    /// preload.
+    pub lead_stable_at_preload: bool,
+    pub verdict: LeadVerdict,
+}
+
+/// `stable_leads` and `stable_leads_over_programme` of `l` up to `max_lead_s`, us.
+fn judged(l: &LinearLoop, lag_share: Option<f64>, max_lead_s: f64) -> JudgedLeads {
+    let us = |r: Option<(f64, f64)>| r.map(|(a, b)| (a * 1e6, b * 1e6));
+    JudgedLeads {
+        lag_share,
+        at_preload_us: us(l.stable_leads(max_lead_s)),
+        at_every_load_us: us(l.stable_leads_over_programme(max_lead_s)),
+    }
+}
+
+/// Whether `lead_us` lies in any of `ranges` (to half a step).
+fn within(ranges: impl Iterator<Item = (f64, f64)>, lead_us: f64) -> bool {
+    let half = 0.5 * LEAD_STEP_S * 1e6;
+    ranges
+        .into_iter()
+        .any(|(a, b)| lead_us >= a - half && lead_us <= b + half)
+}
+
+/// The verdict on `leads` for a lead of `lead_us` (`LeadVerdict`), and whether that lead
+/// is stable at the preload.
+fn verdict(leads: &[JudgedLeads], lead_us: f64) -> (LeadVerdict, bool) {
+    let at_preload = within(leads.iter().filter_map(|j| j.at_preload_us), lead_us);
+    let every: Vec<(f64, f64)> = leads.iter().filter_map(|j| j.at_every_load_us).collect();
+    let v = if !every.is_empty() {
+        if within(every.into_iter(), lead_us) {
+            LeadVerdict::LeadInside
+        } else {
+            LeadVerdict::LeadOutside
+        }
+    } else if leads.iter().any(|j| j.at_preload_us.is_some()) {
+        LeadVerdict::NoLeadAtEveryLoad
+    } else {
+        LeadVerdict::NoLead
+    };
+    (v, at_preload)
+}
+
+/// The simulated rig's recorded actuator `plant` (its truth) after a trip at `lead_s`,
+/// with the gain `gain` in effect.
+pub fn leads_after_trip_truth(
+    cfg: &HilConfig,
+    plant: &ActuatorPlant,
+    effective_delay_s: f64,
+    lead_s: f64,
+    gain: f64,
+) -> LeadsAfterTrip {
+    let l = LinearLoop::for_plant(cfg, plant, lead_s, gain).with_programme_loads(cfg);
+    let leads = vec![judged(&l, None, cfg.compensation.max_delay_s)];
+    let (v, lead_stable_at_preload) = verdict(&leads, lead_s * 1e6);
+    LeadsAfterTrip {
+        judged: JudgedActuator::RecordedTruth,
+        effective_delay_us: effective_delay_s * 1e6,
+        lead_at_trip_us: lead_s * 1e6,
+        other_loads_n: l.other_loads_n(),
+        verdict: v,
+        lead_stable_at_preload,
+        leads,
+    }
+}
+
+/// A rig of its own after a trip at `lead_s`: delay-and-lag actuators whose effective
+/// delay (hold included) is `identified_delay_s`.
+pub fn leads_after_trip_identified(
+    cfg: &HilConfig,
+    identified_delay_s: f64,
+    lead_s: f64,
+) -> LeadsAfterTrip {
+    let effective = (identified_delay_s - 0.5 * cfg.loop_.dt_s()).max(0.0);
+    let one = |_: f64| (Complex64::new(1.0, 0.0), Complex64::new(0.0, 0.0));
+    let mut l = LinearLoop::new(cfg, one, lead_s, 1.0).with_programme_loads(cfg);
+    let leads = DAMPING_REPRESENTATIVE_LAGS
+        .iter()
+        .map(|&share| {
+            let (tau, lag) = (effective * (1.0 - share), effective * share);
+            l.set_actuator(move |w| {
+                (
+                    Complex64::from_polar(1.0, -w * tau) / Complex64::new(1.0, w * lag),
+                    Complex64::new(0.0, 0.0),
+                )
+            });
+            judged(&l, Some(share), cfg.compensation.max_delay_s)
+        })
+        .collect::<Vec<_>>();
+    let (v, lead_stable_at_preload) = verdict(&leads, lead_s * 1e6);
+    LeadsAfterTrip {
+        judged: JudgedActuator::IdentifiedDelay,
+        effective_delay_us: identified_delay_s * 1e6,
+        lead_at_trip_us: lead_s * 1e6,
+        other_loads_n: l.other_loads_n(),
+        verdict: v,
+        lead_stable_at_preload,
+        leads,
+    }
+}
+
+impl LeadsAfterTrip {
+    /// One clause for the console, after the fault's line.
+    pub fn describe(&self) -> String {
+        let range = |r: Option<(f64, f64)>| {
+            r.map_or("none".to_string(), |(a, b)| format!("{a:.0}-{b:.0} us"))
+        };
+        let loads = self
+            .other_loads_n
+            .iter()
+            .map(|l| format!("{:.1}", l / 1e3))
+            .collect::<Vec<_>>()
+            .join(" and ");
+        let whom = match self.judged {
+            JudgedActuator::RecordedTruth => format!(
+                "the rig's recorded actuator ({:.0} us effective delay) is stable with leads {} at the preload and {} at its loads {} kN too",
+                self.effective_delay_us,
+                range(self.leads[0].at_preload_us),
+                range(self.leads[0].at_every_load_us),
+                loads
+            ),
+            JudgedActuator::IdentifiedDelay => format!(
+                "an actuator of the identified delay ({:.0} us), if it is a delay and a lag (a servo-hydraulic force loop is not: its stable leads lie above its identified delay), is stable at the preload and at the programme's loads {} kN with leads {}",
+                self.effective_delay_us,
+                loads,
+                self.leads
+                    .iter()
+                    .map(|j| format!(
+                        "{} ({})",
+                        range(j.at_every_load_us),
+                        match j.lag_share {
+                            Some(s) if s > 0.0 => format!("{:.0} % of it a lag", s * 100.0),
+                            _ => "a pure delay".to_string(),
+                        }
+                    ))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        };
+        let what = match self.verdict {
+            LeadVerdict::NoLead => format!(
+                "no lead holds the loop even at the preload: the actuator is too slow for this specimen's resonance (SPEC 6.1), whatever the compensation learns (the lead at the trip was {:.0} us); a faster actuator is what helps",
+                self.lead_at_trip_us
+            ),
+            LeadVerdict::NoLeadAtEveryLoad => format!(
+                "no lead holds the loop at every load of the programme (the element stiffens under the load): the actuator is too slow for this specimen under this programme (SPEC 6.1), whatever the compensation learns; the lead at the trip, {:.0} us, {}; a faster actuator, or a lighter programme, is what helps",
+                self.lead_at_trip_us,
+                if self.lead_stable_at_preload {
+                    "was among the preload's stable leads: a load beyond the preload's tripped it"
+                } else {
+                    "was outside even the preload's stable leads: the adaptation had not found them"
+                }
+            ),
+            LeadVerdict::LeadOutside => format!(
+                "the lead at the trip, {:.0} us, was outside them: the adaptation did not find them (declare the actuator, [compensation] plan_from_actuator, and see fastemu hil --check)",
+                self.lead_at_trip_us
+            ),
+            LeadVerdict::LeadInside => format!(
+                "the lead at the trip, {:.0} us, was inside them: the linearised loop was stable there, so a transient tripped it (the start's ring, a stall, the guard's damping), not the lead",
+                self.lead_at_trip_us
+            ),
+        };
+        format!("could a lead have held it? {whom}; {what}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::hil::config::default_hil_config;
+    use crate::rig::actuator::{ActuatorKind, ActuatorParams};
+
+    fn lag_delay_plant(tau_us: f64, lag_us: f64) -> ActuatorPlant {
+        let p = ActuatorParams::from_config_units(ActuatorKind::LagDelay, &[tau_us, 150e3, lag_us]);
+        ActuatorPlant::new(&p, &p)
+    }
+
+    /// The shipped actuator (50 + 80 us, 252 us with the hold): a lead 100 us short is
+    /// outside its stable leads (the limit cycle), the matched lead inside. An
+    /// actuator of 738 + 552 us (1412 us) is stable at the preload with leads of about
+    /// 1.2-1.35 ms and with none at the programme's peak load (`hil --check` says the same);
+    /// 1 ms + 1 ms with none at all. For a rig of its own the identified delay's
+    /// representatives differ by their lag: at 1412 us a pure delay has no stable lead, a
+    /// lag of half of it 1170-1360 us at every load.
+    #[test]
+    fn a_trip_is_judged_against_the_leads_that_hold_the_loop() {
+        let cfg = default_hil_config().unwrap();
+        let shipped = lag_delay_plant(50.0, 80.0);
+        let short = leads_after_trip_truth(&cfg, &shipped, 252e-6, 152e-6, 1.0);
+        assert_eq!(short.verdict, LeadVerdict::LeadOutside, "{short:?}");
+        let (a, b) = short.leads[0].at_every_load_us.unwrap();
+        assert!(a > 152.0 && a < 252.0 && b > 252.0, "{a}-{b}");
+        assert!(!short.lead_stable_at_preload);
+        let matched = leads_after_trip_truth(&cfg, &shipped, 252e-6, 252e-6, 1.0);
+        assert_eq!(matched.verdict, LeadVerdict::LeadInside);
+        assert!(matched.lead_stable_at_preload);
+        assert_eq!(matched.other_loads_n.len(), 2);
+
+        let slow = lag_delay_plant(738.8, 551.8);
+        let t = leads_after_trip_truth(&cfg, &slow, 1412e-6, 1401e-6, 1.0);
+        assert_eq!(t.verdict, LeadVerdict::NoLeadAtEveryLoad, "{t:?}");
+        assert!(!t.lead_stable_at_preload);
+        let (a, b) = t.leads[0].at_preload_us.unwrap();
+        assert!(
+            (1150.0..1250.0).contains(&a) && (1300.0..1400.0).contains(&b),
+            "{a}-{b}"
+        );
+        assert!(
+            t.describe()
+                .contains("outside even the preload's stable leads"),
+            "{}",
+            t.describe()
+        );
+        let inside = leads_after_trip_truth(&cfg, &slow, 1412e-6, 1250e-6, 1.0);
+        assert!(inside.lead_stable_at_preload, "{inside:?}");
+        assert_eq!(inside.verdict, LeadVerdict::NoLeadAtEveryLoad);
+        let slower = lag_delay_plant(1000.0, 1000.0);
+        let none = leads_after_trip_truth(&cfg, &slower, 2122e-6, 2100e-6, 1.0);
+        assert_eq!(none.verdict, LeadVerdict::NoLead, "{none:?}");
+
+        let id = leads_after_trip_identified(&cfg, 1412e-6, 1401e-6);
+        assert_eq!(id.leads.len(), DAMPING_REPRESENTATIVE_LAGS.len());
+        assert_eq!(id.leads[0].at_preload_us, None, "{id:?}");
+        let (a, b) = id.leads[2].at_every_load_us.expect("half a lag holds");
+        assert!(a > 1100.0 && b < 1401.0, "{a}-{b}");
+        assert_eq!(id.verdict, LeadVerdict::LeadOutside, "{id:?}");
+        assert!(
+            id.describe().contains("if it is a delay and a lag"),
+            "{}",
+            id.describe()
+        );
+        // The shipped actuator's identified delay: its pure delay holds the matched lead.
+        let fast = leads_after_trip_identified(&cfg, 252e-6, 252e-6);
+        assert_eq!(fast.verdict, LeadVerdict::LeadInside, "{fast:?}");
+    }
+}
