@@ -1,4 +1,4 @@
-//! After a `loop-unstable` trip: whether any lead would have held the linearised loop in
+//! After a `loop-unstable` (or `displacement-out-of-range`) trip: whether any lead would have held the linearised loop in
 //! front of the actuator the run met (the simulated rig's recorded truth, or, for a rig of
 //! its own, delay-and-lag actuators of the identified delay), at the preload and at every
 //! load of the programme. Must not: run anything or touch the loop (offline, for the report).
@@ -217,7 +217,7 @@ impl LeadsAfterTrip {
                 self.lead_at_trip_us
             ),
             LeadVerdict::LeadInside => format!(
-                "the lead at the trip, {:.0} us, was inside them: the linearised loop was stable there, so a transient tripped it (the start's ring, a stall, the guard's damping), not the lead",
+                "the lead at the trip, {:.0} us, was inside them: the linearised loop was stable there, so a transient tripped it (the start's ring, a stall, the guard's damping, a load beyond the range), not the lead",
                 self.lead_at_trip_us
             ),
         };

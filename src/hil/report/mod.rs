@@ -671,7 +671,9 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
     })
 }
 
-/// For each `loop-unstable` trip in law mode, whether any lead would have held the
+/// For each `loop-unstable` or `displacement-out-of-range` trip in law mode (a loop that
+/// diverges slowly leaves the range before the monitor's band sees it), whether any lead
+/// would have held the
 /// linearised loop (`check::after_trip`): in front of the rig's recorded actuator when it
 /// recorded one, else of delay-and-lag actuators of the identified delay (none when
 /// nothing was identified).
@@ -690,7 +692,7 @@ fn attach_leads_after_trip(
     for f in safety
         .faults
         .iter_mut()
-        .filter(|f| f.fault == "loop-unstable")
+        .filter(|f| f.fault == "loop-unstable" || f.fault == "displacement-out-of-range")
     {
         if judged.is_none() {
             judged = match (

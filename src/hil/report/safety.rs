@@ -41,8 +41,9 @@ pub struct FaultReport {
     pub already_held_since_s: Option<f64>,
     /// For `loop-unstable`: what the emulator's stability monitor saw before the trip.
     pub instability: Option<InstabilitySeen>,
-    /// For `loop-unstable` in law mode: whether any lead would have held the linearised
-    /// loop in front of the actuator the run met (`check::after_trip`).
+    /// For `loop-unstable` and `displacement-out-of-range` in law mode: whether any lead
+    /// would have held the linearised loop in front of the actuator the run met
+    /// (`check::after_trip`).
     pub leads_after_trip: Option<crate::hil::check::after_trip::LeadsAfterTrip>,
 }
 
