@@ -781,6 +781,22 @@ fn hil_check_json_says_where_the_specimen_starts_and_the_programmes_loads() {
             && stderr.contains("at this lead 40.0 kN s/m"),
         "{stderr}"
     );
+    // The slowest actuator some lead holds: beyond the leads' own 252 us and below the
+    // 1102 us of the next case (stable at the preload, not at the axles' peak) as a pure
+    // delay; a lag makes a slower one holdable.
+    let slowest = j["slowest_held_actuator"].as_array().unwrap();
+    assert_eq!(slowest.len(), 3, "{slowest:?}");
+    let limit = |i: usize| f(&slowest[i]["effective_delay_us"]);
+    assert_eq!(f(&slowest[0]["lag_share"]), 0.0);
+    assert!(
+        limit(0) > 252.0 && limit(0) < 1003.0 + 99.0 + 122.0,
+        "{slowest:?}"
+    );
+    assert!(limit(0) <= limit(1) && limit(1) <= limit(2), "{slowest:?}");
+    assert!(
+        stderr.contains(&format!("{:.0} us as a pure delay", limit(0))),
+        "{stderr}"
+    );
     assert!(out.join("check.png").exists());
 
     let edge = dir.write(

@@ -179,6 +179,9 @@ pub(super) fn run(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     let start_force_n =
         crate::rig::load::LoadProgramme::new(&cfg.programme, cfg.model.length_m).force_n(0.0);
     let start_m = cfg.model.element.static_displacement_m(start_force_n);
+    // How slow an actuator the specimen and programme allow at all (for a rig nothing
+    // declares, the limit the run's actuator must be within).
+    let slowest = crate::hil::check::after_trip::slowest_held_s(cfg, cfg.compensation.max_delay_s);
     if args.json {
         println!(
             "{}",
@@ -215,6 +218,10 @@ pub(super) fn run(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                 "actuator_amplitude_ratio": {"1_hz": amplitude_1, "20_hz": amplitude_20},
                 "actuator_velocity_force_share_20_hz": velocity_20,
                 "actuator": describe_actuator(cfg),
+                "slowest_held_actuator": slowest
+                    .iter()
+                    .map(|&(share, d)| json!({"lag_share": share, "effective_delay_us": d.map(|d| (d * 1e6).round())}))
+                    .collect::<Vec<_>>(),
                 "plan": plan,
                 "plot": plot.display().to_string(),
             }))?
@@ -356,6 +363,10 @@ pub(super) fn run(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
             }
         );
     }
+    eprintln!(
+        "  {}",
+        crate::hil::check::after_trip::describe_slowest_held(&slowest)
+    );
     if let Some(p) = &plan {
         eprintln!("  {}", crate::hil::check::describe_plan(p));
         if let Some(t) = &p.scan {

@@ -160,6 +160,93 @@ pub fn leads_after_trip_identified(
     }
 }
 
+/// The slowest delay-and-lag actuator (effective delay, hold included, s) that some lead
+/// holds at the preload and at every judged load of the programme, for each of
+/// `DAMPING_REPRESENTATIVE_LAGS`, to `SLOWEST_RESOLUTION_S` (`None`: not even
+/// `SLOWEST_FROM_S`; `max_delay_s` when that is held). For `hil --check`: a rig slower than
+/// this trips whatever the compensation learns. Assumes a slower actuator is never easier
+/// to hold (doubling, then bisection) and judges leads from 0.4 to 1.3 times the delay
+/// (and 0.2 ms more).
+pub fn slowest_held_s(cfg: &HilConfig, max_delay_s: f64) -> Vec<(f64, Option<f64>)> {
+    let one = |_: f64| (Complex64::new(1.0, 0.0), Complex64::new(0.0, 0.0));
+    let mut l = LinearLoop::new(cfg, one, 0.0, 1.0).with_programme_loads(cfg);
+    let hold = 0.5 * cfg.loop_.dt_s();
+    DAMPING_REPRESENTATIVE_LAGS
+        .iter()
+        .map(|&share| {
+            let mut held = |effective_s: f64| {
+                let own = (effective_s - hold).max(0.0);
+                let (tau, lag) = (own * (1.0 - share), own * share);
+                l.set_actuator(move |w| {
+                    (
+                        Complex64::from_polar(1.0, -w * tau) / Complex64::new(1.0, w * lag),
+                        Complex64::new(0.0, 0.0),
+                    )
+                });
+                // Leads from 0.4 of the delay to 1.3 of it and 0.2 ms more: a delay and a
+                // lag are held, if at all, a little under their effective delay (the lag's
+                // phase at the resonance is less than its delay), and a lead much longer
+                // fails at the band's top.
+                let from = (0.4 * effective_s / LEAD_STEP_S).floor() as usize;
+                let to =
+                    ((1.3 * effective_s + 0.2e-3).min(max_delay_s) / LEAD_STEP_S).ceil() as usize;
+                (from..=to).any(|i| {
+                    l.lead_s = i as f64 * LEAD_STEP_S;
+                    l.is_stable(0.0, 1.0) && l.unstable_loads_n().is_empty()
+                })
+            };
+            // Doubling from `SLOWEST_FROM_S` to the first delay not held, then bisection.
+            let mut lo = SLOWEST_FROM_S;
+            if !held(lo) {
+                return (share, None);
+            }
+            let mut hi = 2.0 * lo;
+            while held(hi) {
+                if hi >= max_delay_s {
+                    return (share, Some(max_delay_s));
+                }
+                lo = hi;
+                hi = (2.0 * hi).min(max_delay_s);
+            }
+            while hi - lo > SLOWEST_RESOLUTION_S {
+                let mid = 0.5 * (lo + hi);
+                if held(mid) {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            (share, Some(lo))
+        })
+        .collect()
+}
+
+/// `slowest_held_s`'s search: from this effective delay, to this resolution, s.
+const SLOWEST_FROM_S: f64 = 0.1e-3;
+const SLOWEST_RESOLUTION_S: f64 = 10e-6;
+
+/// `slowest_held_s` for the console.
+pub fn describe_slowest_held(slowest: &[(f64, Option<f64>)]) -> String {
+    let parts: Vec<String> = slowest
+        .iter()
+        .map(|&(share, d)| {
+            let what = if share > 0.0 {
+                format!("with {:.0} % of it a lag", share * 100.0)
+            } else {
+                "as a pure delay".to_string()
+            };
+            match d {
+                Some(d) => format!("{:.0} us {what}", d * 1e6),
+                None => format!("none {what}"),
+            }
+        })
+        .collect();
+    format!(
+        "the slowest actuator some lead holds at the preload and at the programme's loads (a delay and a lag; its effective delay, the hold's half period included): {} (a slower one trips loop-unstable or leaves the range whatever the compensation learns; a servo-hydraulic force loop is judged by its own response, above, not by these)",
+        parts.join(", ")
+    )
+}
+
 impl LeadsAfterTrip {
     /// One clause for the console, after the fault's line.
     pub fn describe(&self) -> String {
@@ -290,6 +377,26 @@ mod tests {
             "{}",
             id.describe()
         );
+        // The slowest actuators held: between the shipped one and the 1412 us that trips;
+        // a lag makes it easier; just below the limit some lead holds at every load, just
+        // above none does (the 1412 us representatives above agree: held only with half
+        // a lag).
+        let slowest = slowest_held_s(&cfg, cfg.compensation.max_delay_s);
+        assert_eq!(slowest.len(), DAMPING_REPRESENTATIVE_LAGS.len());
+        let limits: Vec<f64> = slowest.iter().map(|(_, d)| d.expect("held")).collect();
+        assert!(limits[0] > 252e-6 && limits[0] < 1412e-6, "{limits:?}");
+        assert!(limits[1] < 1412e-6 && limits[2] > 1412e-6, "{limits:?}");
+        assert!(
+            limits[0] <= limits[1] && limits[1] <= limits[2],
+            "{limits:?}"
+        );
+        let held_by_some_lead = |effective: f64| {
+            let j = leads_after_trip_identified(&cfg, effective, 0.0);
+            j.leads[0].at_every_load_us.is_some()
+        };
+        assert!(held_by_some_lead(limits[0] - 5e-6), "{limits:?}");
+        assert!(!held_by_some_lead(limits[0] + 30e-6), "{limits:?}");
+        assert!(describe_slowest_held(&slowest).contains("as a pure delay"));
         // The shipped actuator's identified delay: its pure delay holds the matched lead.
         let fast = leads_after_trip_identified(&cfg, 252e-6, 252e-6);
         assert_eq!(fast.verdict, LeadVerdict::LeadInside, "{fast:?}");
