@@ -202,7 +202,8 @@ impl InProcessRun {
             let _events = write_all(&mut builder, &events);
             // The rig records its actuator's truth once, as `rig::process` does (the
             // same configuration draws the same truth).
-            let _truth = (process == "rig").then(|| {
+            // (None when the run stands for an external rig: no rig records.)
+            let _truth = (process == "rig" && !self.rig.is_empty()).then(|| {
                 let (truth, params) = crate::rig::core::RigCore::new(cfg).actuator_truth(cfg);
                 (
                     write_all(&mut builder, &[truth]),

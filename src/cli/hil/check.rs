@@ -365,7 +365,10 @@ pub(super) fn run(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     }
     eprintln!(
         "  {}",
-        crate::hil::check::after_trip::describe_slowest_held(&slowest)
+        crate::hil::check::after_trip::describe_slowest_held(
+            &slowest,
+            cfg.compensation.max_delay_s
+        )
     );
     if let Some(p) = &plan {
         eprintln!("  {}", crate::hil::check::describe_plan(p));

@@ -113,7 +113,18 @@ pub fn leads_after_trip_truth(
 ) -> LeadsAfterTrip {
     let l = LinearLoop::for_plant(cfg, plant, lead_s, gain).with_programme_loads(cfg);
     let leads = vec![judged(&l, None, cfg.compensation.max_delay_s)];
-    let (v, lead_stable_at_preload) = verdict(&leads, lead_s * 1e6);
+    // The lead at the trip itself, not within the ranges' ends (a range may have gaps).
+    let at_preload = l.is_stable(0.0, 1.0);
+    let at_every_load = at_preload && l.unstable_loads_n().is_empty();
+    let (v, lead_stable_at_preload) = match verdict(&leads, lead_s * 1e6).0 {
+        LeadVerdict::LeadInside | LeadVerdict::LeadOutside if at_every_load => {
+            (LeadVerdict::LeadInside, at_preload)
+        }
+        LeadVerdict::LeadInside | LeadVerdict::LeadOutside => {
+            (LeadVerdict::LeadOutside, at_preload)
+        }
+        other => (other, at_preload),
+    };
     LeadsAfterTrip {
         judged: JudgedActuator::RecordedTruth,
         effective_delay_us: effective_delay_s * 1e6,
@@ -196,11 +207,14 @@ pub fn slowest_held_s(cfg: &HilConfig, max_delay_s: f64) -> Vec<(f64, Option<f64
                 })
             };
             // Doubling from `SLOWEST_FROM_S` to the first delay not held, then bisection.
-            let mut lo = SLOWEST_FROM_S;
+            let mut lo = SLOWEST_FROM_S.min(max_delay_s);
             if !held(lo) {
                 return (share, None);
             }
-            let mut hi = 2.0 * lo;
+            let mut hi = (2.0 * lo).min(max_delay_s);
+            if hi <= lo {
+                return (share, Some(max_delay_s));
+            }
             while held(hi) {
                 if hi >= max_delay_s {
                     return (share, Some(max_delay_s));
@@ -226,7 +240,7 @@ const SLOWEST_FROM_S: f64 = 0.1e-3;
 const SLOWEST_RESOLUTION_S: f64 = 10e-6;
 
 /// `slowest_held_s` for the console.
-pub fn describe_slowest_held(slowest: &[(f64, Option<f64>)]) -> String {
+pub fn describe_slowest_held(slowest: &[(f64, Option<f64>)], max_delay_s: f64) -> String {
     let parts: Vec<String> = slowest
         .iter()
         .map(|&(share, d)| {
@@ -236,7 +250,10 @@ pub fn describe_slowest_held(slowest: &[(f64, Option<f64>)]) -> String {
                 "as a pure delay".to_string()
             };
             match d {
-                Some(d) => format!("{:.0} us {what}", d * 1e6),
+                Some(d) if d >= max_delay_s => {
+                    format!("at least {:.0} us (max_delay_us) {what}", (d * 1e6).round())
+                }
+                Some(d) => format!("{:.0} us {what}", (d * 1e6).round()),
                 None => format!("none {what}"),
             }
         })
@@ -261,16 +278,27 @@ impl LeadsAfterTrip {
             .join(" and ");
         let whom = match self.judged {
             JudgedActuator::RecordedTruth => format!(
-                "the rig's recorded actuator ({:.0} us effective delay) is stable with leads {} at the preload and {} at its loads {} kN too",
+                "the rig's recorded actuator ({:.0} us effective delay) is stable with leads {} at the preload{}",
                 self.effective_delay_us,
                 range(self.leads[0].at_preload_us),
-                range(self.leads[0].at_every_load_us),
-                loads
+                if loads.is_empty() {
+                    String::new()
+                } else {
+                    format!(
+                        " and {} at the programme's loads {} kN too",
+                        range(self.leads[0].at_every_load_us),
+                        loads
+                    )
+                }
             ),
             JudgedActuator::IdentifiedDelay => format!(
-                "an actuator of the identified delay ({:.0} us), if it is a delay and a lag (a servo-hydraulic force loop is not: its stable leads lie above its identified delay), is stable at the preload and at the programme's loads {} kN with leads {}",
+                "an actuator of the identified delay ({:.0} us), if it is a delay and a lag (a servo-hydraulic force loop is not: its stable leads lie above its identified delay), is stable at the preload{} with leads {}",
                 self.effective_delay_us,
-                loads,
+                if loads.is_empty() {
+                    String::new()
+                } else {
+                    format!(" and at the programme's loads {loads} kN")
+                },
                 self.leads
                     .iter()
                     .map(|j| format!(
@@ -300,7 +328,7 @@ impl LeadsAfterTrip {
                 }
             ),
             LeadVerdict::LeadOutside => format!(
-                "the lead at the trip, {:.0} us, was outside them: the adaptation did not find them (declare the actuator, [compensation] plan_from_actuator, and see fastemu hil --check)",
+                "the lead at the trip, {:.0} us, was outside them: the compensation did not find them (fastemu hil --check shows them for a declared actuator; [compensation] plan_from_actuator plans a lead for the simulated rig's)",
                 self.lead_at_trip_us
             ),
             LeadVerdict::LeadInside => format!(
@@ -396,7 +424,10 @@ mod tests {
         };
         assert!(held_by_some_lead(limits[0] - 5e-6), "{limits:?}");
         assert!(!held_by_some_lead(limits[0] + 30e-6), "{limits:?}");
-        assert!(describe_slowest_held(&slowest).contains("as a pure delay"));
+        assert!(
+            describe_slowest_held(&slowest, cfg.compensation.max_delay_s)
+                .contains("as a pure delay")
+        );
         // The shipped actuator's identified delay: its pure delay holds the matched lead.
         let fast = leads_after_trip_identified(&cfg, 252e-6, 252e-6);
         assert_eq!(fast.verdict, LeadVerdict::LeadInside, "{fast:?}");

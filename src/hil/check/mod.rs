@@ -5,7 +5,8 @@
 //! gain); the refusals (no stable lead, an actuator that cannot hold the programme's
 //! peak) and the prediction's order. `linear_loop` is the loop, `plan` the plan from the
 //! declared actuator, `start` how a run starts, `after_trip` the report's judgement of a
-//! `loop-unstable` trip.
+//! `loop-unstable` or `displacement-out-of-range` trip, and the slowest actuator any lead
+//! holds.
 //!
 //! Must not: run anything or touch the loop (pure numbers and one plot).
 

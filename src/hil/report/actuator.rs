@@ -86,8 +86,11 @@ impl ActuatorTruth {
             kind.keys()
                 .iter()
                 .map(|k| {
-                    let p = self.parameters.iter().find(|p| p.key == k.name)?;
-                    Some(if nominal { p.nominal } else { p.truth })
+                    // A key older records lack takes its default, as a configuration does.
+                    match self.parameters.iter().find(|p| p.key == k.name) {
+                        Some(p) => Some(if nominal { p.nominal } else { p.truth }),
+                        None => k.default,
+                    }
                 })
                 .collect()
         };

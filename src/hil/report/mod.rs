@@ -671,7 +671,8 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
     })
 }
 
-/// For each `loop-unstable` or `displacement-out-of-range` trip in law mode (a loop that
+/// For the emulator's `loop-unstable` or `displacement-out-of-range` trip in law mode, not
+/// in a hold already nor in a run with injected faults (a loop that
 /// diverges slowly leaves the range before the monitor's band sees it), whether any lead
 /// would have held the
 /// linearised loop (`check::after_trip`): in front of the rig's recorded actuator when it
@@ -687,13 +688,17 @@ fn attach_leads_after_trip(
     if cfg.controller.command_mode != crate::hil::config::CommandMode::Law {
         return;
     }
+    // A run whose faults were injected tests the safety chain, not the loop.
+    if !safety.injected.is_empty() {
+        return;
+    }
     let lead_s = compensation.final_lead_us * 1e-6;
     let mut judged = None;
-    for f in safety
-        .faults
-        .iter_mut()
-        .filter(|f| f.fault == "loop-unstable" || f.fault == "displacement-out-of-range")
-    {
+    for f in safety.faults.iter_mut().filter(|f| {
+        f.process == "emulator"
+            && f.already_held_since_s.is_none()
+            && (f.fault == "loop-unstable" || f.fault == "displacement-out-of-range")
+    }) {
         if judged.is_none() {
             judged = match (
                 truth.and_then(|t| t.plant().map(|p| (t, p))),
