@@ -181,7 +181,11 @@ pub(super) fn run(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     let start_m = cfg.model.element.static_displacement_m(start_force_n);
     // How slow an actuator the specimen and programme allow at all (for a rig nothing
     // declares, the limit the run's actuator must be within).
-    let slowest = crate::hil::check::after_trip::slowest_held_s(cfg, cfg.compensation.max_delay_s);
+    let slowest = crate::hil::check::after_trip::slowest_held_s(
+        cfg,
+        &lin.other_loads_n(),
+        cfg.compensation.max_delay_s,
+    );
     if args.json {
         println!(
             "{}",

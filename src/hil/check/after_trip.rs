@@ -144,18 +144,12 @@ pub fn leads_after_trip_identified(
     lead_s: f64,
 ) -> LeadsAfterTrip {
     let effective = (identified_delay_s - 0.5 * cfg.loop_.dt_s()).max(0.0);
-    let one = |_: f64| (Complex64::new(1.0, 0.0), Complex64::new(0.0, 0.0));
-    let mut l = LinearLoop::new(cfg, one, lead_s, 1.0).with_programme_loads(cfg);
+    let mut l =
+        LinearLoop::new(cfg, delay_and_lag(0.0, 0.0), lead_s, 1.0).with_programme_loads(cfg);
     let leads = DAMPING_REPRESENTATIVE_LAGS
         .iter()
         .map(|&share| {
-            let (tau, lag) = (effective * (1.0 - share), effective * share);
-            l.set_actuator(move |w| {
-                (
-                    Complex64::from_polar(1.0, -w * tau) / Complex64::new(1.0, w * lag),
-                    Complex64::new(0.0, 0.0),
-                )
-            });
+            l.set_delay_and_lag(effective * (1.0 - share), effective * share);
             judged(&l, Some(share), cfg.compensation.max_delay_s)
         })
         .collect::<Vec<_>>();
@@ -172,28 +166,25 @@ pub fn leads_after_trip_identified(
 }
 
 /// The slowest delay-and-lag actuator (effective delay, hold included, s) that some lead
-/// holds at the preload and at every judged load of the programme, for each of
+/// holds at the preload and at every load of `loads_n` (`programme_loads_n`), for each of
 /// `DAMPING_REPRESENTATIVE_LAGS`, to `SLOWEST_RESOLUTION_S` (`None`: not even
 /// `SLOWEST_FROM_S`; `max_delay_s` when that is held). For `hil --check`: a rig slower than
 /// this trips whatever the compensation learns. Assumes a slower actuator is never easier
 /// to hold (doubling, then bisection) and judges leads from 0.4 to 1.3 times the delay
 /// (and 0.2 ms more).
-pub fn slowest_held_s(cfg: &HilConfig, max_delay_s: f64) -> Vec<(f64, Option<f64>)> {
-    let one = |_: f64| (Complex64::new(1.0, 0.0), Complex64::new(0.0, 0.0));
-    let mut l = LinearLoop::new(cfg, one, 0.0, 1.0).with_programme_loads(cfg);
+pub fn slowest_held_s(
+    cfg: &HilConfig,
+    loads_n: &[f64],
+    max_delay_s: f64,
+) -> Vec<(f64, Option<f64>)> {
+    let mut l = LinearLoop::new(cfg, delay_and_lag(0.0, 0.0), 0.0, 1.0).with_loads(cfg, loads_n);
     let hold = 0.5 * cfg.loop_.dt_s();
     DAMPING_REPRESENTATIVE_LAGS
         .iter()
         .map(|&share| {
             let mut held = |effective_s: f64| {
                 let own = (effective_s - hold).max(0.0);
-                let (tau, lag) = (own * (1.0 - share), own * share);
-                l.set_actuator(move |w| {
-                    (
-                        Complex64::from_polar(1.0, -w * tau) / Complex64::new(1.0, w * lag),
-                        Complex64::new(0.0, 0.0),
-                    )
-                });
+                l.set_delay_and_lag(own * (1.0 - share), own * share);
                 // Leads from 0.4 of the delay to 1.3 of it and 0.2 ms more: a delay and a
                 // lag are held, if at all, a little under their effective delay (the lag's
                 // phase at the resonance is less than its delay), and a lead much longer
@@ -222,15 +213,7 @@ pub fn slowest_held_s(cfg: &HilConfig, max_delay_s: f64) -> Vec<(f64, Option<f64
                 lo = hi;
                 hi = (2.0 * hi).min(max_delay_s);
             }
-            while hi - lo > SLOWEST_RESOLUTION_S {
-                let mid = 0.5 * (lo + hi);
-                if held(mid) {
-                    lo = mid;
-                } else {
-                    hi = mid;
-                }
-            }
-            (share, Some(lo))
+            (share, Some(bisect_edge(held, lo, hi, SLOWEST_RESOLUTION_S)))
         })
         .collect()
 }
@@ -409,7 +392,7 @@ mod tests {
         // a lag makes it easier; just below the limit some lead holds at every load, just
         // above none does (the 1412 us representatives above agree: held only with half
         // a lag).
-        let slowest = slowest_held_s(&cfg, cfg.compensation.max_delay_s);
+        let slowest = slowest_held_s(&cfg, &programme_loads_n(&cfg), cfg.compensation.max_delay_s);
         assert_eq!(slowest.len(), DAMPING_REPRESENTATIVE_LAGS.len());
         let limits: Vec<f64> = slowest.iter().map(|(_, d)| d.expect("held")).collect();
         assert!(limits[0] > 252e-6 && limits[0] < 1412e-6, "{limits:?}");

@@ -84,6 +84,18 @@ fn grid(period_s: f64) -> Vec<f64> {
     f
 }
 
+/// The responses `(H_u, H_v)` of an actuator that is a transport delay `tau_s` and a
+/// first-order lag `lag_s` (a pure delay when `lag_s` is 0): the representatives the
+/// checks judge where no plant is known (`LinearLoop::new`'s `actuator`).
+pub fn delay_and_lag(tau_s: f64, lag_s: f64) -> impl Fn(f64) -> (Complex64, Complex64) + Copy {
+    move |w| {
+        (
+            Complex64::from_polar(1.0, -w * tau_s) / Complex64::new(1.0, w * lag_s),
+            Complex64::new(0.0, 0.0),
+        )
+    }
+}
+
 impl LinearLoop {
     /// The configured loop; `actuator(w)` gives `(H_u, H_v)` at circular frequency `w`.
     pub fn new(
@@ -157,6 +169,12 @@ impl LinearLoop {
             (self.actuator_u[i], self.actuator_v[i]) = actuator(w);
         }
         self.actuator_unstable_poles = 0;
+    }
+
+    /// The same loop in front of a transport delay `tau_s` and a first-order lag `lag_s`
+    /// (`delay_and_lag`).
+    pub fn set_delay_and_lag(&mut self, tau_s: f64, lag_s: f64) {
+        self.set_actuator(delay_and_lag(tau_s, lag_s));
     }
 
     /// The configured loop in front of `plant`: its responses and its own unstable poles.

@@ -294,12 +294,7 @@ mod tests {
     use crate::hil::config::default_hil_config;
 
     fn lag_delay(tau: f64, lag: f64) -> impl Fn(f64) -> (Complex64, Complex64) {
-        move |w| {
-            (
-                Complex64::from_polar(1.0, -w * tau) / Complex64::new(1.0, w * lag),
-                Complex64::new(0.0, 0.0),
-            )
-        }
+        delay_and_lag(tau, lag)
     }
 
     /// An actuator that cannot carry the programme's peak load is refused (its hold could

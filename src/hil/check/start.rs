@@ -24,13 +24,7 @@ pub fn starting_lead_cap_s(cfg: &HilConfig) -> f64 {
         return f64::INFINITY;
     }
     let tau = (0.5 * guess - 0.5 * cfg.loop_.dt_s()).max(0.0);
-    let fastest = move |w: f64| {
-        (
-            Complex64::from_polar(1.0, -w * tau),
-            Complex64::new(0.0, 0.0),
-        )
-    };
-    let mut probe = LinearLoop::new(cfg, fastest, guess, 1.0);
+    let mut probe = LinearLoop::new(cfg, delay_and_lag(tau, 0.0), guess, 1.0);
     // Judged with the guard's full damping, the most the safe start can carry; the
     // safe start's own damping is then chosen at the capped lead
     // (`safe_start_damping_ns_per_m`), and may be less.
@@ -96,19 +90,12 @@ pub fn guard_damping_by_lead(
         return DampingByLead::NONE;
     }
     let hold = 0.5 * cfg.loop_.dt_s();
-    let one = |_: f64| (Complex64::new(1.0, 0.0), Complex64::new(0.0, 0.0));
-    let mut probe = LinearLoop::new(cfg, one, 0.0, 1.0);
+    let mut probe = LinearLoop::new(cfg, delay_and_lag(0.0, 0.0), 0.0, 1.0);
     let mut out = DampingByLead::NONE;
     for (r, &lag_share) in DAMPING_REPRESENTATIVE_LAGS.iter().enumerate() {
         let mut stable = |lead: f64, damping: f64| {
             let effective = (lead - hold).max(0.0);
-            let (tau, lag) = (effective * (1.0 - lag_share), effective * lag_share);
-            probe.set_actuator(move |w| {
-                (
-                    Complex64::from_polar(1.0, -w * tau) / Complex64::new(1.0, w * lag),
-                    Complex64::new(0.0, 0.0),
-                )
-            });
+            probe.set_delay_and_lag(effective * (1.0 - lag_share), effective * lag_share);
             probe.lead_s = lead;
             probe.guard_damping_ns_per_m = damping;
             probe.is_stable(0.0, 1.0)
@@ -189,10 +176,21 @@ fn longest_stable_lead(mut stable: impl FnMut(f64) -> bool, from: f64, max: f64)
     if stable(max) {
         return f64::INFINITY;
     }
-    let (mut lo, mut hi) = (from, max);
-    while hi - lo > DAMPING_EDGE_RESOLUTION_S {
+    bisect_edge(stable, from, max, DAMPING_EDGE_RESOLUTION_S)
+}
+
+/// The edge of `holds` between `lo`, where it holds, and `hi`, where it does not, by
+/// bisection to `resolution`: the last point found to hold (`holds` assumed to hold
+/// below its edge and not above it).
+pub fn bisect_edge(
+    mut holds: impl FnMut(f64) -> bool,
+    mut lo: f64,
+    mut hi: f64,
+    resolution: f64,
+) -> f64 {
+    while hi - lo > resolution {
         let mid = 0.5 * (lo + hi);
-        if stable(mid) {
+        if holds(mid) {
             lo = mid;
         } else {
             hi = mid;
@@ -232,13 +230,7 @@ pub fn safe_start_damping_ns_per_m(cfg: &HilConfig) -> f64 {
         .map(|i| {
             let f = 0.5 + 0.5 * i as f64 / (SAFE_START_DRAWS - 1) as f64;
             let tau = (f * guess - hold).max(0.0);
-            let pure = move |w: f64| {
-                (
-                    Complex64::from_polar(1.0, -w * tau),
-                    Complex64::new(0.0, 0.0),
-                )
-            };
-            LinearLoop::new(cfg, pure, lead, 1.0)
+            LinearLoop::new(cfg, delay_and_lag(tau, 0.0), lead, 1.0)
         })
         .collect();
     (0..SAFE_START_HALVINGS)
