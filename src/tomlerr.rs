@@ -9,6 +9,19 @@ pub fn describe(text: &str, e: &toml::de::Error) -> String {
         return message;
     };
     let start = span.start.min(text.len());
+    // A top-level table missing: the span is the file's start (empty) or the whole file,
+    // whose first line says nothing.
+    if let Some(field) = message
+        .strip_prefix("missing field `")
+        .and_then(|r| r.split_once('`'))
+        .map(|(f, _)| f)
+    {
+        if start == 0 && (span.end == 0 || span.end >= text.trim_end().len()) {
+            return format!(
+                "at the top: {message}: the file has no `[{field}]` table (add it with its keys, or `{field} = ...` at the top when it is a value; docs/config.md lists them)"
+            );
+        }
+    }
     let line_no = text[..start].matches('\n').count() + 1;
     let line = text.lines().nth(line_no - 1).unwrap_or("").trim();
     let table = text
@@ -75,7 +88,22 @@ pub fn closest_key<'a>(unknown: &str, candidates: &[&'a str]) -> Option<&'a str>
         .iter()
         .map(|c| (edit_distance(unknown, c), *c))
         .min_by_key(|(d, _)| *d)?;
-    (distance <= (unknown.len() / 3).max(2)).then_some(best)
+    if distance <= (unknown.len() / 3).max(2) {
+        return Some(best);
+    }
+    // Else the one key that shares the most words (two at least) with it: a misnamed
+    // key (`valve_bandwidth_hz` for `valve_frequency_hz`) rather than a misspelt one.
+    let shared = |c: &str| {
+        c.split('_')
+            .filter(|w| unknown.split('_').any(|u| u == *w))
+            .count()
+    };
+    let most = candidates.iter().map(|c| shared(c)).max()?;
+    let mut with_most = candidates.iter().filter(|c| shared(c) == most);
+    match (with_most.next(), with_most.next()) {
+        (Some(only), None) if most >= 2 => Some(*only),
+        _ => None,
+    }
 }
 
 /// Levenshtein distance over chars.
@@ -176,6 +204,43 @@ mod tests {
                 ),
             "{e}"
         );
+    }
+
+    /// A table the file lacks is named as such, not at its first line (a new user's
+    /// trial: "at line 1 (`# fastemu hil: ...`): missing field `compensation`"); a key
+    /// misnamed by a word gets the key that shares its words.
+    #[test]
+    fn a_missing_table_and_a_misnamed_key_are_named() {
+        #[derive(Debug, serde::Deserialize)]
+        #[allow(dead_code)]
+        struct Top {
+            #[serde(rename = "loop")]
+            loop_: Loop,
+            other: Loop,
+        }
+        let text = "# a comment
+[loop]
+rate_hz = 1.0
+spin_us = 1.0
+";
+        let e = describe(text, &toml::from_str::<Top>(text).unwrap_err());
+        assert!(
+            e.starts_with("at the top: missing field `other`: the file has no `[other]` table"),
+            "{e}"
+        );
+        assert!(!e.contains("line 1"), "{e}");
+        let keys = [
+            "valve_frequency_hz",
+            "valve_damping_ratio",
+            "force_loop_bandwidth_hz",
+        ];
+        assert_eq!(
+            closest_key("valve_bandwith_hz", &keys),
+            Some("valve_frequency_hz")
+        );
+        // One shared word, or a tie: no guess.
+        assert_eq!(closest_key("loop_gain", &keys), None);
+        assert_eq!(closest_key("valve_ratio_hz", &keys), None);
     }
 
     #[test]

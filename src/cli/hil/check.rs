@@ -10,6 +10,17 @@ use serde_json::json;
 use super::HilArgs;
 use crate::hil::config::HilConfig;
 
+/// A lead the user fixed (`adapt = false`) with the guard on, where the loop is stable
+/// and the guard's full damping makes it unstable (`LinearLoop::fixed_lead_guard_stable`).
+fn fixed_lead_guard_warning(cfg: &HilConfig, lead_s: f64) -> String {
+    format!(
+        "the linearised loop is stable with the fixed lead of {:.0} us ([compensation] adapt = false) but not with the passivity guard's full damping ({:.0} kN s/m above {:.0} Hz, which it adds where it sees the loop generate energy: an axle, a stall): this actuator's lag there turns damping into energy, so the guard acting would trip loop-unstable; with a lead you trust, passivity_guard = false keeps it out (fastemu hil --check)",
+        lead_s * 1e6,
+        cfg.compensation.guard_max_damping_ns_per_m * 1e-3,
+        cfg.compensation.guard_band_hz
+    )
+}
+
 /// Before a run on the simulated rig (whose actuator fastemu's config describes): a
 /// warning when the linearised loop (`hil --check`) is not stable with the starting lead,
 /// naming the leads that would be, or that none is. `None` when stable or in force mode.
@@ -22,12 +33,15 @@ pub(super) fn stability_warning(cfg: &HilConfig) -> Option<String> {
     let lead_s = cfg.compensation.initial_delay_s.min(cap_s);
     let lin = LinearLoop::for_plant(cfg, &nominal_plant(cfg), lead_s, 1.0);
     let safe_start = lin.safe_start_stable(cfg);
+    if lin.margins().stable && lin.fixed_lead_guard_stable(cfg) == Some(false) {
+        return Some(fixed_lead_guard_warning(cfg, lead_s));
+    }
     if lin.margins().stable && safe_start != Some(false) {
         return None;
     }
     if lin.margins().stable {
         return Some(format!(
-            "the linearised loop is stable with the starting lead of {:.0} us but not with the safe start's damping ({:.0} kN s/m above {:.0} Hz until the lead is learned; this actuator's lag there turns damping into energy): expect loop-unstable and a hold; with a lead you trust, adapt = false starts without it (fastemu hil --check)",
+            "the linearised loop is stable with the starting lead of {:.0} us but not with the safe start's damping ({:.0} kN s/m above {:.0} Hz until the lead is learned; this actuator's lag there turns damping into energy): expect loop-unstable and a hold; with a lead you trust, adapt = false starts without it, and passivity_guard = false keeps the guard's damping out later too (fastemu hil --check)",
             lead_s * 1e6,
             crate::hil::check::safe_start_damping_ns_per_m(cfg) * 1e-3,
             cfg.compensation.guard_band_hz
@@ -70,8 +84,9 @@ pub(super) fn stability_warning(cfg: &HilConfig) -> Option<String> {
             dispersive_hint(&lin, cfg.compensation.adapt)
         ),
         None => format!(
-            "no lead from 0 to {:.0} us makes the linearised loop stable: {} (docs/compensation.md); expect loop-unstable and a hold (fastemu hil --check)",
+            "no lead from 0 to {:.0} us makes the linearised loop stable{}: {} (docs/compensation.md); expect loop-unstable and a hold (fastemu hil --check)",
             max * 1e6,
+            crate::hil::check::lead_order_hint(cfg),
             crate::hil::check::why_no_stable_lead(cfg)
         ),
     };
@@ -159,7 +174,11 @@ pub(super) fn run(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
     let safe_start = lin.safe_start_stable(cfg);
     // As the run starts: with the safe start's damping when it arms.
     let starts_stable = safe_start.unwrap_or(m.stable);
-    let best = lin.most_faithful_stable_lead(cfg.compensation.max_delay_s);
+    // Among the leads stable at every judged load; else at the preload (said so).
+    let best_over_programme = lin.most_faithful_lead_over_programme(cfg.compensation.max_delay_s);
+    let best_at_preload_only = best_over_programme.is_none();
+    let best =
+        best_over_programme.or_else(|| lin.most_faithful_stable_lead(cfg.compensation.max_delay_s));
     // The actuator must carry the programme's peak load, or a fault's hold cannot hold.
     // (Not for an external rig's undeclared actuator: [rig.actuator] is not its actuator.)
     let cannot_hold = if args.rig.external() && !declared {
@@ -216,8 +235,12 @@ pub(super) fn run(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                 "starts_stable": starts_stable,
                 "actuator_cannot_hold": cannot_hold,
                 "no_stable_lead": no_stable_lead,
-                "predicted_faithful_band_hz": band_hz,
-                "most_faithful_stable_lead": best.map(|(l, b)| json!({"lead_us": l * 1e6, "faithful_band_hz": b})),
+                // As the console: none for a loop that is not stable as it starts (the
+                // rendering's own band stays in `rendering_faithful_band_hz`).
+                "predicted_faithful_band_hz": starts_stable.then_some(band_hz),
+                "rendering_faithful_band_hz": band_hz,
+                "fixed_lead_guard_stable": lin.fixed_lead_guard_stable(cfg),
+                "most_faithful_stable_lead": best.map(|(l, b)| json!({"lead_us": l * 1e6, "faithful_band_hz": b, "stable_at_every_load": !best_at_preload_only})),
                 "actuator_phase_delay_us": {"1_hz": delay_1_s * 1e6, "20_hz": delay_20_s * 1e6},
                 "actuator_amplitude_ratio": {"1_hz": amplitude_1, "20_hz": amplitude_20},
                 "actuator_velocity_force_share_20_hz": velocity_20,
@@ -323,8 +346,9 @@ pub(super) fn run(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
             }
         ),
         None => eprintln!(
-            "  no lead from 0 to {:.0} us makes the linearised loop stable: {}; {}",
+            "  no lead from 0 to {:.0} us makes the linearised loop stable{}: {}; {}",
             cfg.compensation.max_delay_s * 1e6,
+            crate::hil::check::lead_order_hint(cfg),
             crate::hil::check::why_no_stable_lead(cfg),
             if no_stable_lead.is_some() {
                 "`fastemu hil` refuses to run it (--run-unstable runs it anyway: expect loop-unstable and a hold that may move the specimen by millimetres)"
@@ -405,10 +429,13 @@ pub(super) fn run(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
             if stable { "stable" } else { "NOT stable" },
             match (stable, m.stable) {
                 (true, false) => ": it holds the loop while the lead is learned",
-                (false, true) => ": the actuator's lag there turns damping into energy; with a lead you trust, adapt = false starts without it",
+                (false, true) => ": the actuator's lag there turns damping into energy; with a lead you trust, adapt = false starts without it (and passivity_guard = false keeps the guard's damping out later too)",
                 _ => "",
             }
         );
+    }
+    if m.stable && lin.fixed_lead_guard_stable(cfg) == Some(false) {
+        eprintln!("  WARNING: {}", fixed_lead_guard_warning(cfg, lead_s));
     }
     if let Some(steps) = &damping_steps {
         let at = |lead: f64| {
@@ -467,8 +494,13 @@ pub(super) fn run(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
             )
         }
         Some((lead, band)) => eprintln!(
-            "  most faithful stable lead: {:.0} us (predicted faithful band {band:.1} Hz)",
-            lead * 1e6
+            "  most faithful stable lead: {:.0} us (predicted faithful band {band:.1} Hz){}",
+            lead * 1e6,
+            if best_at_preload_only && !lin.other_loads_n().is_empty() {
+                "; stable at the preload only: no lead is stable at every load of the programme"
+            } else {
+                ""
+            }
         ),
         None => {}
     }
@@ -533,8 +565,17 @@ mod tests {
             ),
             "{w}"
         );
+        // A lead the user trusts: no safe start, but the guard would still act where it
+        // sees energy, and its damping is as harmful there; without the guard, no warning.
         let mut trusted = servo.clone();
         trusted.compensation.adapt = false;
+        let w = super::stability_warning(&trusted).expect("the guard's damping is not stable");
+        assert!(
+            w.contains("stable with the fixed lead of 2790 us")
+                && w.contains("passivity_guard = false keeps it out"),
+            "{w}"
+        );
+        trusted.compensation.passivity_guard = false;
         assert_eq!(super::stability_warning(&trusted), None);
         // A lead 100 us short with nothing to make up for it says so.
         let mut bare = default_hil_config().unwrap();

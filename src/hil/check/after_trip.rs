@@ -56,6 +56,9 @@ pub struct LeadsAfterTrip {
     pub effective_delay_us: f64,
     /// The lead sent last before the trip, us.
     pub lead_at_trip_us: f64,
+    /// Whether the lead adapted in the run (else it was fixed: `adapt = false`, or the
+    /// plan fixed it).
+    pub lead_adapted: bool,
     /// The programme's loads judged besides the preload, N (`programme_loads_n`).
     pub other_loads_n: Vec<f64>,
     pub leads: Vec<JudgedLeads>,
@@ -110,6 +113,7 @@ pub fn leads_after_trip_truth(
     effective_delay_s: f64,
     lead_s: f64,
     gain: f64,
+    lead_adapted: bool,
 ) -> LeadsAfterTrip {
     let l = LinearLoop::for_plant(cfg, plant, lead_s, gain).with_programme_loads(cfg);
     let leads = vec![judged(&l, None, cfg.compensation.max_delay_s)];
@@ -129,6 +133,7 @@ pub fn leads_after_trip_truth(
         judged: JudgedActuator::RecordedTruth,
         effective_delay_us: effective_delay_s * 1e6,
         lead_at_trip_us: lead_s * 1e6,
+        lead_adapted,
         other_loads_n: l.other_loads_n(),
         verdict: v,
         lead_stable_at_preload,
@@ -142,6 +147,7 @@ pub fn leads_after_trip_identified(
     cfg: &HilConfig,
     identified_delay_s: f64,
     lead_s: f64,
+    lead_adapted: bool,
 ) -> LeadsAfterTrip {
     let effective = (identified_delay_s - 0.5 * cfg.loop_.dt_s()).max(0.0);
     let mut l =
@@ -158,6 +164,7 @@ pub fn leads_after_trip_identified(
         judged: JudgedActuator::IdentifiedDelay,
         effective_delay_us: identified_delay_s * 1e6,
         lead_at_trip_us: lead_s * 1e6,
+        lead_adapted,
         other_loads_n: l.other_loads_n(),
         verdict: v,
         lead_stable_at_preload,
@@ -253,6 +260,17 @@ impl LeadsAfterTrip {
         let range = |r: Option<(f64, f64)>| {
             r.map_or("none".to_string(), |(a, b)| format!("{a:.0}-{b:.0} us"))
         };
+        let with_leads = |r: Option<(f64, f64)>| {
+            r.map_or("with no lead".to_string(), |(a, b)| {
+                format!("with leads {a:.0}-{b:.0} us")
+            })
+        };
+        // Why the lead was where it was: the adaptation's, or fixed.
+        let missed = if self.lead_adapted {
+            "the adaptation had not found them"
+        } else {
+            "the lead was fixed there ([compensation] adapt = false, or the plan from the declared actuator fixed it)"
+        };
         let loads = self
             .other_loads_n
             .iter()
@@ -261,15 +279,15 @@ impl LeadsAfterTrip {
             .join(" and ");
         let whom = match self.judged {
             JudgedActuator::RecordedTruth => format!(
-                "the rig's recorded actuator ({:.0} us effective delay) is stable with leads {} at the preload{}",
+                "the rig's recorded actuator ({:.0} us effective delay) is stable {} at the preload{}",
                 self.effective_delay_us,
-                range(self.leads[0].at_preload_us),
+                with_leads(self.leads[0].at_preload_us),
                 if loads.is_empty() {
                     String::new()
                 } else {
                     format!(
                         " and {} at the programme's loads {} kN too",
-                        range(self.leads[0].at_every_load_us),
+                        with_leads(self.leads[0].at_every_load_us),
                         loads
                     )
                 }
@@ -305,13 +323,13 @@ impl LeadsAfterTrip {
                 "no lead holds the loop at every load of the programme (the element stiffens under the load): the actuator is too slow for this specimen under this programme (SPEC 6.1), whatever the compensation learns; the lead at the trip, {:.0} us, {}; a faster actuator, or a lighter programme, is what helps",
                 self.lead_at_trip_us,
                 if self.lead_stable_at_preload {
-                    "was among the preload's stable leads: a load beyond the preload's tripped it"
+                    "was among the preload's stable leads: a load beyond the preload's tripped it".to_string()
                 } else {
-                    "was outside even the preload's stable leads: the adaptation had not found them"
+                    format!("was outside even the preload's stable leads: {missed}")
                 }
             ),
             LeadVerdict::LeadOutside => format!(
-                "the lead at the trip, {:.0} us, was outside them: the compensation did not find them (fastemu hil --check shows them for a declared actuator; [compensation] plan_from_actuator plans a lead for the simulated rig's)",
+                "the lead at the trip, {:.0} us, was outside them: {missed} (fastemu hil --check shows them for a declared actuator; [compensation] plan_from_actuator plans a lead for the simulated rig's)",
                 self.lead_at_trip_us
             ),
             LeadVerdict::LeadInside => format!(
@@ -345,18 +363,29 @@ mod tests {
     fn a_trip_is_judged_against_the_leads_that_hold_the_loop() {
         let cfg = default_hil_config().unwrap();
         let shipped = lag_delay_plant(50.0, 80.0);
-        let short = leads_after_trip_truth(&cfg, &shipped, 252e-6, 152e-6, 1.0);
+        let short = leads_after_trip_truth(&cfg, &shipped, 252e-6, 152e-6, 1.0, true);
         assert_eq!(short.verdict, LeadVerdict::LeadOutside, "{short:?}");
         let (a, b) = short.leads[0].at_every_load_us.unwrap();
         assert!(a > 152.0 && a < 252.0 && b > 252.0, "{a}-{b}");
         assert!(!short.lead_stable_at_preload);
-        let matched = leads_after_trip_truth(&cfg, &shipped, 252e-6, 252e-6, 1.0);
+        // Who left the lead there: the adaptation, or whoever fixed it.
+        assert!(short
+            .describe()
+            .contains("the adaptation had not found them"));
+        let fixed = leads_after_trip_truth(&cfg, &shipped, 252e-6, 152e-6, 1.0, false);
+        assert_eq!(fixed.verdict, LeadVerdict::LeadOutside);
+        assert!(
+            fixed.describe().contains("the lead was fixed there"),
+            "{}",
+            fixed.describe()
+        );
+        let matched = leads_after_trip_truth(&cfg, &shipped, 252e-6, 252e-6, 1.0, true);
         assert_eq!(matched.verdict, LeadVerdict::LeadInside);
         assert!(matched.lead_stable_at_preload);
         assert_eq!(matched.other_loads_n.len(), 2);
 
         let slow = lag_delay_plant(738.8, 551.8);
-        let t = leads_after_trip_truth(&cfg, &slow, 1412e-6, 1401e-6, 1.0);
+        let t = leads_after_trip_truth(&cfg, &slow, 1412e-6, 1401e-6, 1.0, true);
         assert_eq!(t.verdict, LeadVerdict::NoLeadAtEveryLoad, "{t:?}");
         assert!(!t.lead_stable_at_preload);
         let (a, b) = t.leads[0].at_preload_us.unwrap();
@@ -370,14 +399,20 @@ mod tests {
             "{}",
             t.describe()
         );
-        let inside = leads_after_trip_truth(&cfg, &slow, 1412e-6, 1250e-6, 1.0);
+        let inside = leads_after_trip_truth(&cfg, &slow, 1412e-6, 1250e-6, 1.0, true);
         assert!(inside.lead_stable_at_preload, "{inside:?}");
         assert_eq!(inside.verdict, LeadVerdict::NoLeadAtEveryLoad);
         let slower = lag_delay_plant(1000.0, 1000.0);
-        let none = leads_after_trip_truth(&cfg, &slower, 2122e-6, 2100e-6, 1.0);
+        let none = leads_after_trip_truth(&cfg, &slower, 2122e-6, 2100e-6, 1.0, true);
         assert_eq!(none.verdict, LeadVerdict::NoLead, "{none:?}");
+        assert!(
+            none.describe()
+                .contains("is stable with no lead at the preload"),
+            "{}",
+            none.describe()
+        );
 
-        let id = leads_after_trip_identified(&cfg, 1412e-6, 1401e-6);
+        let id = leads_after_trip_identified(&cfg, 1412e-6, 1401e-6, true);
         assert_eq!(id.leads.len(), DAMPING_REPRESENTATIVE_LAGS.len());
         assert_eq!(id.leads[0].at_preload_us, None, "{id:?}");
         let (a, b) = id.leads[2].at_every_load_us.expect("half a lag holds");
@@ -402,7 +437,7 @@ mod tests {
             "{limits:?}"
         );
         let held_by_some_lead = |effective: f64| {
-            let j = leads_after_trip_identified(&cfg, effective, 0.0);
+            let j = leads_after_trip_identified(&cfg, effective, 0.0, true);
             j.leads[0].at_every_load_us.is_some()
         };
         assert!(held_by_some_lead(limits[0] - 5e-6), "{limits:?}");
@@ -412,7 +447,7 @@ mod tests {
                 .contains("as a pure delay")
         );
         // The shipped actuator's identified delay: its pure delay holds the matched lead.
-        let fast = leads_after_trip_identified(&cfg, 252e-6, 252e-6);
+        let fast = leads_after_trip_identified(&cfg, 252e-6, 252e-6, true);
         assert_eq!(fast.verdict, LeadVerdict::LeadInside, "{fast:?}");
     }
 }

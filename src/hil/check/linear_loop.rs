@@ -467,17 +467,45 @@ impl LinearLoop {
         )
     }
 
+    /// With a lead the user fixed (`adapt = false`) and the guard on, in law mode: whether
+    /// the loop stays stable with the guard's full damping at that lead (the guard still
+    /// adds it where it sees energy); `None` otherwise.
+    pub fn fixed_lead_guard_stable(&self, cfg: &HilConfig) -> Option<bool> {
+        let c = &cfg.compensation;
+        if c.adapt
+            || !c.passivity_guard
+            || cfg.controller.command_mode != crate::hil::config::CommandMode::Law
+        {
+            return None;
+        }
+        let mut damped = self.clone();
+        damped.guard_damping_ns_per_m = c.guard_max_damping_ns_per_m;
+        Some(damped.is_stable(0.0, 1.0))
+    }
+
     /// Among the stable leads (10 us steps up to `max_lead_s`), the one with the widest
     /// predicted faithful band (the middle of those that tie), and that band; `None` when
-    /// no lead is stable.
+    /// no lead is stable. Stable at the preload; `most_faithful_lead_over_programme` at the
+    /// judged loads too.
     pub fn most_faithful_stable_lead(&self, max_lead_s: f64) -> Option<(f64, f64)> {
+        self.most_faithful_lead(max_lead_s, false)
+    }
+
+    /// `most_faithful_stable_lead` among the leads stable at the preload and at every
+    /// judged load (`with_loads`; the same without them).
+    pub fn most_faithful_lead_over_programme(&self, max_lead_s: f64) -> Option<(f64, f64)> {
+        self.most_faithful_lead(max_lead_s, true)
+    }
+
+    fn most_faithful_lead(&self, max_lead_s: f64, at_every_load: bool) -> Option<(f64, f64)> {
         // (first lead, last lead, band) of the widest band so far.
         let mut best: Option<(f64, f64, f64)> = None;
         let mut probe = self.clone();
         let n = (max_lead_s / 10e-6).round() as usize;
         for i in 0..=n {
             probe.lead_s = i as f64 * 10e-6;
-            if probe.is_stable(0.0, 1.0) {
+            if probe.is_stable(0.0, 1.0) && (!at_every_load || probe.unstable_loads_n().is_empty())
+            {
                 let band = probe.faithful_band_hz();
                 best = match best {
                     Some((first, _, b)) if band == b => Some((first, probe.lead_s, b)),

@@ -212,9 +212,23 @@ pub fn no_stable_lead(cfg: &HilConfig) -> Option<String> {
     {
         return None;
     }
+    let hint = lead_order_hint(cfg);
+    Some(format!(
+        "{}: [rig.actuator] {}: no lead from 0 to {:.0} us makes the linearised loop stable{hint}: {}; the run would trip loop-unstable within tens of milliseconds, and with the forces already in flight the hold would move the specimen by up to millimetres; choose another actuator, or pass --run-unstable to run it anyway",
+        cfg.origin,
+        describe_actuator(cfg),
+        cfg.compensation.max_delay_s * 1e6,
+        why_no_stable_lead(cfg)
+    ))
+}
+
+/// Where no lead is stable at the configured prediction order: whether a higher one has
+/// some (" at [compensation] lead_order = 2 (with lead_order = 3 some lead is; ...)"), or
+/// none up to `MAX_LEAD_ORDER`; empty at the highest order. Without the plan (adapt or
+/// plan_from_actuator off) a higher order is the user's to set.
+pub fn lead_order_hint(cfg: &HilConfig) -> String {
     let order = cfg.compensation.lead_order;
-    // Without the plan (adapt or plan_from_actuator off) a higher order is the user's to set.
-    let hint = (order + 1..=MAX_LEAD_ORDER)
+    (order + 1..=MAX_LEAD_ORDER)
         .find(|&o| some_stable_lead(cfg, o))
         .map(|o| {
             format!(" at [compensation] lead_order = {order} (with lead_order = {o} some lead is; the plan from the declared actuator would raise it, with adapt = true and plan_from_actuator = true)")
@@ -225,14 +239,7 @@ pub fn no_stable_lead(cfg: &HilConfig) -> Option<String> {
             } else {
                 String::new()
             }
-        });
-    Some(format!(
-        "{}: [rig.actuator] {}: no lead from 0 to {:.0} us makes the linearised loop stable{hint}: {}; the run would trip loop-unstable within tens of milliseconds, and with the forces already in flight the hold would move the specimen by up to millimetres; choose another actuator, or pass --run-unstable to run it anyway",
-        cfg.origin,
-        describe_actuator(cfg),
-        cfg.compensation.max_delay_s * 1e6,
-        why_no_stable_lead(cfg)
-    ))
+        })
 }
 
 /// Why no lead makes the loop stable, in words: the actuator's own servo loop unstable
@@ -597,6 +604,16 @@ mod tests {
         assert_eq!(starting_lead_cap_s(&at_truth), f64::INFINITY);
         assert_eq!(
             starting_lead_cap_s(&default_hil_config().unwrap()),
+            f64::INFINITY
+        );
+        // Without adaptation the lead is the user's: nothing would take it on from a cap
+        // (a new user's trial: 1 + 1 ms at order 3 from 1600 us, stable at 1560-1670 us,
+        // was cut to 832 us and tripped at once).
+        let mut fixed = cfg.clone();
+        fixed.compensation.adapt = false;
+        assert_eq!(starting_lead_cap_s(&fixed), f64::INFINITY);
+        assert_eq!(
+            starting_compensation(&fixed, None).starting_lead_cap_s,
             f64::INFINITY
         );
     }

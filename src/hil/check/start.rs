@@ -12,12 +12,16 @@ use super::*;
 /// 450 + 150 us, truth 722 us, started at 1500 us: `loop-unstable` after 20 ms, before
 /// the estimator has seen anything), a lead too short leaves the resonance's negative
 /// damping, which the guard takes out while the lead is learned. `INFINITY` (no cap) in
-/// force mode, when the guess is stable for that actuator, or when no lead below it is.
+/// force mode, without adaptation (`adapt = false`: the lead is the user's), when the
+/// guess is stable for that actuator, or when no lead below it is.
 pub fn starting_lead_cap_s(cfg: &HilConfig) -> f64 {
     let guess = cfg.compensation.initial_delay_s;
-    // A lead fixed by the plan (`adapt_lead` off) is the lead, judged on the actuator.
+    // A lead fixed by the plan (`adapt_lead` off) is the lead, judged on the actuator; a
+    // lead the user fixes (`adapt = false`: no adaptation would take it on from a cap) is
+    // the user's.
     if cfg.controller.command_mode != crate::hil::config::CommandMode::Law
         || guess <= 0.0
+        || !cfg.compensation.adapt
         || !cfg.compensation.adapt_lead
         || cfg.compensation.start_planned
     {

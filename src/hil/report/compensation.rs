@@ -169,6 +169,8 @@ pub fn record_delay(rendering: &[RenderingPoint], lead_s: f64) -> Option<RecordD
 #[derive(Debug, Clone, Serialize, Default)]
 pub struct CompensationReport {
     pub adapt: bool,
+    /// Whether the lead adapted (`adapt` on and the plan did not fix the lead).
+    pub lead_adapted: bool,
     pub initial_delay_us: f64,
     /// The lead of the first law command, us: the guess, or less when it was capped
     /// (`check::starting_lead_cap_s`; null: no law command).
@@ -619,6 +621,7 @@ impl CompensationAnalyser {
             .map(|(_, _, n, from, to)| (n, from.round(), to.round()));
         CompensationReport {
             adapt: c.adapt,
+            lead_adapted: c.adapt && c.adapt_lead,
             initial_delay_us: c.initial_delay_s * 1e6,
             starting_lead_us: self.lead_points.first().map(|p| p.1 * 1e6),
             lead_nudges: (!c.adapt_lead && c.nudge.is_some())

@@ -710,10 +710,16 @@ fn attach_leads_after_trip(
                     t.effective_delay_s,
                     lead_s,
                     compensation.final_gain,
+                    compensation.lead_adapted,
                 )),
-                (None, Some(d)) if d.is_finite() && d > 0.0 => Some(
-                    after_trip::leads_after_trip_identified(cfg, d * 1e-6, lead_s),
-                ),
+                (None, Some(d)) if d.is_finite() && d > 0.0 => {
+                    Some(after_trip::leads_after_trip_identified(
+                        cfg,
+                        d * 1e-6,
+                        lead_s,
+                        compensation.lead_adapted,
+                    ))
+                }
                 _ => None,
             };
         }
