@@ -305,6 +305,14 @@ const RING_PERIODS_AVERAGED: f64 = 1.0;
 const RING_MIN_ENERGY_ONSETS: f64 = 4.0;
 /// The lead has arrived at the oscillation's target within this, s.
 const OSCILLATION_ARRIVED_S: f64 = 2e-6;
+
+/// A ring at `w` with the lead `L` in effect where `w L` exceeds this (rad) is the
+/// prediction's, not a lead too short: the order-2 prediction's gain `|1 + j w L - (w
+/// L)^2 / 2|` is 2.2 there, and a lead too short rings at the specimen's resonance on the
+/// element with `w L` under about 1.6 (1.6 ms at 155 Hz). Such a ring moves the lead down
+/// by `RING_LEAD_DOWN`, not up to the phase read there.
+const RING_LEAD_TOO_LONG_RAD: f64 = 2.0;
+const RING_LEAD_DOWN: f64 = 0.75;
 /// Independent residuals (`DelayEstimate::independent`) below which a delay estimate
 /// neither moves the lead nor ends the safe start: its standard error, from so few, is
 /// itself a guess. The first estimate after the warm-up rests on about one (70 samples
@@ -663,7 +671,15 @@ impl Compensator {
             && o.fit >= OSCILLATION_MIN_FIT
             && (OSCILLATION_LOW_HZ..=self.cfg.guard_band_top_hz).contains(&o.frequency_hz)
         {
-            let target = self.ring_target_avg;
+            // A ring where the prediction over the lead in effect amplifies more than
+            // twice (`RING_LEAD_TOO_LONG_RAD`) is the prediction's own: the lead is too
+            // long, and the phase read there points up, further away.
+            let theta = 2.0 * std::f64::consts::PI * o.frequency_hz * o.window_lead_s;
+            let target = if theta > RING_LEAD_TOO_LONG_RAD && self.ring_target_avg > self.lead_s {
+                RING_LEAD_DOWN * o.window_lead_s
+            } else {
+                self.ring_target_avg
+            };
             // Under the safe start a precise delay estimate on the other side of the lead
             // overrules the ring (`SAFE_START_FAST_RANGE`).
             let contradicted = self.guard.armed()
