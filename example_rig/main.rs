@@ -797,7 +797,9 @@ fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
                 Some(c) if c.mode == MODE_FORCE => {
                     c.law.force_n.max(c.force_min_n).min(c.force_max_n)
                 }
-                None => hold_force + kp * (x - hold_x) + kd * v,
+                // Before the first command: the starting position held, the programme's
+                // change fed forward (header 2c), so the specimen waits at rest.
+                None => load_n(o, programme_t) + kp * (x - hold_x) + kd * v,
                 _ => force,
             }
         };

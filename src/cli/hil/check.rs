@@ -9,6 +9,7 @@ use serde_json::json;
 
 use super::HilArgs;
 use crate::hil::config::HilConfig;
+use crate::hil::report::json_us;
 
 /// A lead the user fixed (`adapt = false`) with the guard on, where the loop is stable
 /// and the guard's full damping makes it unstable (`LinearLoop::fixed_lead_guard_stable`).
@@ -98,15 +99,16 @@ pub(super) fn stability_warning(cfg: &HilConfig) -> Option<String> {
 /// stable leads, so a lead the user trusts is kept only with `adapt = false`; empty when
 /// the adaptation is off or the delay is nearly the same over the band.
 fn dispersive_hint(lin: &crate::hil::check::LinearLoop, adapt: bool) -> String {
-    let (at_2, at_40) = (lin.actuator_at(2.0).0, lin.actuator_at(40.0).0);
-    let dispersive = at_2 > 0.0 && at_40 > 1.5 * at_2;
+    // Over the band the rendering is judged on (1-20 Hz), as `hil --check` quotes it.
+    let (at_1, at_20) = (lin.actuator_at(1.0).0, lin.actuator_at(20.0).0);
+    let dispersive = at_1 > 0.0 && at_20 > 1.5 * at_1;
     if !adapt || !dispersive {
         return String::new();
     }
     format!(
-        ". This actuator's phase delay runs from {:.0} us at 2 Hz to {:.0} us at 40 Hz: the adaptation learns the load band's delay and walks such leads out of the stable range (docs/compensation.md, \"What does not work yet\"); with a lead you trust inside it, adapt = false keeps it there, though no lead makes up for a delay that varies with frequency (expect a run that is not clean)",
-        at_2 * 1e6,
-        at_40 * 1e6
+        ". This actuator's phase delay runs from {:.0} us at 1 Hz to {:.0} us at 20 Hz: the adaptation learns the load band's delay and walks such leads out of the stable range (docs/compensation.md, \"What does not work yet\"); with a lead you trust inside it, adapt = false keeps it there, though no lead makes up for a delay that varies with frequency (expect a run that is not clean)",
+        at_1 * 1e6,
+        at_20 * 1e6
     )
 }
 
@@ -212,7 +214,7 @@ pub(super) fn run(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                 "margins": m,
                 "start_displacement_m": start_m,
                 "start_force_n": start_force_n,
-                "stable_leads_us": lin.stable_leads(cfg.compensation.max_delay_s).map(|(a, b)| [a * 1e6, b * 1e6]),
+                "stable_leads_us": lin.stable_leads(cfg.compensation.max_delay_s).map(|(a, b)| [json_us(a), json_us(b)]),
                 "safe_start_damping_ns_per_m": crate::hil::check::safe_start_damping_ns_per_m(cfg),
                 "programme_loads": {
                     "lowest_n": load_range.0,
@@ -221,10 +223,10 @@ pub(super) fn run(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                     "unstable_at_n": lin.unstable_loads_n(),
                     "stable_leads_us": lin
                         .stable_leads_over_programme(cfg.compensation.max_delay_s)
-                        .map(|(a, b)| [a * 1e6, b * 1e6]),
+                        .map(|(a, b)| [json_us(a), json_us(b)]),
                 },
-                "lead_us": lead_s * 1e6,
-                "initial_delay_us": guess_s * 1e6,
+                "lead_us": json_us(lead_s),
+                "initial_delay_us": json_us(guess_s),
                 "starting_lead_capped": cap_s.is_finite(),
                 "lead_order": cfg.compensation.lead_order,
                 "safe_start_stable": safe_start,
@@ -240,8 +242,8 @@ pub(super) fn run(args: &HilArgs, cfg: &HilConfig) -> anyhow::Result<ExitCode> {
                 "predicted_faithful_band_hz": starts_stable.then_some(band_hz),
                 "rendering_faithful_band_hz": band_hz,
                 "fixed_lead_guard_stable": lin.fixed_lead_guard_stable(cfg),
-                "most_faithful_stable_lead": best.map(|(l, b)| json!({"lead_us": l * 1e6, "faithful_band_hz": b, "stable_at_every_load": !best_at_preload_only})),
-                "actuator_phase_delay_us": {"1_hz": delay_1_s * 1e6, "20_hz": delay_20_s * 1e6},
+                "most_faithful_stable_lead": best.map(|(l, b)| json!({"lead_us": json_us(l), "faithful_band_hz": b, "stable_at_every_load": !best_at_preload_only})),
+                "actuator_phase_delay_us": {"1_hz": json_us(delay_1_s), "20_hz": json_us(delay_20_s)},
                 "actuator_amplitude_ratio": {"1_hz": amplitude_1, "20_hz": amplitude_20},
                 "actuator_velocity_force_share_20_hz": velocity_20,
                 "actuator": describe_actuator(cfg),
@@ -547,7 +549,7 @@ mod tests {
         assert!(
             w.contains("starting lead of 252 us")
                 && w.contains("it is with 2220-3360 us")
-                && w.contains("phase delay runs from 745 us at 2 Hz to 3399 us at 40 Hz")
+                && w.contains("phase delay runs from 566 us at 1 Hz to 2996 us at 20 Hz")
                 && w.contains("adapt = false keeps it there"),
             "{w}"
         );

@@ -3,6 +3,10 @@
 
 use super::*;
 
+/// A first command later than this, s, is said in the console: it is due within a few
+/// periods of the start (a default run's reaches the rig at about 1 ms).
+const LATE_FIRST_COMMAND_S: f64 = 0.005;
+
 /// Why a run is not clean (empty: clean).
 pub(super) fn not_clean_because(
     cfg: &HilConfig,
@@ -321,6 +325,18 @@ pub(super) fn summarise(
             a.latency_ns.end_to_end.p50 / 1000,
             a.latency_ns.end_to_end.p99 / 1000
         );
+        // The first command is due within a few periods; a late one is said (the wait is
+        // the rig's own hold and not compared, but its load change is a step at the switch).
+        if let Some(from) = a
+            .fidelity
+            .compared_from_s
+            .filter(|&t| t > LATE_FIRST_COMMAND_S)
+        {
+            eprintln!(
+                "hil: the first command reached the rig at {:.1} ms; until then its own servo held the start (not compared), and the load's change over that wait met the element as a step",
+                from * 1e3
+            );
+        }
         if let Some(t) = &a.actuator_truth {
             eprintln!("hil: {}", t.describe());
         }

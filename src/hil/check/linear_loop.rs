@@ -19,6 +19,10 @@ use super::*;
 const FAITHFUL_AMPLITUDE: f64 = 0.01;
 const FAITHFUL_PHASE_DEG: f64 = 2.0;
 const FAITHFUL_TOP_HZ: f64 = 200.0;
+/// The margins' bisections stop at 1 ns of delay error and 1e-6 of gain (they print to
+/// the us and the hundredth).
+const MARGIN_DELAY_RESOLUTION_S: f64 = 1e-9;
+const MARGIN_GAIN_RESOLUTION: f64 = 1e-6;
 
 /// The linearised loop.
 #[derive(Debug, Clone)]
@@ -355,35 +359,39 @@ impl LinearLoop {
     /// The margins (bisection on `is_stable`).
     pub fn margins(&self) -> Margins {
         let stable = self.is_stable(0.0, 1.0);
-        let bisect = |lo: f64, hi: f64, ok: &dyn Fn(f64) -> bool| -> f64 {
-            let (mut a, mut b) = (lo, hi);
-            for _ in 0..40 {
-                let mid = 0.5 * (a + b);
-                if ok(mid) {
-                    a = mid;
-                } else {
-                    b = mid;
-                }
-            }
-            a
-        };
         let (slower, faster, gain) = if stable {
             let max_delay = 0.02;
             let slower = if self.is_stable(max_delay, 1.0) {
                 max_delay
             } else {
-                bisect(0.0, max_delay, &|d| self.is_stable(d, 1.0))
+                bisect_edge(
+                    |d| self.is_stable(d, 1.0),
+                    0.0,
+                    max_delay,
+                    MARGIN_DELAY_RESOLUTION_S,
+                )
             };
-            let min_delay = -(self.lead_s + self.period_s);
-            let faster = if self.is_stable(min_delay, 1.0) {
-                -min_delay
+            // Faster: an actuator quicker than the lead by up to the lead and a period.
+            let most_faster = self.lead_s + self.period_s;
+            let faster = if self.is_stable(-most_faster, 1.0) {
+                most_faster
             } else {
-                -bisect(0.0, min_delay, &|d| self.is_stable(d, 1.0))
+                bisect_edge(
+                    |d| self.is_stable(-d, 1.0),
+                    0.0,
+                    most_faster,
+                    MARGIN_DELAY_RESOLUTION_S,
+                )
             };
             let gain = if self.is_stable(0.0, 100.0) {
                 100.0
             } else {
-                bisect(1.0, 100.0, &|g| self.is_stable(0.0, g))
+                bisect_edge(
+                    |g| self.is_stable(0.0, g),
+                    1.0,
+                    100.0,
+                    MARGIN_GAIN_RESOLUTION,
+                )
             };
             (Some(slower * 1e6), Some(faster * 1e6), Some(gain))
         } else {

@@ -3,6 +3,7 @@
 //! leaves it in for the controller. Must not: run anything or touch the loop.
 
 use super::*;
+use crate::hil::report::span;
 
 /// The step of `LinearLoop::stable_leads`' scan, s.
 pub const LEAD_STEP_S: f64 = 10e-6;
@@ -296,8 +297,9 @@ pub fn declaration_check(plan: &CompensationPlan, identified_us: f64) -> Option<
         return None;
     }
     Some(format!(
-        "WARNING: the actuator does not behave as declared: its delay over the load band was identified at {identified_us:.0} us, where the declared actuator and {DECLARATION_DRAWS} others within actuator_tolerance = {} have {lo:.0}-{hi:.0} us (more than {:.0} % {}): the plan was made for another actuator; check [rig.actuator] (or the rig's hardware) and [compensation] actuator_tolerance (fastemu hil --check)",
+        "WARNING: the actuator does not behave as declared: its delay over the load band was identified at {identified_us:.0} us, where the declared actuator and {DECLARATION_DRAWS} others within actuator_tolerance = {} have {} us (more than {:.0} % {}): the plan was made for another actuator; check [rig.actuator] (or the rig's hardware) and [compensation] actuator_tolerance (fastemu hil --check)",
         plan.tolerance,
+        span(lo, hi),
         DECLARATION_MARGIN * 100.0,
         if identified_us < low { "below" } else { "above" }
     ))
@@ -588,13 +590,13 @@ pub fn describe_plan(p: &CompensationPlan) -> String {
         };
         if let Some(from_us) = p.start_moved_from_us {
             return format!(
-                "compensation planned from the declared actuator: {raised}over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are {unstable}; the lead the guess would start at ({from_us:.0} us: [compensation] initial_delay_us, capped where it would diverge in front of an actuator twice as fast) is stable for fewer than half of them, so the run starts at {:.0} us, stable for {} of {}, and the adaptation takes the lead on from there; [compensation] plan_from_actuator = false (with an external rig, also plan_for_external_rig = false) starts at the guess",
-                p.destinations_us.0, p.destinations_us.1, p.lead_us, p.lead_stable_for, p.draws
+                "compensation planned from the declared actuator: {raised}over {judged}, the leads the adaptation may settle on ({} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are {unstable}; the lead the guess would start at ({from_us:.0} us: [compensation] initial_delay_us, capped where it would diverge in front of an actuator twice as fast) is stable for fewer than half of them, so the run starts at {:.0} us, stable for {} of {}, and the adaptation takes the lead on from there; [compensation] plan_from_actuator = false (with an external rig, also plan_for_external_rig = false) starts at the guess",
+                span(p.destinations_us.0, p.destinations_us.1), p.lead_us, p.lead_stable_for, p.draws
             );
         }
         return format!(
-            "compensation as configured: {raised}over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are {unstable}; the starting lead ({:.0} us) is stable for {} of {}",
-            p.destinations_us.0, p.destinations_us.1, p.lead_us, p.lead_stable_for, p.draws
+            "compensation as configured: {raised}over {judged}, the leads the adaptation may settle on ({} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are {unstable}; the starting lead ({:.0} us) is stable for {} of {}",
+            span(p.destinations_us.0, p.destinations_us.1), p.lead_us, p.lead_stable_for, p.draws
         );
     }
     let nudge = p.nudge.map_or(String::new(), |n| {
@@ -635,9 +637,8 @@ pub fn describe_plan(p: &CompensationPlan) -> String {
         )
     });
     format!(
-        "compensation planned from the declared actuator: {raised}over {judged}, the leads the adaptation may settle on ({:.0}-{:.0} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are unstable somewhere for {} of them, so the lead is fixed at {:.0} us, stable for {} of {} (the adaptation learns the gain only){over}{nudge}{}{few}; such an actuator is rendered stable but maybe not faithful (a fixed lead makes up neither for a delay that varies with frequency nor for the part of one it falls short of: expect a run that may not be clean); [compensation] plan_from_actuator = false (with an external rig, also plan_for_external_rig = false) runs as configured",
-        p.destinations_us.0,
-        p.destinations_us.1,
+        "compensation planned from the declared actuator: {raised}over {judged}, the leads the adaptation may settle on ({} us: the actuator's phase delay from 1 Hz to the estimator's band plus half a period) are unstable somewhere for {} of them, so the lead is fixed at {:.0} us, stable for {} of {} (the adaptation learns the gain only){over}{nudge}{}{few}; such an actuator is rendered stable but maybe not faithful (a fixed lead makes up neither for a delay that varies with frequency nor for the part of one it falls short of: expect a run that may not be clean); [compensation] plan_from_actuator = false (with an external rig, also plan_for_external_rig = false) runs as configured",
+        span(p.destinations_us.0, p.destinations_us.1),
         p.destination_unstable_for,
         p.lead_us,
         p.lead_stable_for,

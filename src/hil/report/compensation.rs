@@ -161,7 +161,7 @@ pub fn record_delay(rendering: &[RenderingPoint], lead_s: f64) -> Option<RecordD
         bins: delays.len(),
         from_hz: delays[0].0,
         to_hz: delays[delays.len() - 1].0,
-        lead_us: lead_s * 1e6,
+        lead_us: super::json_us(lead_s),
     })
 }
 
@@ -270,16 +270,21 @@ impl CompensationReport {
     /// guard and the faithful band; a warning when the safe start never ended.
     pub fn describe(&self) -> String {
         let us = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.0} us"));
-        let settled = self
-            .settled_at_s
-            .map_or("never".to_string(), |t| format!("at {t:.2} s"))
-            + &match self.lead_nudges {
-                Some(n) if n > 0 => format!(
-                    " (the lead the plan fixed, stepped {n} time{} because the loop kept oscillating)",
-                    if n == 1 { "" } else { "s" }
-                ),
-                _ => String::new(),
-            };
+        // A lead within its settling band from the first command on settled from the start.
+        let from_start = |t: f64| self.trajectory.first().is_some_and(|p| t <= p.t_s);
+        let settled = self.settled_at_s.map_or("never".to_string(), |t| {
+            if from_start(t) {
+                "from the start".to_string()
+            } else {
+                format!("at {t:.2} s")
+            }
+        }) + &match self.lead_nudges {
+            Some(n) if n > 0 => format!(
+                " (the lead the plan fixed, stepped {n} time{} because the loop kept oscillating)",
+                if n == 1 { "" } else { "s" }
+            ),
+            _ => String::new(),
+        };
         let mut line = format!(
             "compensation: lead {} -> {:.0} us, identified {}{}{}{}, gain {:.3}, settled {}; guard: safe start {}, active {:.2} s, largest {:.1} kN s/m{}; faithful band {}",
             us(self.starting_lead_us),
@@ -366,8 +371,12 @@ impl CompensationReport {
         }
         if let Some(d) = &self.record_delay {
             line.push_str(&format!(
-                "; the record's delay over {:.0}-{:.0} Hz {:.0} us ({:.0}-{:.0} us over {} bins)",
-                d.from_hz, d.to_hz, d.mean_us, d.min_us, d.max_us, d.bins
+                "; the record's delay over {:.0}-{:.0} Hz {:.0} us ({} us over {} bins)",
+                d.from_hz,
+                d.to_hz,
+                d.mean_us,
+                super::span(d.min_us, d.max_us),
+                d.bins
             ));
         }
         if let Some(d) = self
@@ -551,11 +560,11 @@ impl CompensationAnalyser {
             self.next_point_s = r.t_s + self.stride_s;
             self.trajectory.push(EstimatePoint {
                 t_s: r.t_s,
-                lead_us: r.lead_s * 1e6,
-                lead_estimate_us: r.identified_delay_s * 1e6,
-                lead_estimate_sigma_us: r.identified_delay_sigma_s * 1e6,
-                load_band_delay_us: r.load_band_delay_s * 1e6,
-                load_band_delay_sigma_us: r.load_band_delay_sigma_s * 1e6,
+                lead_us: super::json_us(r.lead_s),
+                lead_estimate_us: super::json_us(r.identified_delay_s),
+                lead_estimate_sigma_us: super::json_us(r.identified_delay_sigma_s),
+                load_band_delay_us: super::json_us(r.load_band_delay_s),
+                load_band_delay_sigma_us: super::json_us(r.load_band_delay_sigma_s),
                 gain: r.actuator_gain,
                 guard_damping_ns_per_m: r.guard_damping_ns_per_m,
             });
@@ -622,19 +631,19 @@ impl CompensationAnalyser {
         CompensationReport {
             adapt: c.adapt,
             lead_adapted: c.adapt && c.adapt_lead,
-            initial_delay_us: c.initial_delay_s * 1e6,
-            starting_lead_us: self.lead_points.first().map(|p| p.1 * 1e6),
+            initial_delay_us: super::json_us(c.initial_delay_s),
+            starting_lead_us: self.lead_points.first().map(|p| super::json_us(p.1)),
             lead_nudges: (!c.adapt_lead && c.nudge.is_some())
                 .then(|| lead_steps(&self.lead_points)),
-            identified_delay_us: identified.map(|(d, _)| d * 1e6),
-            identified_delay_sigma_us: identified.map(|(_, s)| s * 1e6),
+            identified_delay_us: identified.map(|(d, _)| super::json_us(d)),
+            identified_delay_sigma_us: identified.map(|(_, s)| super::json_us(s)),
             identified_from,
             identified_bins: span.map(|s| s.0),
             identified_from_hz: span.map(|s| s.1),
             identified_to_hz: span.map(|s| s.2),
-            lead_estimate_us: self.identified.map(|(d, _)| d * 1e6),
-            lead_estimate_sigma_us: self.identified.map(|(_, s)| s * 1e6),
-            final_lead_us: final_lead * 1e6,
+            lead_estimate_us: self.identified.map(|(d, _)| super::json_us(d)),
+            lead_estimate_sigma_us: self.identified.map(|(_, s)| super::json_us(s)),
+            final_lead_us: super::json_us(final_lead),
             final_gain,
             settled_at_s,
             guard: GuardReport {

@@ -34,6 +34,10 @@ pub struct Fidelity {
     pub displacement_error_rms_m: f64,
     /// Periods compared (up to a fault hold, operator holds left out).
     pub compared_steps: u64,
+    /// Sample time of the rig's first period on a command, s, where the comparison
+    /// starts: until then the rig's own servo held the start (not the rendering's; not
+    /// compared). None: no command was sent, and the whole run is compared.
+    pub compared_from_s: Option<f64>,
     /// Seconds of the run the band errors cover (a bounded leading window).
     pub bands_window_s: f64,
     pub bands: Vec<BandError>,
@@ -392,6 +396,7 @@ impl ResidualAnalyser {
             ),
             displacement_error_rms_m: rms_err,
             compared_steps: self.n,
+            compared_from_s: None,
             bands_window_s: self.band_hil.len() as f64 / self.rate_hz,
             bands: band_errors(&self.band_hil, &self.band_ref, self.rate_hz, &band_refs),
         }

@@ -23,7 +23,7 @@ use serde::Serialize;
 use super::config::HilConfig;
 use super::controller::ControllerRecord;
 use super::emulator::{AfterFaultSampleRecord, EmulatorRecord};
-use crate::ipc::messages::rig_state;
+use crate::ipc::messages::{command_mode, rig_state};
 use crate::plot::{draw_png, Panel, Series};
 use crate::records::{EventRecord, RecordSet};
 use crate::rig::actuator::{ActuatorParamRecord, ActuatorTruthRecord};
@@ -119,6 +119,22 @@ fn earlier(found: &Option<(f64, u64, u32, u32)>, t_s: f64) -> bool {
     found.is_none_or(|(t, _, _, _)| t_s < t)
 }
 
+/// A time in s as us for the reports' JSON, to the nanosecond: `2850 us` reads 2850, not
+/// the 2849.9999999999995 that `s * 1e6` leaves of a lead given in us.
+pub(crate) fn json_us(s: f64) -> f64 {
+    (s * 1e9).round() / 1e3
+}
+
+/// A range for the console, `lo-hi` to the unit (`lo to hi` when an end is negative: not
+/// "-1510-5158").
+pub(crate) fn span(lo: f64, hi: f64) -> String {
+    if lo.round() < 0.0 || hi.round() < 0.0 {
+        format!("{lo:.0} to {hi:.0}")
+    } else {
+        format!("{lo:.0}-{hi:.0}")
+    }
+}
+
 /// The rig's view of one period from the emulator's record of its sample (external rig).
 fn rig_record_from_sample(e: &EmulatorRecord) -> RigRecord {
     rig_view_record(
@@ -196,6 +212,9 @@ struct SideStreams {
     actuator_truth: Option<ActuatorTruthRecord>,
     actuator_params: Vec<ActuatorParamRecord>,
     element: Option<element::ElementTracker>,
+    /// The sample the controller's first force or law command answered (none: it sent
+    /// none): the rig's own servo held the start until that command reached it.
+    first_command_sample: Option<u64>,
 }
 
 /// Pass 1: events, the emulator's and the controller's records.
@@ -216,6 +235,7 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
         actuator_truth: None,
         actuator_params: Vec::new(),
         element: element::ElementTracker::new(&cfg.augmented),
+        first_command_sample: None,
     };
     let mut last_cycle: Option<u64> = None;
     let mut last_command_t: Option<f64> = None;
@@ -279,6 +299,12 @@ fn read_side_streams(set: &RecordSet, cfg: &HilConfig) -> anyhow::Result<SideStr
             t if t == ControllerRecord::TOPIC => {
                 if let Some(r) = ControllerRecord::decode(data) {
                     side.compensation.controller(&r);
+                    if side.first_command_sample.is_none()
+                        && matches!(r.mode, command_mode::FORCE | command_mode::LAW)
+                        && r.sample_seq != u64::MAX
+                    {
+                        side.first_command_sample = Some(r.sample_seq);
+                    }
                     if r.end_to_end_ns > 0 {
                         side.end_to_end.saturating_record(r.end_to_end_ns);
                     }
@@ -348,6 +374,8 @@ struct RigPass {
     safety: Safety,
     loop_energy: safety::LoopEnergy,
     plots: RigPlots,
+    /// Where the comparison starts (`Fidelity::compared_from_s`).
+    compared_from_s: Option<f64>,
 }
 
 /// Pass 2: the rig's records against the offline reference.
@@ -383,6 +411,13 @@ fn read_rig_stream(
     // held (its programme pauses in a hold, as the simulated rig's does).
     let mut external_held_s = 0.0f64;
     let mut external_last: Option<(u64, bool)> = None;
+    // Until the first force or law command reaches the rig, its own servo holds the start:
+    // that wait is the rig's, not the rendering's. The comparison starts where the rig
+    // first applies a command, the reference from the measured state there (relaxed at
+    // rest, as after a hold: the element has seen the held start). Without any command
+    // sent, the whole run is compared, as before.
+    let mut awaiting = side.first_command_sample.is_some();
+    let mut compared_from_s: Option<f64> = None;
     let mut plots = RigPlots {
         x_hil: Decimator::new(0.0, 1e-3, PLOT_BUCKETS),
         x_ref: Decimator::new(0.0, 1e-3, PLOT_BUCKETS),
@@ -434,6 +469,19 @@ fn read_rig_stream(
             let element_force = (side.rig_records > 0).then_some(r.actuator_force_n);
             reference.resync(r.x_m, r.v_m_per_s, element_force, programme_step);
         }
+        if awaiting {
+            let applied = if side.rig_records > 0 {
+                r.state == rig_state::RUNNING
+                    && matches!(r.mode, command_mode::FORCE | command_mode::LAW)
+            } else {
+                side.first_command_sample.is_some_and(|s| r.step_idx > s)
+            };
+            if applied {
+                awaiting = false;
+                compared_from_s = Some(r.t_s);
+                reference.resync(r.x_m, r.v_m_per_s, None, programme_step);
+            }
+        }
         let x_ref_now = reference.advance_to(programme_step);
         safety.push(r);
         // A process's own gap: consecutive catch-up periods of the rig.
@@ -457,7 +505,7 @@ fn read_rig_stream(
             hp_steps.clear();
             high_pass = CentredHighPass::new(rate);
         }
-        if !held && !pause.paused() {
+        if !held && !pause.paused() && !awaiting {
             residual.push_displacement(r.x_m, x_ref_now);
             stalls.push_law_age(r.step_idx, r.law_age_periods);
             hp_steps.push_back(r.step_idx);
@@ -524,6 +572,7 @@ fn read_rig_stream(
         stalls,
         safety,
         plots,
+        compared_from_s,
     })
 }
 
@@ -636,7 +685,10 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
         programme,
         steps: side.emulator_steps,
         rig_steps: rig.rig_steps,
-        fidelity: rig.residual.fidelity(&bands(cfg)),
+        fidelity: Fidelity {
+            compared_from_s: rig.compared_from_s,
+            ..rig.residual.fidelity(&bands(cfg))
+        },
         largest_transient_m: stability.resonant_residual_max_m,
         stability,
         latency_ns,
