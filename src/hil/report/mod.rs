@@ -128,7 +128,9 @@ pub(crate) fn json_us(s: f64) -> f64 {
 /// A range for the console, `lo-hi` to the unit (`lo to hi` when an end is negative: not
 /// "-1510-5158").
 pub(crate) fn span(lo: f64, hi: f64) -> String {
-    if lo.round() < 0.0 || hi.round() < 0.0 {
+    // Rounded first, and `+ 0.0` makes a -0 a 0.
+    let (lo, hi) = (lo.round() + 0.0, hi.round() + 0.0);
+    if lo < 0.0 || hi < 0.0 {
         format!("{lo:.0} to {hi:.0}")
     } else {
         format!("{lo:.0}-{hi:.0}")
@@ -930,4 +932,21 @@ fn draw_safety_plot(dir: &Path, rig: &RigPass) -> anyhow::Result<()> {
         ],
     )?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    /// A lead given in us reads back in us without the float noise of `s * 1e6`, and a
+    /// range with a negative end is not written as "-1510-5158".
+    #[test]
+    fn leads_read_back_in_us_and_negative_ranges_read_as_ranges() {
+        let lead_s = 2850.0 * 1e-6;
+        assert_ne!(lead_s * 1e6, 2850.0);
+        assert_eq!(super::json_us(lead_s), 2850.0);
+        assert_eq!(super::json_us(265.6574812735871e-6), 265.657);
+        assert!(super::json_us(f64::NAN).is_nan());
+        assert_eq!(super::span(-1510.2, 5158.4), "-1510 to 5158");
+        assert_eq!(super::span(169.0, 297.4), "169-297");
+        assert_eq!(super::span(-0.4, 12.0), "0-12");
+    }
 }
