@@ -677,6 +677,62 @@ fn a_ring_of_a_lead_too_long_moves_the_lead_down() {
     assert!(error > 0.01, "displacement error {:.2} %", 100.0 * error);
 }
 
+/// An undeclared `rths-fast-150kn` (`perturb = 0.3`, seed 5; stable leads 1750-2660 us by
+/// `hil --check`) from 0: its 48 Hz ring read 1399 us, the phase there, and the safe
+/// start ended at that lead, where the guard can add no damping; nothing read the ring
+/// again and it grew until `loop-unstable` at 0.18 s. A ring that grows on within 0.25 s
+/// of the arrival now steps the lead up by a quarter: the run is stable to its end with
+/// its last lead inside the stable leads. Not faithful (a servo-hydraulic loop's delay
+/// varies with frequency).
+#[test]
+fn a_ring_that_grows_on_under_the_rings_lead_steps_the_lead_up() {
+    let mut cfg = config_with_actuator(
+        "preset = \"rths-fast-150kn\"\nperturb = 0.3\nperturb_seed = 5",
+        0.0,
+        true,
+        true,
+    );
+    cfg.compensation.plan_from_actuator = false;
+    let run = run_in_process(&cfg, &script(6.0));
+    let law = law_commands(&run);
+    // The ring's lead, where the safe start ended, then at least one step up within 0.25 s.
+    let ended = law
+        .iter()
+        .find(|r| r.guard_armed == 0)
+        .expect("the safe start ended");
+    assert!(
+        ended.t_s < 0.1 && (1000e-6..1750e-6).contains(&ended.lead_s),
+        "safe start ended at {} s, lead {} us",
+        ended.t_s,
+        ended.lead_s * 1e6
+    );
+    let (during, after, error) = ran_to_the_end_unheld(&cfg, &run, "rths-fast-150kn seed 5 from 0");
+    assert!(
+        after < 0.1 * during,
+        "{} um after the passage, {} um during it",
+        after * 1e6,
+        during * 1e6
+    );
+    let stepped = law
+        .iter()
+        .filter(|r| r.t_s <= ended.t_s + 0.3)
+        .map(|r| r.lead_s)
+        .fold(0.0, f64::max);
+    assert!(
+        stepped >= 1.2 * ended.lead_s,
+        "lead up to {} us from {} us",
+        stepped * 1e6,
+        ended.lead_s * 1e6
+    );
+    let last = law.last().unwrap().lead_s;
+    assert!(
+        (1750e-6..=2660e-6).contains(&last),
+        "last lead {} us",
+        last * 1e6
+    );
+    assert!(error > 0.01, "displacement error {:.2} %", 100.0 * error);
+}
+
 /// Same configuration, same input: the compensation (estimate, guard, the load band's
 /// delay) is bit-identical.
 #[test]

@@ -197,6 +197,9 @@ pub struct Compensator {
     /// The lead the last ringing gave: the load band's estimator moves the lead between it
     /// and `RING_LEAD_RANGE` above it.
     ring_lead: Option<f64>,
+    /// The guard's generated energy when the lead arrived at the ring's target, J
+    /// (`RING_GROWN_AFTER_ARRIVAL`).
+    ring_energy_at_arrival_j: f64,
     /// The oscillation estimate's target averaged over about a period of the ring
     /// (`RING_PERIODS_AVERAGED`); NaN before the window is full.
     ring_target_avg: f64,
@@ -305,6 +308,21 @@ const RING_PERIODS_AVERAGED: f64 = 1.0;
 const RING_MIN_ENERGY_ONSETS: f64 = 4.0;
 /// The lead has arrived at the oscillation's target within this, s.
 const OSCILLATION_ARRIVED_S: f64 = 2e-6;
+/// The ring's follow-up: for `RING_FOLLOW_UP_S` after the lead arrived at a ring's target
+/// with the safe start over, a ring that has grown to `RING_GROWN_AFTER_ARRIVAL` times the
+/// guard's energy at the arrival says the lead is still too short, and the lead steps up
+/// by `RING_LEAD_UP` (down by `RING_LEAD_DOWN` where `w L` says the lead is too long). The
+/// phase at a servo-hydraulic loop's ring is no stable lead of its own: `rths-fast-150kn`
+/// seed 5, stable with leads 1750-2660 us, read 1399 us at its 48 Hz ring, the safe start
+/// ended there, the guard can add no damping at that lead, and the ring grew until
+/// `loop-unstable` at 0.18 s; now 1399 -> 1749 -> 2187 us within 0.04 s. Reading the
+/// ring's phase again instead left more runs tripping (32 and 52 of 117 undeclared servo
+/// runs without a fault against 56; 66 with the step). Later rings are the guard's: an
+/// axle's passage 2 s in, taken for one, stepped a stable lead out of its range
+/// (`rths-fast-150kn` seed 6 from 504 us).
+const RING_FOLLOW_UP_S: f64 = 0.25;
+const RING_GROWN_AFTER_ARRIVAL: f64 = 4.0;
+const RING_LEAD_UP: f64 = 1.25;
 
 /// A ring at `w` with the lead `L` in effect where `w L` exceeds this (rad) is the
 /// prediction's, not a lead too short: the order-2 prediction's gain `|1 + j w L - (w
@@ -376,6 +394,7 @@ impl Compensator {
             since_oscillation_move: u64::MAX,
             oscillation_target: None,
             ring_lead: None,
+            ring_energy_at_arrival_j: f64::INFINITY,
             ring_target_avg: f64::NAN,
             last_estimate: None,
             nudge: cfg.nudge.map(|r| LeadNudge::new(r, dt_s)),
@@ -525,7 +544,7 @@ impl Compensator {
             if let Some(gain) = self.contact.observe(own / element_force_n, element_force_n) {
                 self.gain = gain;
             }
-            if self.guard.armed() || self.oscillation_target.is_some() {
+            if self.guard.armed() || self.oscillation_target.is_some() || self.ring_follow_up() {
                 let asked = self.asked_without_lead(displacement_m, element_force_n);
                 let o = self.oscillation.update(asked, own, self.lead_s);
                 self.follow_oscillation(o);
@@ -615,6 +634,13 @@ impl Compensator {
         element_force_n + self.status.guard.damping_ns_per_m * v_hp
     }
 
+    /// Whether the lead arrived at a ring's target less than `RING_FOLLOW_UP_S` ago.
+    #[inline]
+    fn ring_follow_up(&self) -> bool {
+        self.ring_lead.is_some()
+            && (self.since_oscillation_move as f64) * self.dt_s < RING_FOLLOW_UP_S
+    }
+
     /// The safe start's answer to a loop that rings: when the guard's observer sees the
     /// loop generate energy beyond `RING_MIN_ENERGY_ONSETS` times its onset and one
     /// oscillation in 10-400 Hz explains the band over a full window
@@ -629,7 +655,8 @@ impl Compensator {
     /// alone (followed continuously, the ring that grew under the old lead dominated the
     /// window while it decayed under the new one, and the lead overshot to 0.95 ms and
     /// tripped), and the load band's estimator takes the lead on, never below the ring's
-    /// lead and at most `RING_LEAD_RANGE` above it.
+    /// lead and at most `RING_LEAD_RANGE` above it. A ring that grows on after the
+    /// arrival steps the lead (`RING_FOLLOW_UP_S`).
     #[inline]
     fn follow_oscillation(&mut self, estimate: Option<OscillationEstimate>) {
         if let Some(target) = self.oscillation_target {
@@ -647,6 +674,7 @@ impl Compensator {
             }
             if (target - self.lead_s).abs() <= OSCILLATION_ARRIVED_S {
                 self.ring_lead = Some(target);
+                self.ring_energy_at_arrival_j = self.status.guard.generated_j;
                 self.oscillation_target = None;
                 self.oscillation.clear_window();
                 self.ring_target_avg = f64::NAN;
@@ -665,6 +693,16 @@ impl Compensator {
                 target_now
             };
         }
+        // After the safe start only the ring's follow-up reads (`RING_FOLLOW_UP_S`); the
+        // energy gate below (`RING_MIN_ENERGY_ONSETS`) still applies.
+        let after_start = !self.guard.armed();
+        if after_start
+            && (!self.ring_follow_up()
+                || self.status.guard.generated_j
+                    < RING_GROWN_AFTER_ARRIVAL * self.ring_energy_at_arrival_j)
+        {
+            return;
+        }
         if self.cfg.adapt_lead
             && o.window_full
             && self.status.guard.generated_j >= RING_MIN_ENERGY_ONSETS * self.guard.onset_j()
@@ -677,6 +715,8 @@ impl Compensator {
             let theta = 2.0 * std::f64::consts::PI * o.frequency_hz * o.window_lead_s;
             let target = if theta > RING_LEAD_TOO_LONG_RAD && self.ring_target_avg > self.lead_s {
                 RING_LEAD_DOWN * o.window_lead_s
+            } else if after_start {
+                RING_LEAD_UP * o.window_lead_s
             } else {
                 self.ring_target_avg
             };
