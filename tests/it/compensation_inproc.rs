@@ -1376,12 +1376,13 @@ fn servo_hydraulic_presets_run_stable_on_the_planned_lead_and_are_not_clean() {
         assert!(after < 0.1 * during, "{actuator}");
         assert!(error > 0.01, "{actuator}: {:.3} %", error * 100.0);
     }
-    // A rig without the plan (seed 9, not one the ring's constants were chosen on: the
-    // lead read from the ringing is not stable for it; seeds 1, 2 and 3, which tripped
-    // here until 2026-11-28, now run to the end on theirs, not clean: `RING_PERIODS_AVERAGED`
-    // in `hil::compensation`) trips; with the plan it runs.
-    let seed9 = "preset = \"fatigue-150kn\"\nperturb = 0.3\nperturb_seed = 9";
-    let planned = config_with_actuator(seed9, 252.0, true, true);
+    // A rig without the plan trips; with the plan it runs. `slow-250kn` seed 1: it rings
+    // near 20 Hz, below the band the ring is read in. (`fatigue-150kn` seeds 1, 2 and 3
+    // tripped here until 2026-11-28 and run to the end on their ring's lead since
+    // `RING_PERIODS_AVERAGED`; seed 9, since the ring's follow-up, `RING_FOLLOW_UP_S`,
+    // 2026-11-29: not clean, but no longer examples of a trip.)
+    let unplanned_trips = "preset = \"slow-250kn\"\nperturb = 0.3\nperturb_seed = 1";
+    let planned = config_with_actuator(unplanned_trips, 252.0, true, true);
     let run = run_in_process(&planned, &script(2.0));
     assert!(faults(&run).is_empty(), "{:?}", faults(&run));
     let mut cfg = planned.clone();
