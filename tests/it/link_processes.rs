@@ -618,7 +618,6 @@ fn an_external_rigs_hold_after_the_emulators_fault_is_in_the_records_and_the_rep
         "external-hold",
         "\n[[inject]]\nprocess = \"emulator\"\nkind = \"stall\"\nat_s = 1.0\nduration_ms = 300\n",
     );
-    let report = dir.join("report");
     assert_ne!(code, 0, "{stderr}");
     let faults = json["safety"]["faults"].as_array().unwrap();
     let emulator = faults
@@ -631,19 +630,11 @@ fn an_external_rigs_hold_after_the_emulators_fault_is_in_the_records_and_the_rep
     // From the first sample that carried the hold (after the stalled emulator missed some) to the end.
     assert!(held_s > 0.5, "held {held_s} s");
     // The records after the fault: the rig's samples, in its hold, to the end of the run.
-    let csv = dir.join("csv");
-    export_csv(&report.join("records.mcap"), &csv);
-    let text = std::fs::read_to_string(csv.join("emulator_after_fault.csv")).unwrap();
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
-    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
-    let (t, state) = (col("t_s"), col("rig_state"));
-    let rows: Vec<(f64, u32)> = lines
-        .map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            (f[t].parse().unwrap(), f[state].parse().unwrap())
-        })
-        .collect();
+    let rows: Vec<(f64, u32)> =
+        exported_columns(&dir, "emulator_after_fault.csv", ["t_s", "rig_state"])
+            .into_iter()
+            .map(|[t, state]| (t, state as u32))
+            .collect();
     let emulator_trip = emulator["detected_at_s"].as_f64().unwrap();
     assert!(rows.len() > 2048, "{} samples after the fault", rows.len());
     assert!(
@@ -676,17 +667,10 @@ fn an_external_rigs_wait_for_a_late_first_command_is_at_rest_and_not_compared() 
     let from = json["fidelity"]["compared_from_s"].as_f64().unwrap();
     assert!(from >= 0.010, "compared from {from} s");
     // The wait, as the emulator recorded the rig's samples: at rest where it started.
-    let csv = dir.join("csv");
-    export_csv(&dir.join("report").join("records.mcap"), &csv);
-    let text = std::fs::read_to_string(csv.join("emulator.csv")).unwrap();
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
-    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
-    let (t, z) = (col("t_s"), col("z_used_m"));
-    let waited: Vec<f64> = lines
-        .map(|l| l.split(',').collect::<Vec<&str>>())
-        .filter(|f| f[t].parse::<f64>().unwrap() < from)
-        .map(|f| f[z].parse::<f64>().unwrap())
+    let waited: Vec<f64> = exported_columns(&dir, "emulator.csv", ["t_s", "z_used_m"])
+        .into_iter()
+        .filter(|[t, _]| *t < from)
+        .map(|[_, z]| z)
         .collect();
     assert!(
         waited.len() >= 40,
@@ -700,6 +684,28 @@ fn an_external_rigs_wait_for_a_late_first_command_is_at_rest_and_not_compared() 
     );
     let rel = json["fidelity"]["displacement_rel_rms"].as_f64().unwrap();
     assert!(rel < 0.03, "displacement relative RMS error {rel}");
+}
+
+/// The columns `names` of `file` (e.g. `emulator.csv`) in the CSV export of the run whose
+/// report is in `dir/report`, row by row.
+fn exported_columns<const N: usize>(dir: &Path, file: &str, names: [&str; N]) -> Vec<[f64; N]> {
+    let csv = dir.join("csv");
+    export_csv(&dir.join("report").join("records.mcap"), &csv);
+    let text = std::fs::read_to_string(csv.join(file)).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let cols = names.map(|name| {
+        header
+            .iter()
+            .position(|h| *h == name)
+            .unwrap_or_else(|| panic!("{file} has no column {name}"))
+    });
+    lines
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            cols.map(|c| f[c].parse().unwrap())
+        })
+        .collect()
 }
 
 /// Runs the example rig over iceoryx2 under `hil --rig external` with `inject` appended to
