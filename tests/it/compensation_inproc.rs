@@ -733,6 +733,55 @@ fn a_ring_that_grows_on_under_the_rings_lead_steps_the_lead_up() {
     assert!(error > 0.01, "displacement error {:.2} %", 100.0 * error);
 }
 
+/// An undeclared `fatigue-150kn` (`perturb = 0.3`, seed 5; effective delay 1.7 ms) from
+/// a guess of 5250 us, about twice the preset's: the lead rings at 150-250 Hz, where `w L`
+/// says it is too long, and the ring steps it down by a quarter. That step took 13 ms at
+/// the ring's rate (0.1 s of lead per s), the ring grew meanwhile, and the run tripped
+/// `loop-unstable` at 0.06 s. A step down is now taken at 1 s per s (244 us a sample):
+/// within 3 ms, and the run is stable to its end on a lead at most 0.6 of the guess.
+#[test]
+fn a_lead_too_long_is_left_within_milliseconds() {
+    let mut cfg = config_with_actuator(
+        "preset = \"fatigue-150kn\"\nperturb = 0.3\nperturb_seed = 5",
+        5250.0,
+        true,
+        true,
+    );
+    cfg.compensation.plan_from_actuator = false;
+    let run = run_in_process(&cfg, &script(6.0));
+    let law = law_commands(&run);
+    let guess = law[0].lead_s;
+    assert!(
+        (guess - 5250e-6).abs() < 1e-9,
+        "started at {} us",
+        guess * 1e6
+    );
+    let left = law
+        .iter()
+        .find(|r| r.lead_s < guess - 1e-9)
+        .expect("the lead left the guess");
+    let down = law
+        .iter()
+        .find(|r| r.lead_s <= 0.75 * guess + 1e-9)
+        .expect("the lead stepped down a quarter");
+    assert!(
+        left.t_s < 0.05 && down.t_s - left.t_s < 0.003,
+        "left {} us at {} s, a quarter down at {} s",
+        guess * 1e6,
+        left.t_s,
+        down.t_s
+    );
+    let (during, after, _) = ran_to_the_end_unheld(&cfg, &run, "fatigue-150kn seed 5 from 5250 us");
+    assert!(
+        after < 0.1 * during,
+        "{} um after the passage, {} um during it",
+        after * 1e6,
+        during * 1e6
+    );
+    let last = law.last().unwrap().lead_s;
+    assert!(last <= 0.6 * guess, "last lead {} us", last * 1e6);
+}
+
 /// Same configuration, same input: the compensation (estimate, guard, the load band's
 /// delay) is bit-identical.
 #[test]
