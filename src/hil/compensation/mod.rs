@@ -658,8 +658,8 @@ impl Compensator {
     /// loop generate energy beyond `RING_MIN_ENERGY_ONSETS` times its onset and one
     /// oscillation in 10-400 Hz explains the band over a full window
     /// (`OSCILLATION_MIN_FIT`), the phase delay at that oscillation's frequency, averaged
-    /// over about a period of it (`RING_PERIODS_AVERAGED`), is taken as the lead's target, and the lead moves to it fast
-    /// (`OSCILLATION_MAX_RATE`): there the loop crosses over, and that phase is what a lead
+    /// over about a period of it (`RING_PERIODS_AVERAGED`), is taken as the lead's target,
+    /// and the lead moves to it fast (`OSCILLATION_MAX_RATE`; down at `RING_DOWN_RATE`): there the loop crosses over, and that phase is what a lead
     /// must cancel for the loop to be passive (a guess of 0 before a 0.81 ms lag-delay
     /// actuator rang the resonance past the monitor's bound in 0.1 s, before the load
     /// band's estimator had warmed up). Within 10 % of the target the safe start ends
