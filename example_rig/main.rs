@@ -749,10 +749,13 @@ fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
             }
         }
         if entered_hold {
+            // Position control where it latched, the held load fed forward (rig-interface.md, the interlock): not
+            // the last force, which in a loop that tripped is mid-swing (a 2 kN swing held
+            // as the equilibrium moved the specimen 0.93 mm into the hold, 2026-11-29).
             hold_x = x;
-            hold_force = force;
-            hold_since = k;
             programme_held_n = load_n(o, programme_t);
+            hold_force = programme_held_n;
+            hold_since = k;
             rest_window.clear();
         }
         // c. the actuator force for this period.

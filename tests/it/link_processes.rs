@@ -686,6 +686,65 @@ fn an_external_rigs_wait_for_a_late_first_command_is_at_rest_and_not_compared() 
     assert!(rel < 0.03, "displacement relative RMS error {rel}");
 }
 
+/// An external rig whose loop trips (the example rig declared, its lead fixed at 0 with
+/// nothing to make up for it): its hold stays where it tripped, the report reads its rest
+/// from its measured displacement, and the trip is judged on the declared actuator. A
+/// lab's trial (2026-11-29) found the example rig holding its last force as the
+/// equilibrium: mid-swing in a tripped loop, 2 kN off the load, and the specimen went 0.93
+/// mm into the hold; every fault line said "never at rest".
+#[test]
+fn an_external_rigs_trip_holds_where_it_tripped_comes_to_rest_and_is_judged_on_the_declaration() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = scratch_dir("ext-trip");
+    let report = dir.join("report");
+    let mut replacements = EXAMPLE_RIG_SCENARIO.to_vec();
+    replacements.extend([
+        ("initial_delay_us = 252.0", "initial_delay_us = 0.0"),
+        ("adapt = true", "adapt = false"),
+        ("passivity_guard = true", "passivity_guard = false"),
+        (
+            "plan_for_external_rig = false",
+            "plan_for_external_rig = true",
+        ),
+    ]);
+    let config = write_config(&dir, &replacements, "");
+    let run_id = format!("feit{}exttrip", std::process::id());
+    let mut hil = spawn_hil_with(
+        &config,
+        &report,
+        2.5,
+        &["--rig", "external", "--run-id", &run_id, "--run-unstable"],
+    );
+    let status = run_example_rig(&["--ipc", &run_id]);
+    assert!(status.is_some(), "the example rig did not end");
+    let (code, json) = hil.finish(Duration::from_secs(60));
+    let stderr = hil.stderr();
+    assert_nothing_left(&json);
+    assert_eq!(code, 2, "{stderr}");
+    let faults = json["safety"]["faults"].as_array().unwrap();
+    let trip = faults
+        .iter()
+        .find(|f| f["process"] == "emulator")
+        .unwrap_or_else(|| panic!("no emulator fault: {stderr}"));
+    assert_eq!(trip["fault"], "loop-unstable", "{trip}");
+    let judged = &trip["leads_after_trip"];
+    assert_eq!(judged["judged"], "declared", "{judged}");
+    assert_eq!(judged["verdict"], "lead-outside", "{judged}");
+    assert!(stderr.contains("the declared actuator"), "{stderr}");
+    // The rig's hold, from its samples: near where it tripped, and at rest.
+    let rig = faults
+        .iter()
+        .find(|f| f["process"] == "external rig")
+        .unwrap_or_else(|| panic!("no external rig fault: {stderr}"));
+    assert_eq!(rig["fault"], "hold-requested", "{rig}");
+    let excursion = rig["largest_excursion_m"].as_f64().unwrap();
+    assert!(excursion < 100e-6, "{} um into the hold", excursion * 1e6);
+    let rest = rig["time_to_rest_s"].as_f64();
+    assert!(rest.is_some_and(|t| t < 1.0), "{rig}");
+    assert_eq!(json["safety"]["at_rest"], true, "{}", json["safety"]);
+    assert!(!stderr.contains("never at rest"), "{stderr}");
+}
+
 /// The columns `names` of `file` (e.g. `emulator.csv`) in the CSV export of the run whose
 /// report is in `dir/report`, row by row.
 fn exported_columns<const N: usize>(dir: &Path, file: &str, names: [&str; N]) -> Vec<[f64; N]> {

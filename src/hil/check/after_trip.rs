@@ -13,6 +13,10 @@ use super::*;
 pub enum JudgedActuator {
     /// The simulated rig's actuator as it recorded it (`/rig/actuator`, its drawn truth).
     RecordedTruth,
+    /// An external rig the configuration declares (`[compensation] plan_for_external_rig`):
+    /// `[rig.actuator]` at its nominal values (the rig's own may differ by the declared
+    /// tolerance).
+    Declared,
     /// A rig of its own: actuators whose effective delay is the identified one, a pure
     /// delay and lags of a quarter and a half of it (`DAMPING_REPRESENTATIVE_LAGS`).
     IdentifiedDelay,
@@ -115,6 +119,53 @@ pub fn leads_after_trip_truth(
     gain: f64,
     lead_adapted: bool,
 ) -> LeadsAfterTrip {
+    leads_after_trip_plant(
+        cfg,
+        JudgedActuator::RecordedTruth,
+        plant,
+        effective_delay_s,
+        lead_s,
+        gain,
+        lead_adapted,
+    )
+}
+
+/// An external rig the configuration declares (`JudgedActuator::Declared`), after a trip
+/// at `lead_s` with the gain `gain`: `[rig.actuator]`'s nominal plant, judged whether or
+/// not the run identified anything (a trip in the first 50 ms leaves no estimate).
+pub fn leads_after_trip_declared(
+    cfg: &HilConfig,
+    lead_s: f64,
+    gain: f64,
+    lead_adapted: bool,
+) -> LeadsAfterTrip {
+    let plant = nominal_plant(cfg);
+    let k = cfg
+        .model
+        .element
+        .high_frequency_stiffness_n_per_m(cfg.scenario.preload_n);
+    let effective = plant.effective_delay(k).delay_s + 0.5 * cfg.loop_.dt_s();
+    leads_after_trip_plant(
+        cfg,
+        JudgedActuator::Declared,
+        &plant,
+        effective,
+        lead_s,
+        gain,
+        lead_adapted,
+    )
+}
+
+/// One actuator's plant `plant`, judged as `judged` says, after a trip at `lead_s`.
+fn leads_after_trip_plant(
+    cfg: &HilConfig,
+    judged_as: JudgedActuator,
+    plant: &ActuatorPlant,
+    effective_delay_s: f64,
+    lead_s: f64,
+    gain: f64,
+    lead_adapted: bool,
+) -> LeadsAfterTrip {
     let l = LinearLoop::for_plant(cfg, plant, lead_s, gain).with_programme_loads(cfg);
     let leads = vec![judged(&l, None, cfg.compensation.max_delay_s)];
     // The lead at the trip itself, not within the ranges' ends (a range may have gaps).
@@ -130,7 +181,7 @@ pub fn leads_after_trip_truth(
         other => (other, at_preload),
     };
     LeadsAfterTrip {
-        judged: JudgedActuator::RecordedTruth,
+        judged: judged_as,
         effective_delay_us: effective_delay_s * 1e6,
         lead_at_trip_us: lead_s * 1e6,
         lead_adapted,
@@ -292,8 +343,22 @@ impl LeadsAfterTrip {
                     )
                 }
             ),
+            JudgedActuator::Declared => format!(
+                "the declared actuator ([rig.actuator] at its nominal values, {:.0} us effective delay; the rig's own may differ) is stable {} at the preload{}",
+                self.effective_delay_us,
+                with_leads(self.leads[0].at_preload_us),
+                if loads.is_empty() {
+                    String::new()
+                } else {
+                    format!(
+                        " and {} at the programme's loads {} kN too",
+                        with_leads(self.leads[0].at_every_load_us),
+                        loads
+                    )
+                }
+            ),
             JudgedActuator::IdentifiedDelay => format!(
-                "an actuator of the identified delay ({:.0} us), if it is a delay and a lag (a servo-hydraulic force loop is not: its stable leads lie above its identified delay), is stable at the preload{} with leads {}",
+                "an actuator of the identified delay ({:.0} us), if it is a delay and a lag (a servo-hydraulic force loop is not, and its stable leads may lie far from its identified delay, above or below), is stable at the preload{} with leads {}",
                 self.effective_delay_us,
                 if loads.is_empty() {
                     String::new()
@@ -314,6 +379,23 @@ impl LeadsAfterTrip {
                     .join(", ")
             ),
         };
+        // Judged as delay-and-lag stand-ins, "no lead" is theirs: a force loop may be held.
+        if self.judged == JudgedActuator::IdentifiedDelay
+            && matches!(
+                self.verdict,
+                LeadVerdict::NoLead | LeadVerdict::NoLeadAtEveryLoad
+            )
+        {
+            return format!(
+                "could a lead have held it? {whom}; no lead holds such an actuator {} (the lead at the trip was {:.0} us). That says the rig's actuator is too slow for this specimen (SPEC 6.1) only if it is a delay and a lag; a servo-hydraulic force loop's stable leads are not judged from its delay: declare it ([rig.actuator] with [compensation] plan_for_external_rig = true), and fastemu hil --check shows the leads that hold it and the plan fixes one",
+                if self.verdict == LeadVerdict::NoLead {
+                    "even at the preload"
+                } else {
+                    "at every load of the programme"
+                },
+                self.lead_at_trip_us
+            );
+        }
         let what = match self.verdict {
             LeadVerdict::NoLead => format!(
                 "no lead holds the loop even at the preload: the actuator is too slow for this specimen's resonance (SPEC 6.1), whatever the compensation learns (the lead at the trip was {:.0} us); a faster actuator is what helps",
@@ -449,5 +531,46 @@ mod tests {
         // The shipped actuator's identified delay: its pure delay holds the matched lead.
         let fast = leads_after_trip_identified(&cfg, 252e-6, 252e-6, true);
         assert_eq!(fast.verdict, LeadVerdict::LeadInside, "{fast:?}");
+    }
+
+    /// An external servo-hydraulic force loop (`fatigue-150kn` with a 30 Hz force loop and
+    /// no velocity compensation: `hil --check` holds it with leads 0-2390 us at every
+    /// load) that tripped at a lead of 3 ms the adaptation took from its load band's
+    /// delay of 2.8 ms. Declared, it is judged itself: the lead was outside its stable
+    /// leads. Undeclared, the delay's delay-and-lag stand-ins have no lead at all, and the
+    /// console must not call the rig's actuator too slow on their word (a lab's trial of
+    /// 2026-11-29 was told "a faster actuator is what helps" of such a loop).
+    #[test]
+    fn a_declared_external_force_loop_is_judged_itself_and_stand_ins_do_not_call_it_too_slow() {
+        let text = include_str!("../../../configs/hil-default.toml")
+            .replace(
+                "kind = \"lag-delay\"\ntransport_delay_us = 50.0\nlag_us = 80.0\nforce_max_n = 150000.0",
+                "preset = \"fatigue-150kn\"\nforce_loop_bandwidth_hz = 30.0\nvelocity_compensation = 0.0",
+            )
+            .replace("plan_for_external_rig = false", "plan_for_external_rig = true");
+        let cfg = crate::hil::config::parse_hil_config(&text, "servo30.toml", None).unwrap();
+        assert!(cfg.compensation.plan_for_external_rig);
+        let declared = leads_after_trip_declared(&cfg, 3000e-6, 1.0, true);
+        assert_eq!(declared.judged, JudgedActuator::Declared);
+        assert_eq!(declared.leads.len(), 1);
+        let (a, b) = declared.leads[0]
+            .at_every_load_us
+            .expect("the declared loop is held at every load");
+        assert!(a < 500.0 && (2000.0..3000.0).contains(&b), "{a}-{b}");
+        assert_eq!(declared.verdict, LeadVerdict::LeadOutside, "{declared:?}");
+        // Without velocity compensation its force leads over 1-20 Hz: a negative delay.
+        assert!(declared.effective_delay_us.is_finite(), "{declared:?}");
+        let text = declared.describe();
+        assert!(text.contains("the declared actuator"), "{text}");
+        assert!(text.contains("was outside them"), "{text}");
+        let inside = leads_after_trip_declared(&cfg, 1000e-6, 1.0, true);
+        assert_eq!(inside.verdict, LeadVerdict::LeadInside, "{inside:?}");
+
+        let stand_ins = leads_after_trip_identified(&cfg, 2807e-6, 3000e-6, true);
+        assert_eq!(stand_ins.verdict, LeadVerdict::NoLead, "{stand_ins:?}");
+        let text = stand_ins.describe();
+        assert!(text.contains("only if it is a delay and a lag"), "{text}");
+        assert!(text.contains("plan_for_external_rig = true"), "{text}");
+        assert!(!text.contains("a faster actuator is what helps"), "{text}");
     }
 }

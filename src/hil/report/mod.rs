@@ -395,6 +395,9 @@ fn read_rig_stream(
     let mut hp_steps: VecDeque<u64> = VecDeque::new();
     let mut stalls = StallTracker::new(rate);
     let mut safety = SafetyTracker::new(&side.events, dt);
+    if side.rig_records == 0 {
+        safety = safety.reading_rest_from_samples(cfg.safety.rest_band_m, cfg.safety.rest_window_s);
+    }
     let mut instability = InstabilityTracker::new(&side.events, cfg.safety.stability);
     let first_fault = safety.first_fault_s();
     let rig_gaps: std::cell::RefCell<Vec<Gap>> = std::cell::RefCell::new(Vec::new());
@@ -681,6 +684,7 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
         cfg,
         &mut safety,
         actuator_truth.as_ref(),
+        side.rig_records == 0,
         &compensation_report,
     );
     Ok(Analysis {
@@ -730,12 +734,14 @@ pub fn analyse_run(cfg: &HilConfig, dir: &Path) -> anyhow::Result<Analysis> {
 /// diverges slowly leaves the range before the monitor's band sees it), whether any lead
 /// would have held the
 /// linearised loop (`check::after_trip`): in front of the rig's recorded actuator when it
-/// recorded one, else of delay-and-lag actuators of the identified delay (none when
-/// nothing was identified).
+/// recorded one, else of the declared actuator when the configuration declares the
+/// external rig (`plan_for_external_rig`), else of delay-and-lag actuators of the
+/// identified delay (none when nothing was identified).
 fn attach_leads_after_trip(
     cfg: &HilConfig,
     safety: &mut safety::Safety,
     truth: Option<&actuator::ActuatorTruth>,
+    external_rig: bool,
     compensation: &compensation::CompensationReport,
 ) {
     use crate::hil::check::after_trip;
@@ -766,6 +772,14 @@ fn attach_leads_after_trip(
                     compensation.final_gain,
                     compensation.lead_adapted,
                 )),
+                (None, _) if external_rig && cfg.compensation.plan_for_external_rig => {
+                    Some(after_trip::leads_after_trip_declared(
+                        cfg,
+                        lead_s,
+                        compensation.final_gain,
+                        compensation.lead_adapted,
+                    ))
+                }
                 (None, Some(d)) if d.is_finite() && d > 0.0 => {
                     Some(after_trip::leads_after_trip_identified(
                         cfg,

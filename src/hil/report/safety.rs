@@ -243,7 +243,8 @@ pub struct Safety {
     /// while running (its end-of-run event), else the rig's state in its last record
     /// (`hold`, `unload`, `operator-hold`, ...).
     pub final_state: String,
-    /// Whether the rig reported the specimen at rest in its hold.
+    /// Whether the rig reported the specimen at rest in its hold (an external rig: whether
+    /// its measured displacement came to rest in it, `SafetyTracker::measured_rest`).
     pub at_rest: bool,
     /// An external rig whose records (the emulator's of its samples) end in force
     /// control after a fault: the hold its heartbeat still told (when and why), or that
@@ -316,7 +317,21 @@ pub struct SafetyTracker {
     hold_since_s: Option<f64>,
     /// The rig recorded its end-of-run event.
     rig_finished: bool,
+    /// An external rig records no at-rest event: its rest is read from its measured
+    /// displacement in a hold (`[safety] rest_band_m` over `rest_window_s`, the simulated
+    /// rig's rule), in this window of samples; `None` for the simulated rig.
+    measured_rest: Option<MeasuredRest>,
     pub safety: Safety,
+}
+
+/// `SafetyTracker::measured_rest`: the hold's last samples, the window's length and band,
+/// and whether this hold's rest was read already.
+#[derive(Debug, Clone)]
+struct MeasuredRest {
+    window: std::collections::VecDeque<f64>,
+    samples: usize,
+    band_m: f64,
+    read: bool,
 }
 
 impl SafetyTracker {
@@ -372,8 +387,22 @@ impl SafetyTracker {
             last_period: None,
             hold_since_s: None,
             rig_finished,
+            measured_rest: None,
             safety,
         }
+    }
+
+    /// For an external rig: read its rest from its measured displacement in a hold, within
+    /// `band_m` over `window_s` (`measured_rest`).
+    pub fn reading_rest_from_samples(mut self, band_m: f64, window_s: f64) -> SafetyTracker {
+        let samples = ((window_s / self.dt_s).round() as usize).max(2);
+        self.measured_rest = Some(MeasuredRest {
+            window: std::collections::VecDeque::with_capacity(samples),
+            samples,
+            band_m,
+            read: false,
+        });
+        self
     }
 
     /// The earliest fault's detection time, s.
@@ -393,6 +422,27 @@ impl SafetyTracker {
             self.hold_since_s = Some(r.t_s);
         }
         self.last_state = r.state;
+        if let Some(m) = &mut self.measured_rest {
+            if !holding {
+                m.window.clear();
+                m.read = false;
+            } else if !m.read {
+                if m.window.len() == m.samples {
+                    m.window.pop_front();
+                }
+                m.window.push_back(r.x_m);
+                let (lo, hi) = m
+                    .window
+                    .iter()
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
+                        (lo.min(x), hi.max(x))
+                    });
+                if m.window.len() == m.samples && hi - lo <= m.band_m {
+                    m.read = true;
+                    self.rest_times.push(r.t_s);
+                }
+            }
+        }
         let (pre_min, pre_max) = (self.prefault_min, self.prefault_max);
         for f in &mut self.faults {
             // A record at the detection's period counts as "after": the hold starts there.
