@@ -734,10 +734,10 @@ fn a_ring_that_grows_on_under_the_rings_lead_steps_the_lead_up() {
 }
 
 /// An undeclared `fatigue-150kn` (`perturb = 0.3`, seed 5; effective delay 1.7 ms) from
-/// a guess of 5250 us, about twice the preset's: the lead rings at 150-250 Hz, where `w L`
+/// a guess of 5250 us, about twice the preset's: the lead rings at 200-250 Hz, where `w L`
 /// says it is too long, and the ring steps it down by a quarter. That step took 13 ms at
 /// the ring's rate (0.1 s of lead per s), the ring grew meanwhile, and the run tripped
-/// `loop-unstable` at 0.06 s. A step down is now taken at 1 s per s (244 us a sample):
+/// `loop-unstable` at 0.20 s. A step down is now taken at 1 s per s (244 us a sample):
 /// within 3 ms, and the run is stable to its end on a lead at most 0.6 of the guess.
 #[test]
 fn a_lead_too_long_is_left_within_milliseconds() {

@@ -333,11 +333,11 @@ const RING_LEAD_TOO_LONG_RAD: f64 = 2.0;
 const RING_LEAD_DOWN: f64 = 0.75;
 /// A ring's target below the lead is taken at this rate (s of lead per s; 244 us per
 /// sample at 4096 Hz), not at `OSCILLATION_MAX_RATE`: a lead too long grows its ring at
-/// 150-250 Hz by e in a few ms, and shortening the lead asks for no force the loop would
+/// 200-250 Hz by e in a few ms, and shortening the lead asks for no force the loop would
 /// feel (the step in the command is the velocity times the step times the stiffness, tens
 /// of N at the start's few um of ring). Undeclared `fatigue-150kn` seed 5 from 5250 us
 /// (effective delay 1.7 ms): the quarter step took 13 ms, the ring grew meanwhile, and
-/// `loop-unstable` tripped at 0.06 s; at this rate it takes 1.4 ms and the run is stable
+/// `loop-unstable` tripped at 0.20 s; at this rate it takes 1.4 ms and the run is stable
 /// to its end (2.1 %). In-process, undeclared servo-hydraulic presets from 1.5 and 2 times
 /// their delay, seeds 0-7 (2026-11-29): 27 of 48 without a fault against 24 (4 saved, 1
 /// lost); the 117 runs from 0-504 us (66 without a fault), 180 `lag-delay` (141), 120
