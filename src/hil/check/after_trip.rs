@@ -1,6 +1,7 @@
 //! After a `loop-unstable` (or `displacement-out-of-range`) trip: whether any lead would have held the linearised loop in
-//! front of the actuator the run met (the simulated rig's recorded truth, or, for a rig of
-//! its own, delay-and-lag actuators of the identified delay), at the preload and at every
+//! front of the actuator the run met (the simulated rig's recorded truth, an external rig's
+//! declared actuator, or, for an undeclared rig of its own, delay-and-lag actuators of the
+//! identified delay), at the preload and at every
 //! load of the programme. Must not: run anything or touch the loop (offline, for the report).
 
 use serde::Serialize;
@@ -45,8 +46,8 @@ pub enum LeadVerdict {
 /// `None`: no lead is stable).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct JudgedLeads {
-    /// The share of its effective delay that is a first-order lag (the recorded truth:
-    /// `None`, it is what the rig recorded).
+    /// The share of its effective delay that is a first-order lag (the recorded truth and
+    /// the declared actuator: `None`, they are what they are).
     pub lag_share: Option<f64>,
     pub at_preload_us: Option<(f64, f64)>,
     pub at_every_load_us: Option<(f64, f64)>,
@@ -387,7 +388,7 @@ impl LeadsAfterTrip {
             )
         {
             return format!(
-                "could a lead have held it? {whom}; no lead holds such an actuator {} (the lead at the trip was {:.0} us). That says the rig's actuator is too slow for this specimen (SPEC 6.1) only if it is a delay and a lag; a servo-hydraulic force loop's stable leads are not judged from its delay: declare it ([rig.actuator] with [compensation] plan_for_external_rig = true), and fastemu hil --check shows the leads that hold it and the plan fixes one",
+                "could a lead have held it? {whom}; no lead holds such an actuator {} (the lead at the trip was {:.0} us). That says the rig's actuator is too slow for this specimen (SPEC 6.1) only if it is a delay and a lag; a servo-hydraulic force loop's stable leads are not judged from its delay: declare it ([rig.actuator] with [compensation] plan_for_external_rig = true), and fastemu hil --check shows the leads that hold it and, with adapt and plan_from_actuator, the plan fixes one",
                 if self.verdict == LeadVerdict::NoLead {
                     "even at the preload"
                 } else {
@@ -411,8 +412,13 @@ impl LeadsAfterTrip {
                 }
             ),
             LeadVerdict::LeadOutside => format!(
-                "the lead at the trip, {:.0} us, was outside them: {missed} (fastemu hil --check shows them for a declared actuator; [compensation] plan_from_actuator plans a lead for the simulated rig's)",
-                self.lead_at_trip_us
+                "the lead at the trip, {:.0} us, was outside them: {missed} (fastemu hil --check shows them for a declared actuator; {})",
+                self.lead_at_trip_us,
+                if self.judged == JudgedActuator::Declared {
+                    "with adapt and plan_from_actuator the plan fixes a lead among them"
+                } else {
+                    "[compensation] plan_from_actuator plans a lead for the simulated rig's"
+                }
             ),
             LeadVerdict::LeadInside => format!(
                 "the lead at the trip, {:.0} us, was inside them: the linearised loop was stable there, so a transient tripped it (the start's ring, a stall, the guard's damping, a load beyond the range), not the lead",
@@ -533,13 +539,15 @@ mod tests {
         assert_eq!(fast.verdict, LeadVerdict::LeadInside, "{fast:?}");
     }
 
-    /// An external servo-hydraulic force loop (`fatigue-150kn` with a 30 Hz force loop and
-    /// no velocity compensation: `hil --check` holds it with leads 0-2390 us at every
-    /// load) that tripped at a lead of 3 ms the adaptation took from its load band's
-    /// delay of 2.8 ms. Declared, it is judged itself: the lead was outside its stable
-    /// leads. Undeclared, the delay's delay-and-lag stand-ins have no lead at all, and the
-    /// console must not call the rig's actuator too slow on their word (a lab's trial of
-    /// 2026-11-29 was told "a faster actuator is what helps" of such a loop).
+    /// An external servo-hydraulic force loop that tripped at a lead of 3 ms. A lab's own
+    /// 30 Hz loop without velocity compensation (2026-11-29) was identified at 2807 us,
+    /// its lead taken to 1.5 ms, out of the 0-950 us its declaration holds, and the
+    /// stand-ins of that delay told it "a faster actuator is what helps". Here the
+    /// declared one is `fatigue-150kn` with a 30 Hz force loop and no velocity
+    /// compensation (`hil --check`: leads 0-2390 us at every load): judged itself, the
+    /// lead was outside its stable leads (and 1 ms inside). Undeclared, the 2807 us
+    /// delay's delay-and-lag stand-ins have no lead at all, and the console must not call
+    /// the rig's actuator too slow on their word.
     #[test]
     fn a_declared_external_force_loop_is_judged_itself_and_stand_ins_do_not_call_it_too_slow() {
         let text = include_str!("../../../configs/hil-default.toml")
@@ -558,11 +566,14 @@ mod tests {
             .expect("the declared loop is held at every load");
         assert!(a < 500.0 && (2000.0..3000.0).contains(&b), "{a}-{b}");
         assert_eq!(declared.verdict, LeadVerdict::LeadOutside, "{declared:?}");
-        // Without velocity compensation its force leads over 1-20 Hz: a negative delay.
-        assert!(declared.effective_delay_us.is_finite(), "{declared:?}");
+        // Without velocity compensation the preset's force leads over 1-20 Hz on the
+        // element: a negative effective delay (the lab's own loop, another model, read
+        // +2.8 ms at its load band; the stand-ins below take that figure).
+        assert!(declared.effective_delay_us < 0.0, "{declared:?}");
         let text = declared.describe();
         assert!(text.contains("the declared actuator"), "{text}");
         assert!(text.contains("was outside them"), "{text}");
+        assert!(text.contains("the plan fixes a lead among them"), "{text}");
         let inside = leads_after_trip_declared(&cfg, 1000e-6, 1.0, true);
         assert_eq!(inside.verdict, LeadVerdict::LeadInside, "{inside:?}");
 

@@ -237,7 +237,7 @@ fn safe_start_precise(e: DelayEstimate, max_delay_s: f64) -> bool {
 }
 
 /// Under the safe start, a precise delay estimate (`safe_start_precise`) within this
-/// fraction of the lead is reached at the ring's rate (`OSCILLATION_MAX_RATE`), not at
+/// fraction of the lead is reached at `OSCILLATION_MAX_RATE`, not at
 /// `adapt_time`'s, so that the safe start ends as soon as the estimate is in; and a ring
 /// reading that would move the lead away from such an estimate (longer when it says
 /// shorter, or the reverse) is not taken. The safe start's full damping is a precaution
@@ -331,14 +331,18 @@ const RING_LEAD_UP: f64 = 1.25;
 /// by `RING_LEAD_DOWN`, not up to the phase read there.
 const RING_LEAD_TOO_LONG_RAD: f64 = 2.0;
 const RING_LEAD_DOWN: f64 = 0.75;
-/// A ring's target below the lead is taken at this rate (s of lead per s; 244 us per
-/// sample at 4096 Hz), not at `OSCILLATION_MAX_RATE`: a lead too long grows its ring at
-/// 200-250 Hz by e in a few ms, and shortening the lead asks for no force the loop would
-/// feel (the step in the command is the velocity times the step times the stiffness, tens
-/// of N at the start's few um of ring). Undeclared `fatigue-150kn` seed 5 from 5250 us
-/// (effective delay 1.7 ms): the quarter step took 13 ms, the ring grew meanwhile, and
-/// `loop-unstable` tripped at 0.20 s; at this rate it takes 1.4 ms and the run is stable
-/// to its end (2.1 %). In-process, undeclared servo-hydraulic presets from 1.5 and 2 times
+/// Any ring's target below the lead (a lead too long stepped down, or a phase read below
+/// it) is taken at this rate (s of lead per s; 244 us per sample at 4096 Hz), not at
+/// `OSCILLATION_MAX_RATE`: a lead too long grows its ring at 200-250 Hz by e in a few ms.
+/// The step moves the command by the stiffness times `(v + a L)` times the step (the
+/// order-2 prediction's change): at 225 Hz and 5.25 ms on a 3 um ring, about 0.5 kN a
+/// sample and 2.6 kN over a quarter step, mostly the too-long prediction's own
+/// amplification of the ring taken out. Undeclared `fatigue-150kn` seed 5 from 5250 us
+/// (effective delay 1.7 ms): at 0.1 s per s the quarter step took 13 ms and arrived at
+/// 3937 us, still too long, with the guard reading 20 mJ; the ring's follow-up (four times
+/// that) never came, and the ring grew until `loop-unstable` at 0.20 s. At this rate the
+/// step takes 1.4 ms and arrives with 3 mJ; the ring that goes on passes four times that
+/// and the follow-up steps on to 2953 us by 0.04 s; stable to the end (2.1 %). In-process, undeclared servo-hydraulic presets from 1.5 and 2 times
 /// their delay, seeds 0-7 (2026-11-29): 27 of 48 without a fault against 24 (4 saved, 1
 /// lost); the 117 runs from 0-504 us (66 without a fault), 180 `lag-delay` (141), 120
 /// random servo-hydraulic and electrodynamic (106) and the 84 declared presets (84) the
@@ -595,7 +599,7 @@ impl Compensator {
     }
 
     /// The planned fixed lead's nudge (`nudge::LeadNudge`): a step asked for is taken at
-    /// `OSCILLATION_MAX_RATE` (140 us in 1.4 ms), as a ring's target is.
+    /// `OSCILLATION_MAX_RATE` (140 us in 1.4 ms), as a ring's target above the lead is.
     #[inline]
     fn nudge_lead(&mut self, displacement_m: f64, element_force_n: f64) {
         if self.cfg.adapt_lead {

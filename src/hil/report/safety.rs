@@ -33,8 +33,9 @@ pub struct FaultReport {
     /// How far the specimen went outside the pre-fault range after the fault, m (0: within;
     /// none: no rig record before and after it).
     pub beyond_prefault_range_m: Option<f64>,
-    /// From the detection to the rig's at-rest event, s (none: never at rest; 0 when the
-    /// specimen was already at rest in an earlier fault's hold).
+    /// From the detection to the rig's at-rest event (an external rig's: read from its
+    /// measured displacement, `SafetyTracker::measured_rest`), s (none: never at rest; 0
+    /// when the specimen was already at rest in an earlier fault's hold).
     pub time_to_rest_s: Option<f64>,
     /// The rig already held the specimen when this fault came (a second fault in the
     /// hold of an earlier one): since when, s. `hold_started_at_s` is then that hold's.
@@ -332,6 +333,8 @@ struct MeasuredRest {
     samples: usize,
     band_m: f64,
     read: bool,
+    /// The last sample's period taken (a duplicate over the link is not taken twice).
+    last_step: Option<u64>,
 }
 
 impl SafetyTracker {
@@ -401,6 +404,7 @@ impl SafetyTracker {
             samples,
             band_m,
             read: false,
+            last_step: None,
         });
         self
     }
@@ -422,7 +426,12 @@ impl SafetyTracker {
             self.hold_since_s = Some(r.t_s);
         }
         self.last_state = r.state;
-        if let Some(m) = &mut self.measured_rest {
+        if let Some(m) = self
+            .measured_rest
+            .as_mut()
+            .filter(|m| m.last_step.is_none_or(|s| r.step_idx > s))
+        {
+            m.last_step = Some(r.step_idx);
             if !holding {
                 m.window.clear();
                 m.read = false;
@@ -478,6 +487,8 @@ impl SafetyTracker {
     }
 
     pub fn finish(mut self) -> Safety {
+        // The events' and the measured rests in one order (`find` below takes the first).
+        self.rest_times.sort_by(f64::total_cmp);
         for f in &mut self.faults {
             let [lo, hi] = f.report.prefault_range_m;
             if f.seen && lo.is_finite() {
@@ -650,6 +661,53 @@ mod tests {
         assert_eq!(held_periods(Some((4, false)), 9, rig_state::UNLOAD), 1);
         assert_eq!(held_periods(Some((4, true)), 9, rig_state::RUNNING), 0);
         assert_eq!(held_periods(Some((9, true)), 9, rig_state::HOLD), 0);
+    }
+
+    /// An external rig records no at-rest event: its rest is read from its measured
+    /// displacement in each hold, once per hold, the window restarting when it runs again;
+    /// a duplicate sample is not counted twice (it would shorten the window).
+    #[test]
+    fn an_external_rigs_rest_is_read_from_its_samples_once_per_hold() {
+        // DT = 10 ms, a 50 ms window of 5 samples within 2 um. Running to 0.09 s; a hold
+        // from 0.10 s that swings 10 um to 0.15 s, then within 1 um; resumed at 0.30 s;
+        // a second hold from 0.40 s, still from the first of its samples.
+        let mut records = Vec::new();
+        for i in 0..50u64 {
+            let state = match i {
+                10..=29 | 40.. => rig_state::HOLD,
+                _ => rig_state::RUNNING,
+            };
+            let x = match i {
+                10..=15 => 10e-6 * (i % 2) as f64,
+                16..=29 => 0.5e-6 * (i % 2) as f64,
+                _ => 0.0,
+            };
+            records.push(record(i, x, state));
+            // The link repeats the hold's third quiet sample (counted twice, the window
+            // would be full one sample early).
+            if i == 18 {
+                records.push(record(i, x, state));
+            }
+        }
+        let events = [
+            event(0.10, event_kind::FAULT),
+            event(0.40, event_kind::FAULT),
+        ];
+        let mut tracker = SafetyTracker::new(&events, DT).reading_rest_from_samples(2e-6, 0.05);
+        for r in &records {
+            tracker.push(r);
+        }
+        let s = tracker.finish();
+        assert!(s.at_rest);
+        // Quiet from step 16: five samples (16-20) at 0.20 s, 0.10 s after the trip.
+        let first = s.faults[0].time_to_rest_s.unwrap();
+        assert!((first - 0.10).abs() < 1e-9, "{first}");
+        // The second hold's window starts afresh at 0.40 s: 40-44, at 0.44 s.
+        let second = s.faults[1].time_to_rest_s.unwrap();
+        assert!((second - 0.04).abs() < 1e-9, "{second}");
+        // Without the reading (the simulated rig, whose events say it): never at rest.
+        let s = track(&events, &records);
+        assert!(!s.at_rest && s.faults[0].time_to_rest_s.is_none());
     }
 
     /// A second fault in the first one's hold (the emulator's own stall trip after the
