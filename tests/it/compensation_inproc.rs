@@ -601,16 +601,10 @@ fn an_undeclared_servo_hydraulic_loop_takes_its_lead_from_the_ringing_and_stays_
     cfg.compensation.plan_from_actuator = false;
     let run = run_in_process(&cfg, &script(6.0));
     assert!(run.plan.is_none() || !run.plan.as_ref().unwrap().lead_fixed);
-    let (during, after, error) = ran_to_the_end_unheld(&cfg, &run, "fatigue-150kn, no plan");
     // Stable: what the passage left dies away, and nothing grows at the end (measured: 287
     // um before 4 s, 1.8 um in the last second; with the load band free to lower the lead
     // by 15 %, 41 um there, a 35 Hz ring growing).
-    assert!(
-        after < 0.1 * during,
-        "{} um after the passage, {} um during it",
-        after * 1e6,
-        during * 1e6
-    );
+    let error = ran_to_the_end_and_settled(&cfg, &run, "fatigue-150kn, no plan");
     let law = law_commands(&run);
     let early = law.iter().take_while(|r| r.t_s < 0.15).last().unwrap();
     assert!(
@@ -661,13 +655,7 @@ fn a_ring_of_a_lead_too_long_moves_the_lead_down() {
         highest * 1e6,
         first * 1e6
     );
-    let (during, after, error) = ran_to_the_end_unheld(&cfg, &run, "fatigue-150kn from 3500 us");
-    assert!(
-        after < 0.1 * during,
-        "{} um after the passage, {} um during it",
-        after * 1e6,
-        during * 1e6
-    );
+    let error = ran_to_the_end_and_settled(&cfg, &run, "fatigue-150kn from 3500 us");
     let last = law.last().unwrap().lead_s;
     assert!(
         (2220e-6..=3360e-6).contains(&last),
@@ -706,13 +694,7 @@ fn a_ring_that_grows_on_under_the_rings_lead_steps_the_lead_up() {
         ended.t_s,
         ended.lead_s * 1e6
     );
-    let (during, after, error) = ran_to_the_end_unheld(&cfg, &run, "rths-fast-150kn seed 5 from 0");
-    assert!(
-        after < 0.1 * during,
-        "{} um after the passage, {} um during it",
-        after * 1e6,
-        during * 1e6
-    );
+    let error = ran_to_the_end_and_settled(&cfg, &run, "rths-fast-150kn seed 5 from 0");
     let stepped = law
         .iter()
         .filter(|r| r.t_s <= ended.t_s + 0.3)
@@ -771,13 +753,7 @@ fn a_lead_too_long_is_left_within_milliseconds() {
         left.t_s,
         down.t_s
     );
-    let (during, after, _) = ran_to_the_end_unheld(&cfg, &run, "fatigue-150kn seed 5 from 5250 us");
-    assert!(
-        after < 0.1 * during,
-        "{} um after the passage, {} um during it",
-        after * 1e6,
-        during * 1e6
-    );
+    ran_to_the_end_and_settled(&cfg, &run, "fatigue-150kn seed 5 from 5250 us");
     let last = law.last().unwrap().lead_s;
     assert!(last <= 0.6 * guess, "last lead {} us", last * 1e6);
 }
@@ -1269,6 +1245,20 @@ fn law_commands(run: &InProcessRun) -> Vec<&ControllerRecord> {
         .iter()
         .filter(|r| r.mode == command_mode::LAW)
         .collect()
+}
+
+/// `ran_to_the_end_unheld`, and what the passage left died away: the largest error
+/// against the reference in the last second under a tenth of the largest during the
+/// passage. The displacement error.
+fn ran_to_the_end_and_settled(cfg: &HilConfig, run: &InProcessRun, label: &str) -> f64 {
+    let (during, after, error) = ran_to_the_end_unheld(cfg, run, label);
+    assert!(
+        after < 0.1 * during,
+        "{label}: {} um after the passage, {} um during it",
+        after * 1e6,
+        during * 1e6
+    );
+    error
 }
 
 fn ran_to_the_end_unheld(cfg: &HilConfig, run: &InProcessRun, label: &str) -> (f64, f64, f64) {

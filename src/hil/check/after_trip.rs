@@ -329,35 +329,32 @@ impl LeadsAfterTrip {
             .map(|l| format!("{:.1}", l / 1e3))
             .collect::<Vec<_>>()
             .join(" and ");
+        // One actuator judged itself (recorded or declared): its leads at the preload and
+        // at the programme's loads.
+        let itself = |what: String| {
+            format!(
+                "{what} is stable {} at the preload{}",
+                with_leads(self.leads[0].at_preload_us),
+                if loads.is_empty() {
+                    String::new()
+                } else {
+                    format!(
+                        " and {} at the programme's loads {} kN too",
+                        with_leads(self.leads[0].at_every_load_us),
+                        loads
+                    )
+                }
+            )
+        };
         let whom = match self.judged {
-            JudgedActuator::RecordedTruth => format!(
-                "the rig's recorded actuator ({:.0} us effective delay) is stable {} at the preload{}",
-                self.effective_delay_us,
-                with_leads(self.leads[0].at_preload_us),
-                if loads.is_empty() {
-                    String::new()
-                } else {
-                    format!(
-                        " and {} at the programme's loads {} kN too",
-                        with_leads(self.leads[0].at_every_load_us),
-                        loads
-                    )
-                }
-            ),
-            JudgedActuator::Declared => format!(
-                "the declared actuator ([rig.actuator] at its nominal values, {:.0} us effective delay; the rig's own may differ) is stable {} at the preload{}",
-                self.effective_delay_us,
-                with_leads(self.leads[0].at_preload_us),
-                if loads.is_empty() {
-                    String::new()
-                } else {
-                    format!(
-                        " and {} at the programme's loads {} kN too",
-                        with_leads(self.leads[0].at_every_load_us),
-                        loads
-                    )
-                }
-            ),
+            JudgedActuator::RecordedTruth => itself(format!(
+                "the rig's recorded actuator ({:.0} us effective delay)",
+                self.effective_delay_us
+            )),
+            JudgedActuator::Declared => itself(format!(
+                "the declared actuator ([rig.actuator] at its nominal values, {:.0} us effective delay; the rig's own may differ)",
+                self.effective_delay_us
+            )),
             JudgedActuator::IdentifiedDelay => format!(
                 "an actuator of the identified delay ({:.0} us), if it is a delay and a lag (a servo-hydraulic force loop is not, and its stable leads may lie far from its identified delay, above or below), is stable at the preload{} with leads {}",
                 self.effective_delay_us,
