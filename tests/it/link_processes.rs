@@ -737,8 +737,19 @@ fn an_external_rigs_trip_holds_where_it_tripped_comes_to_rest_and_is_judged_on_t
         .find(|f| f["process"] == "external rig")
         .unwrap_or_else(|| panic!("no external rig fault: {stderr}"));
     assert_eq!(rig["fault"], "hold-requested", "{rig}");
+    // The swing at the trip carries on into the hold (18-117 um on this machine, by when
+    // the trip came), but the hold ends where it latched: before, 0.91 mm away.
     let excursion = rig["largest_excursion_m"].as_f64().unwrap();
-    assert!(excursion < 100e-6, "{} um into the hold", excursion * 1e6);
+    assert!(excursion < 500e-6, "{} um into the hold", excursion * 1e6);
+    let latched = rig["position_at_fault_m"].as_f64().unwrap();
+    let held = exported_columns(&dir, "emulator_after_fault.csv", ["z_measured_m"]);
+    let end = held.last().expect("samples after the fault")[0];
+    assert!(
+        (end - latched).abs() < 50e-6,
+        "held at {} um, latched at {} um",
+        end * 1e6,
+        latched * 1e6
+    );
     let rest = rig["time_to_rest_s"].as_f64();
     assert!(rest.is_some_and(|t| t < 1.0), "{rig}");
     assert_eq!(json["safety"]["at_rest"], true, "{}", json["safety"]);
