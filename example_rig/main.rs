@@ -9,6 +9,10 @@
 //! over half a period of zero-order hold), hold position on HOLD commands or when commands
 //! go stale, obey run control, and end the session with an end-of-run sample.
 //!
+//! Its loop allocates nothing of its own (fixed datagram buffers, storage set up before
+//! the loop) and says in its closing line how many allocations it counted (over
+//! iceoryx2, iceoryx2 0.10's one per publish).
+//!
 //! Simplifications a real rig would not make: the sensor is exact, the actuator ideal
 //! (no lag), a resume from an operator hold does not blend.
 //!
@@ -26,10 +30,54 @@ usage: example_rig (--ipc RUN_ID | --udp BIND_IP:PORT PEER_IP:PORT) [options]
   --rate-hz 4096  --duration-s 6  --mass-kg 60.16  --damping-ns-per-m 3600
   --preload-n 0  --amplitude-n 4000  --frequency-hz 2  --stale-periods 205";
 
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
 use std::net::{SocketAddr, UdpSocket};
 use std::time::Duration;
 
 use iceoryx2::prelude::*;
+
+// ---- the loop allocates nothing: counted -------------------------------------------------
+
+/// Counts the allocations its thread makes while `COUNTING` is set (the loop's), so the
+/// closing line can say the loop made none (a real-time loop does not allocate: the
+/// allocator may take a lock or a page fault). `const` thread-locals without destructors:
+/// touching them never allocates.
+struct CountingAllocator;
+
+thread_local! {
+    static COUNTING: Cell<bool> = const { Cell::new(false) };
+    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+}
+
+fn count_allocation() {
+    if COUNTING.try_with(Cell::get).unwrap_or(false) {
+        let _ = ALLOCATIONS.try_with(|n| n.set(n.get() + 1));
+    }
+}
+
+// SAFETY: forwards to the system allocator unchanged; counting touches only `const`
+// thread-locals.
+unsafe impl GlobalAlloc for CountingAllocator {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        count_allocation();
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        count_allocation();
+        unsafe { System.alloc_zeroed(layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        count_allocation();
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: CountingAllocator = CountingAllocator;
 
 // ---- the messages, as fastemu_rig.h declares them ---------------------------------------
 
@@ -296,12 +344,20 @@ impl Transport for Ipc {
         let _ = self.samples.send_copy(s);
     }
     fn commands(&mut self, out: &mut Vec<Command>) {
-        while let Ok(Some(c)) = self.commands.receive() {
+        // At most what `out` holds without growing (the loop does not allocate); the rest
+        // waits for the next period.
+        while out.len() < out.capacity() {
+            let Ok(Some(c)) = self.commands.receive() else {
+                break;
+            };
             out.push(*c);
         }
     }
     fn control(&mut self, out: &mut Vec<u32>) {
-        while let Ok(Some(c)) = self.control.receive() {
+        while out.len() < out.capacity() {
+            let Ok(Some(c)) = self.control.receive() else {
+                break;
+            };
             out.push(c.command);
         }
     }
@@ -349,7 +405,7 @@ impl Udp {
             sent: [0; 5],
             newest: [None; 5],
             last_control: 0,
-            controls: Vec::new(),
+            controls: Vec::with_capacity(MAX_DATAGRAMS_READ),
             echo_command_time_ns: 0,
             command_read_ns: 0,
             rejected: 0,
@@ -357,31 +413,35 @@ impl Udp {
         })
     }
 
-    fn header(&mut self, kind: u16, out: &mut Vec<u8>) {
-        out.clear();
-        out.extend_from_slice(b"FEMU");
-        out.extend_from_slice(&LINK_VERSION.to_le_bytes());
-        out.extend_from_slice(&kind.to_le_bytes());
-        out.extend_from_slice(&self.sent[kind as usize].to_le_bytes());
-        out.extend_from_slice(&monotonic_ns().to_le_bytes());
+    fn header<const N: usize>(&mut self, kind: u16) -> Datagram<N> {
+        let mut d = Datagram::new();
+        d.put(b"FEMU");
+        d.put(&LINK_VERSION.to_le_bytes());
+        d.put(&kind.to_le_bytes());
+        d.put(&self.sent[kind as usize].to_le_bytes());
+        d.put(&monotonic_ns().to_le_bytes());
         self.sent[kind as usize] += 1;
+        d
     }
 
     fn status(&mut self, state: u32, fault_code: u32, period_ns: u64) {
-        let mut d = Vec::with_capacity(40);
-        self.header(4, &mut d);
-        d.extend_from_slice(&state.to_le_bytes());
-        d.extend_from_slice(&fault_code.to_le_bytes());
-        d.extend_from_slice(&period_ns.to_le_bytes());
-        let _ = self.socket.send_to(&d, self.peer);
+        let mut d = self.header::<40>(4);
+        d.put(&state.to_le_bytes());
+        d.put(&fault_code.to_le_bytes());
+        d.put(&period_ns.to_le_bytes());
+        let _ = self.socket.send_to(d.bytes(), self.peer);
     }
 
-    /// Reads what is waiting (at most 64): commands to `out`, run control to `controls`;
-    /// a START comes back as (arrival, start_delay_ns, period_ns).
+    /// Reads what is waiting (at most `MAX_DATAGRAMS_READ`, and at most what `out` holds
+    /// without growing): commands to `out`, run control to `controls`; a START comes back
+    /// as (arrival, start_delay_ns, period_ns).
     fn drain(&mut self, out: &mut Vec<Command>) -> Option<(u64, u64, u64)> {
         let mut start = None;
         let mut buf = [0u8; 2048];
-        for _ in 0..64 {
+        for _ in 0..MAX_DATAGRAMS_READ {
+            if out.len() == out.capacity() || self.controls.len() == self.controls.capacity() {
+                break;
+            }
             let Ok((len, from)) = self.socket.recv_from(&mut buf) else {
                 break;
             };
@@ -470,6 +530,33 @@ impl Udp {
     }
 }
 
+/// Datagrams read per period at most; the loop's command and control lists hold this many.
+const MAX_DATAGRAMS_READ: usize = 64;
+
+/// A datagram of `N` bytes built in place (the loop does not allocate).
+struct Datagram<const N: usize> {
+    bytes: [u8; N],
+    len: usize,
+}
+
+impl<const N: usize> Datagram<N> {
+    fn new() -> Datagram<N> {
+        Datagram {
+            bytes: [0; N],
+            len: 0,
+        }
+    }
+    fn put(&mut self, b: &[u8]) {
+        self.bytes[self.len..self.len + b.len()].copy_from_slice(b);
+        self.len += b.len();
+    }
+    /// The whole datagram (its kind's exact size: every field put).
+    fn bytes(&self) -> &[u8] {
+        debug_assert_eq!(self.len, N);
+        &self.bytes[..self.len]
+    }
+}
+
 /// The compensation of a COMMAND datagram (offset 144).
 fn compensation_at(d: &[u8]) -> Compensation {
     let f = |o: usize| f64::from_le_bytes(d[o..o + 8].try_into().unwrap());
@@ -488,7 +575,7 @@ impl Transport for Udp {
         self.period_ns = period_ns;
         let give_up = monotonic_ns() + 300_000_000_000;
         let mut next_status = 0;
-        let mut ignored = Vec::new();
+        let mut ignored = Vec::with_capacity(MAX_DATAGRAMS_READ);
         loop {
             if monotonic_ns() >= next_status {
                 self.status(HEARTBEAT_READY, 0, period_ns);
@@ -512,30 +599,30 @@ impl Transport for Udp {
         }
     }
     fn send(&mut self, s: &Sample) {
-        let mut d = Vec::with_capacity(96);
-        self.header(1, &mut d);
-        d.extend_from_slice(&s.sequence.to_le_bytes());
-        d.extend_from_slice(&s.rig_time_ns.to_le_bytes());
-        d.extend_from_slice(&s.displacement_m.to_le_bytes());
-        d.extend_from_slice(&s.actuator_force_n.to_le_bytes());
-        d.extend_from_slice(&s.status.to_le_bytes());
-        d.extend_from_slice(&s.rig_state.to_le_bytes());
-        d.extend_from_slice(&s.rig_fault_code.to_le_bytes());
-        d.extend_from_slice(&0u32.to_le_bytes());
+        let mut d = self.header::<96>(1);
+        d.put(&s.sequence.to_le_bytes());
+        d.put(&s.rig_time_ns.to_le_bytes());
+        d.put(&s.displacement_m.to_le_bytes());
+        d.put(&s.actuator_force_n.to_le_bytes());
+        d.put(&s.status.to_le_bytes());
+        d.put(&s.rig_state.to_le_bytes());
+        d.put(&s.rig_fault_code.to_le_bytes());
+        d.put(&0u32.to_le_bytes());
         let hold = if self.echo_command_time_ns == 0 {
             0
         } else {
             monotonic_ns() - self.command_read_ns
         };
-        d.extend_from_slice(&self.echo_command_time_ns.to_le_bytes());
-        d.extend_from_slice(&hold.to_le_bytes());
-        d.extend_from_slice(&s.commanded_force_n.to_le_bytes());
-        let _ = self.socket.send_to(&d, self.peer);
+        d.put(&self.echo_command_time_ns.to_le_bytes());
+        d.put(&hold.to_le_bytes());
+        d.put(&s.commanded_force_n.to_le_bytes());
+        let _ = self.socket.send_to(d.bytes(), self.peer);
     }
     fn commands(&mut self, out: &mut Vec<Command>) {
         let _ = self.drain(out);
     }
     fn control(&mut self, out: &mut Vec<u32>) {
+        // `out` holds as many as `controls` without growing (both `MAX_DATAGRAMS_READ`).
         out.append(&mut self.controls);
     }
     fn heartbeat(&mut self, _state: u32, _fault_code: u32) {
@@ -574,7 +661,7 @@ fn load_n(o: &Options, t: f64) -> f64 {
 /// samples spaced `h` (the header's fastemu_lead_weights).
 fn lead_weights(order: usize, h: f64, lead: f64) -> ([f64; 4], [f64; 4]) {
     let n = order.min(3) + 1;
-    let t: Vec<f64> = (0..4).map(|i| -(i as f64) * h).collect();
+    let t = [0.0, -h, -2.0 * h, -3.0 * h];
     let (mut value, mut slope) = ([0.0; 4], [0.0; 4]);
     for i in 0..n {
         let mut li = 1.0;
@@ -639,7 +726,10 @@ fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
     let mut unload = false;
     let mut programme_t = 0.0;
     let mut programme_held_n = 0.0;
-    let mut rest_window: Vec<f64> = Vec::new();
+    // The last 50 ms of displacement while holding, a ring filled before the loop.
+    let rest_len = ((0.05 * o.rate_hz) as usize).max(1);
+    let mut rest_window = vec![0.0f64; rest_len];
+    let (mut rest_filled, mut rest_next) = (0usize, 0usize);
     let mut finished_after_hold = false;
     let (kp, kd) = {
         // Position hold: a PD loop at 30 Hz, damping ratio 0.8, on the mass.
@@ -649,8 +739,9 @@ fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
     let t0 = transport.wait_for_start(period_ns)?;
     eprintln!("example_rig: started");
     let total = (o.duration_s * o.rate_hz).round() as u64;
-    let mut commands = Vec::new();
-    let mut controls = Vec::new();
+    let mut commands = Vec::with_capacity(MAX_DATAGRAMS_READ);
+    let mut controls = Vec::with_capacity(MAX_DATAGRAMS_READ);
+    COUNTING.with(|c| c.set(true));
     let mut k = 0u64;
     let mut stop = false;
     while !stop {
@@ -756,7 +847,7 @@ fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
             programme_held_n = load_n(o, programme_t);
             hold_force = programme_held_n;
             hold_since = k;
-            rest_window.clear();
+            rest_filled = 0;
         }
         // c. the actuator force for this period.
         let holding = state != RIG_RUNNING;
@@ -808,12 +899,10 @@ fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
         };
         // Rest and unload while holding; the end of the session.
         if holding {
-            rest_window.push(x);
-            let window = (0.05 * o.rate_hz) as usize;
-            if rest_window.len() > window {
-                rest_window.remove(0);
-            }
-            let at_rest = rest_window.len() == window
+            rest_window[rest_next] = x;
+            rest_next = (rest_next + 1) % rest_len;
+            rest_filled = (rest_filled + 1).min(rest_len);
+            let at_rest = rest_filled == rest_len
                 && rest_window.iter().cloned().fold(f64::MIN, f64::max)
                     - rest_window.iter().cloned().fold(f64::MAX, f64::min)
                     < 5e-6;
@@ -861,6 +950,8 @@ fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
             stop = true;
         }
     }
+    COUNTING.with(|c| c.set(false));
+    let allocations = ALLOCATIONS.with(Cell::get);
     transport.finish(&Sample {
         sequence: k,
         rig_time_ns: k * period_ns,
@@ -874,7 +965,7 @@ fn run(transport: &mut dyn Transport, o: &Options) -> Result<(), String> {
         commanded_force_n: force,
     });
     eprintln!(
-        "example_rig: {k} periods, final state {}, fault code {fault}{}",
+        "example_rig: {k} periods, final state {}, fault code {fault}{}; {allocations} allocations in the loop",
         if finished_after_hold {
             "held, at rest"
         } else {

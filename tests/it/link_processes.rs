@@ -511,19 +511,22 @@ const EXAMPLE_RIG_SCENARIO: &[(&str, &str)] = &[
 ];
 
 /// Runs the example rig for 2.5 s with `rig_args` to its end (killed and reaped on any
-/// exit path); its exit status, `None` when it outlived 60 s.
-fn run_example_rig(rig_args: &[&str]) -> Option<std::process::ExitStatus> {
+/// exit path); its exit status, `None` when it outlived 60 s, and its stderr (kept in
+/// `dir`).
+fn run_example_rig(dir: &Path, rig_args: &[&str]) -> (Option<std::process::ExitStatus>, String) {
+    let path = dir.join("example_rig.stderr");
     let rig = Command::new(EXAMPLE_RIG)
         .args(rig_args)
         .args(["--duration-s", "2.5"])
         .stdin(Stdio::null())
         .stdout(Stdio::null())
-        .stderr(Stdio::inherit())
+        .stderr(std::fs::File::create(&path).unwrap())
         .spawn()
         .unwrap();
-    ChildGuard::new(rig)
+    let status = ChildGuard::new(rig)
         .wait_timeout(Duration::from_secs(60))
-        .unwrap()
+        .unwrap();
+    (status, std::fs::read_to_string(&path).unwrap_or_default())
 }
 
 /// Runs `hil --rig external ...` and the example rig with `rig_args`; returns hil's JSON.
@@ -534,11 +537,25 @@ fn external_session(name: &str, hil_args: &[&str], rig_args: &[&str]) -> serde_j
     let mut args = vec!["--rig", "external"];
     args.extend_from_slice(hil_args);
     let mut hil = spawn_hil_with(&config, &report, 2.5, &args);
-    let status = run_example_rig(rig_args);
+    let (status, rig_stderr) = run_example_rig(&dir, rig_args);
     assert!(
         status.is_some_and(|s| s.success()),
-        "example rig: {status:?}"
+        "example rig: {status:?}\n{rig_stderr}"
     );
+    // Its loop allocates nothing of its own; over iceoryx2, iceoryx2 0.10 allocates one
+    // block per publish (`ipc_alloc`), over UDP nothing does.
+    let allocations: u64 = rig_stderr
+        .lines()
+        .find_map(|l| {
+            l.rsplit("; ")
+                .next()?
+                .strip_suffix(" allocations in the loop")
+        })
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{name}: no allocation count: {rig_stderr}"));
+    if rig_args[0] == "--udp" {
+        assert_eq!(allocations, 0, "{name}: {rig_stderr}");
+    }
     let (code, json) = hil.finish(Duration::from_secs(60));
     assert_eq!(code, 0, "{name}: {json}\n{}", hil.stderr());
     assert_eq!(json["clean"], true, "{name}: {}", json["not_clean_because"]);
@@ -715,8 +732,11 @@ fn an_external_rigs_trip_holds_where_it_tripped_comes_to_rest_and_is_judged_on_t
         2.5,
         &["--rig", "external", "--run-id", &run_id, "--run-unstable"],
     );
-    let status = run_example_rig(&["--ipc", &run_id]);
-    assert!(status.is_some(), "the example rig did not end");
+    let (status, rig_stderr) = run_example_rig(&dir, &["--ipc", &run_id]);
+    assert!(
+        status.is_some(),
+        "the example rig did not end: {rig_stderr}"
+    );
     let (code, json) = hil.finish(Duration::from_secs(60));
     let stderr = hil.stderr();
     assert_nothing_left(&json);
@@ -792,8 +812,11 @@ fn external_run_with(name: &str, inject: &str) -> (Scratch, i32, serde_json::Val
         2.5,
         &["--rig", "external", "--run-id", &run_id],
     );
-    let status = run_example_rig(&["--ipc", &run_id]);
-    assert!(status.is_some(), "{name}: the example rig did not end");
+    let (status, rig_stderr) = run_example_rig(&dir, &["--ipc", &run_id]);
+    assert!(
+        status.is_some(),
+        "{name}: the example rig did not end: {rig_stderr}"
+    );
     let (code, json) = hil.finish(Duration::from_secs(60));
     let stderr = hil.stderr();
     assert_nothing_left(&json);
