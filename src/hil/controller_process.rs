@@ -1,4 +1,4 @@
-//! The actuator-controller process: event-driven on new setpoints (iceoryx2 `WaitSet`),
+//! The actuator-controller process: event-driven on new setpoints (an iceoryx2 listener),
 //! with the watchdog and keep-alive checked on every wake-up and on wait time-outs;
 //! heartbeats, events, records and end-of-run summary.
 //!
@@ -116,9 +116,10 @@ pub fn run_controller(
             *sent += 1;
         }
     };
-    listener.with_waitset(|waitset| loop {
-        // Block until the emulator notifies, at most one keep-alive period.
-        listener.wait(waitset, wait);
+    loop {
+        // Block until the emulator notifies, at most one keep-alive period (on the
+        // listener itself: a `WaitSet` allocates on every wake-up, `ipc_alloc`).
+        listener.wait_for(wait);
         let now = monotonic_now_ns();
         injector.fire_due(
             now.saturating_sub(start.t0_ns) as f64 * 1e-9,
@@ -162,7 +163,7 @@ pub fn run_controller(
         if emulator_stopped || stopped || termination_requested() || idle {
             break;
         }
-    })?;
+    }
     heartbeat.publish(Heartbeat {
         process: process_id::CONTROLLER,
         state: controller_state::STOPPED,

@@ -2,7 +2,7 @@
 //!
 //! Owns the shared-memory message types (`messages`), compiled once for every process so
 //! their layouts cannot drift. Must not: allocate or log on the per-sample publish/receive
-//! path.
+//! path beyond the one block iceoryx2 0.10 itself makes per publish (`transport`).
 
 pub mod cleanup;
 pub mod messages;
@@ -10,6 +10,6 @@ pub mod transport;
 
 pub use transport::{
     cleanup_dead_nodes, count_nodes, file_prefix, quiet_iceoryx2_logs, service_settings, In,
-    IpcError, IpcNode, IpcWaitSet, Out, RigServices, Stream, Wake, WakeListener, MAX_NODES,
+    IpcError, IpcNode, Out, RigServices, Stream, Wake, WakeListener, MAX_NODES,
 };
 pub mod pingpong;

@@ -2,11 +2,11 @@
 //!
 //! One `IoxPingPong` per process holds two pairs of publish-subscribe services carrying
 //! the loop's real `DisplacementSample`: a pair read by busy polling, and a pair whose
-//! publishers also notify an event service so the reader can block in a `WaitSet`
-//! (the way a loop process that must not burn a core would wait). The pinger publishes
+//! publishers also notify an event service so the reader can block on its listener
+//! (the way the loop's controller, which must not burn a core, waits). The pinger publishes
 //! on `<prefix>/…/ping` and reads `…/pong`; the ponger does the opposite.
-//! Must not: time anything or allocate on the send/receive path (the `WaitSet` itself
-//! allocates a small vector per wake-up inside iceoryx2 0.10; that cost is measured).
+//! Must not: time anything or allocate on the send/receive path beyond the one block
+//! iceoryx2 0.10 makes per loan (`ipc::transport`); that cost is measured.
 
 use std::fmt;
 use std::time::{Duration, Instant};
@@ -16,7 +16,6 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
-use iceoryx2::waitset::WaitSetRunResult;
 
 use super::messages::DisplacementSample;
 
@@ -172,21 +171,13 @@ impl IoxPingPong {
             })
     }
 
-    /// Runs `body` with a `WaitSet` that has this process's listener attached, so a
-    /// whole round of blocking receives reuses one attachment.
+    /// Runs `body` with a blocking receiver on the event channel (the listener itself,
+    /// as the loop's controller waits: `WakeListener::wait_for`).
     pub fn with_event_waiter<R>(
         &self,
         body: impl FnOnce(&EventWaiter<'_>) -> R,
     ) -> Result<R, IpcError> {
-        let waitset = WaitSetBuilder::new()
-            .signal_handling_mode(SignalHandlingMode::Disabled)
-            .create::<ipc::Service>()
-            .map_err(|e| setup_err("waitset")(format!("{e:?}")))?;
-        let _guard = waitset
-            .attach_notification(&self.event_listener)
-            .map_err(|e| setup_err("waitset attachment")(format!("{e:?}")))?;
         let waiter = EventWaiter {
-            waitset: &waitset,
             subscriber: &self.event_subscriber,
             listener: &self.event_listener,
         };
@@ -196,13 +187,12 @@ impl IoxPingPong {
 
 /// Blocking receive on the event channel (see `IoxPingPong::with_event_waiter`).
 pub struct EventWaiter<'a> {
-    waitset: &'a WaitSet<ipc::Service>,
     subscriber: &'a SampleSubscriber,
     listener: &'a Listener<ipc::Service>,
 }
 
 impl EventWaiter<'_> {
-    /// Returns the next sample, sleeping in the `WaitSet` until the peer notifies;
+    /// Returns the next sample, sleeping on the listener until the peer notifies;
     /// `Ok(None)` if nothing arrived within `timeout`.
     pub fn receive(&self, timeout: Duration) -> Result<Option<DisplacementSample>, IpcError> {
         let deadline = Instant::now() + timeout;
@@ -222,26 +212,11 @@ impl EventWaiter<'_> {
             if now >= deadline {
                 return Ok(None);
             }
-            let on_wake = |_id: WaitSetAttachmentId<ipc::Service>| {
-                // Consume the notifications so the WaitSet does not wake again at once.
-                let _ = self.listener.try_wait(|_| {});
-                CallbackProgression::Continue
-            };
-            match self
-                .waitset
-                .wait_and_process_once_with_timeout(on_wake, deadline - now)
-            {
-                Ok(WaitSetRunResult::AllEventsHandled) | Ok(WaitSetRunResult::StopRequest) => {}
-                Ok(other) => {
-                    return Err(IpcError::Receive {
-                        detail: format!("waitset interrupted: {other:?}"),
-                    })
-                }
-                Err(e) => {
-                    return Err(IpcError::Receive {
-                        detail: format!("waitset: {e:?}"),
-                    })
-                }
+            // Wakes on a notification and consumes every pending one.
+            if let Err(e) = self.listener.timed_wait(|_| {}, deadline - now) {
+                return Err(IpcError::Receive {
+                    detail: format!("listener: {e:?}"),
+                });
             }
         }
     }

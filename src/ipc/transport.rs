@@ -1,7 +1,9 @@
 //! The loop's iceoryx2 services and ports: one `IpcNode` per process, services named
 //! `fastemu/<run_id>/<stream>`, all iceoryx2 files named with a per-run file prefix.
 //!
-//! Must not: allocate, lock or log on `publish`/`receive_newest` (the per-sample path).
+//! Must not: allocate, lock or log on `publish`/`receive_newest`/`notify`/`wait_for` (the
+//! per-sample path) beyond what iceoryx2 0.10 does inside a publish: one small block per
+//! loan (the sample's shared state, an `Rc`), freed when it is sent (`ipc_alloc` counts it).
 //! Every service is opened-or-created with the same settings by every process, so the
 //! start order of the processes does not matter.
 
@@ -122,7 +124,8 @@ pub struct IpcNode {
 type Pub<T> = Publisher<ipc::Service, T, ()>;
 type Sub<T> = Subscriber<ipc::Service, T, ()>;
 
-/// A publisher that does not allocate on `publish`.
+/// A publisher: `publish` adds no allocation of its own to the one block iceoryx2 0.10's
+/// loan makes and frees within the call (`ipc_alloc`).
 pub struct Out<T: fmt::Debug + ZeroCopySend + Copy + 'static> {
     publisher: Pub<T>,
 }
@@ -172,51 +175,28 @@ impl Wake {
     }
 }
 
-/// The waitset a `WakeListener` blocks in (`WakeListener::with_waitset`).
-pub type IpcWaitSet = iceoryx2::prelude::WaitSet<ipc::Service>;
-
 /// Blocks until woken (event-driven, no busy polling).
 pub struct WakeListener {
     listener: Listener<ipc::Service>,
 }
 
 impl WakeListener {
-    /// Blocks until a notification arrives or `timeout` passes; returns whether woken.
+    /// Blocks until a notification arrives or `timeout` passes; consumes every pending
+    /// notification, so the next wait blocks again; returns whether woken.
     ///
-    /// Waits through a `WaitSet` with the listener attached, so the process sleeps in the
-    /// kernel until the notifier fires.
-    pub fn wait(&self, waitset: &WaitSet<ipc::Service>, timeout: Duration) -> bool {
-        let mut woken = false;
-        let waited = waitset.wait_and_process_once_with_timeout(
-            |_| {
-                woken = true;
-                CallbackProgression::Stop
-            },
-            timeout,
-        );
-        if waited.is_err() {
-            // A wait that fails at once must not turn its caller (a SCHED_FIFO thread
-            // above the loops) into a spin: it waits out its timeout instead.
-            std::thread::sleep(timeout);
+    /// Waits on the listener itself, which sleeps in the kernel until the notifier fires
+    /// and allocates nothing; a `WaitSet` allocated two blocks per wake-up in iceoryx2 0.10
+    /// (`ipc_alloc`).
+    pub fn wait_for(&self, timeout: Duration) -> bool {
+        match self.listener.timed_wait(|_| {}, timeout) {
+            Ok(n) => n > 0,
+            Err(_) => {
+                // A wait that fails at once must not turn its caller (a SCHED_FIFO thread
+                // above the loops) into a spin: it waits out its timeout instead.
+                std::thread::sleep(timeout);
+                false
+            }
         }
-        // Consume all pending notifications so the next wait blocks again.
-        let _ = self.listener.try_wait(|_| {});
-        woken
-    }
-
-    /// Creates a waitset with this listener attached and passes it to `f`.
-    pub fn with_waitset<R>(
-        &self,
-        f: impl FnOnce(&WaitSet<ipc::Service>) -> R,
-    ) -> Result<R, IpcError> {
-        let waitset = WaitSetBuilder::new()
-            .signal_handling_mode(SignalHandlingMode::Disabled)
-            .create::<ipc::Service>()
-            .map_err(|e| ipc_err("creating waitset")(format!("{e:?}")))?;
-        let _guard = waitset
-            .attach_notification(&self.listener)
-            .map_err(|e| ipc_err("attaching listener")(format!("{e:?}")))?;
-        Ok(f(&waitset))
     }
 }
 

@@ -34,7 +34,7 @@ use crate::ipc::messages::{
     HEARTBEAT_READY,
 };
 use crate::ipc::messages::{ActuatorCommand, RunControl};
-use crate::ipc::{In, IpcNode, IpcWaitSet, Out, WakeListener};
+use crate::ipc::{In, IpcNode, Out, WakeListener};
 use crate::rt::clock::monotonic_now_ns;
 
 /// No datagram from the rig for this long after the start: the rig is gone, the link
@@ -391,11 +391,7 @@ fn serve(
         }
         std::thread::sleep(Duration::from_millis(5));
     }
-    // The waitset exists before the start: creating it after sending START would keep
-    // this (higher-priority) thread busy just when the rig takes its time from START.
-    ports
-        .listener
-        .with_waitset(|waitset| serve_started(cfg, plan, shared, sender, ports, waitset, summary))?
+    serve_started(cfg, plan, shared, sender, ports, summary)
 }
 
 /// After the rig is ready: the start, then commands, run control and heartbeats.
@@ -405,7 +401,6 @@ fn serve_started(
     shared: &Shared,
     sender: &mut LinkSender,
     ports: &MainPorts,
-    waitset: &IpcWaitSet,
     summary: &mut LinkSummary,
 ) -> Result<(), ProcessError> {
     let MainPorts {
@@ -446,7 +441,7 @@ fn serve_started(
     // 3. Forward commands as they come; control, heartbeats and liveness around them.
     {
         loop {
-            listener.wait(waitset, wait);
+            listener.wait_for(wait);
             let echo = shared.newest_sample_time_ns.load(Ordering::Relaxed);
             commands.receive_each(|command| {
                 sender.send_command(&CommandDatagram {

@@ -16,6 +16,7 @@ mod gen;
 mod hil_core;
 mod hil_processes;
 mod identify_cli;
+mod ipc_alloc;
 mod latency_bench;
 mod link_processes;
 mod live_view;

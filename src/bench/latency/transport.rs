@@ -1,5 +1,5 @@
 //! Ping-pong hop latency over five transports with the loop's real messages: iceoryx2
-//! busy polling, iceoryx2 with `WaitSet` wake-up and a crossbeam channel between two
+//! busy polling, iceoryx2 with an event listener's wake-up and a crossbeam channel between two
 //! threads of this process (the lower bound) carry `DisplacementSample`; UDP on 127.0.0.1
 //! and a Unix datagram socket carry the UDP rig link's datagrams (a sample out, a command
 //! back), UDP through the link's own socket code (`crate::link`).
@@ -53,7 +53,7 @@ pub const SOCKET_BYTES: (usize, usize) = (SAMPLE_BYTES, COMMAND_BYTES);
 pub enum Transport {
     /// iceoryx2 publish-subscribe, both sides busy-poll their subscriber.
     Iceoryx2,
-    /// iceoryx2 publish-subscribe plus an event service; both sides sleep in a `WaitSet`.
+    /// iceoryx2 publish-subscribe plus an event service; both sides sleep on its listener.
     Iceoryx2Event,
     /// UDP datagrams on 127.0.0.1, blocking receive.
     Udp,
@@ -93,7 +93,7 @@ impl Transport {
         match self {
             Transport::Iceoryx2 => "iceoryx2 shared memory, busy polling, 2 processes",
             Transport::Iceoryx2Event => {
-                "iceoryx2 shared memory + event, WaitSet wake-up, 2 processes"
+                "iceoryx2 shared memory + event, listener wake-up, 2 processes"
             }
             Transport::Udp => "UDP 127.0.0.1, blocking recv, 2 processes",
             Transport::Uds => "Unix datagram socket, blocking recv, 2 processes",

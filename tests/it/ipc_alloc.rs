@@ -1,0 +1,90 @@
+//! What the loop's per-sample iceoryx2 calls allocate, counted on this thread (iceoryx2
+//! 0.10): the one heap block a publish makes inside iceoryx2, and none for a receive, a
+//! notify or the controller's wait on its listener (a `WaitSet` allocated two blocks per
+//! wake-up). The loops' own code allocates nothing (`hil_core`, `model_alloc`); this is
+//! what the transport adds, stated in ARCHITECTURE.md.
+
+use crate::alloc_counter::count_allocations;
+use fastemu::ipc::messages::{sample_status, DisplacementSample};
+use fastemu::ipc::{quiet_iceoryx2_logs, IpcNode};
+use std::time::Duration;
+
+fn sample(seq: u64) -> DisplacementSample {
+    DisplacementSample {
+        sequence: seq,
+        rig_time_ns: seq * 244_141,
+        publish_time_ns: 0,
+        displacement_m: 4.2e-4,
+        actuator_force_n: f64::NAN,
+        status: sample_status::OK,
+        rig_state: 1,
+        rig_fault_code: 0,
+        reserved: 0,
+        commanded_force_n: f64::NAN,
+    }
+}
+
+/// The run's iceoryx2 files in /dev/shm.
+fn shm_files(run_id: &str) -> Vec<String> {
+    let prefix = fastemu::ipc::file_prefix(run_id);
+    std::fs::read_dir("/dev/shm")
+        .map(|d| {
+            d.filter_map(|e| e.ok()?.file_name().into_string().ok())
+                .filter(|n| n.starts_with(&prefix))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+#[test]
+fn a_publish_allocates_one_block_inside_iceoryx2_and_a_receive_a_notify_or_a_wait_none() {
+    quiet_iceoryx2_logs();
+    let run_id = format!("italloc{}", std::process::id());
+    const N: u64 = 1000;
+    let (publishes, receives, wakes, received) = {
+        let node = IpcNode::new(&run_id, "alloc").unwrap();
+        let out = node.displacement_out().unwrap();
+        let input = node.displacement_in().unwrap();
+        let wake = node.setpoint_wake().unwrap();
+        let listener = node.setpoint_listener().unwrap();
+        // Warm-up: the first send and receive set up the connection.
+        for k in 0..8 {
+            assert!(out.publish(sample(k)));
+            wake.notify();
+        }
+        input.receive_each(|_| {});
+        let publishes = count_allocations(|| {
+            for k in 0..N {
+                out.publish(sample(100 + k));
+            }
+        });
+        let mut received = 0u64;
+        let receives = count_allocations(|| input.receive_each(|s| received += s.sequence));
+        let wakes = count_allocations(|| {
+            for _ in 0..N {
+                wake.notify();
+            }
+        });
+        // The controller's wait on its listener: woken by a pending notification, which
+        // it consumes (the next wait, with none pending, times out unwoken).
+        let waits = count_allocations(|| {
+            for _ in 0..N {
+                wake.notify();
+                assert!(listener.wait_for(Duration::from_millis(100)));
+            }
+        });
+        assert!(!listener.wait_for(Duration::from_millis(1)));
+        (publishes, receives, wakes + waits, received)
+    };
+    // Every sample arrived, in order, once: the sum of 100..100+N.
+    assert_eq!(received, (100..100 + N).sum::<u64>());
+    // iceoryx2 0.10 allocates one small block per loan (the sample's shared state, an
+    // `Rc`) and frees it when the sample is sent: one per publish, no more.
+    assert_eq!(publishes, N as usize, "allocations in {N} publishes");
+    assert_eq!(receives, 0, "allocations in receiving {N} samples");
+    assert_eq!(wakes, 0, "allocations in {N} notifications and waits");
+    // Nothing left behind but iceoryx2's node counter, which the run's cleanup removes.
+    let left = fastemu::ipc::cleanup::clear_run(&run_id);
+    assert!(left.is_empty(), "{left:?}");
+    assert!(shm_files(&run_id).is_empty(), "{:?}", shm_files(&run_id));
+}
