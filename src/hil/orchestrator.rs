@@ -726,11 +726,14 @@ pub fn run_processes(
                     if sup.first_fault_at.is_some() {
                         // The programme stopped at the fault; the hold runs its own time.
                         // A fault whose action is "indicate" leaves the rig running.
+                        // Wall time: the programme stopped at the fault.
                         if sup.outcome.rig_hold_seen.is_some() {
-                            eprintln!("hil: t = {elapsed_s:.1} s (fault: holding)");
+                            eprintln!(
+                                "hil: {elapsed_s:.1} s since the start (wall clock; the programme stopped at the fault): holding"
+                            );
                         } else {
                             eprintln!(
-                                "hil: t = {elapsed_s:.1} s (fault; the rig has not reported a hold: an \"indicate\" action leaves it running)"
+                                "hil: {elapsed_s:.1} s since the start (wall clock): a fault; the rig has not reported a hold (an \"indicate\" action leaves it running)"
                             );
                         }
                     } else {

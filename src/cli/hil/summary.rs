@@ -255,8 +255,20 @@ pub(super) fn summarise(
             .as_ref()
             .zip(identified)
             .and_then(|(p, d)| crate::hil::check::declaration_check(p, d));
+        let warned = warning.is_some();
         c.insert("declaration_warning".into(), warning.into());
         c.insert("plan".into(), serde_json::to_value(plan)?);
+        // A trip judged on the declaration says when the run found the rig unlike it.
+        if let Some(faults) = summary["safety"]["faults"].as_array_mut() {
+            for l in faults
+                .iter_mut()
+                .filter_map(|f| f.get_mut("leads_after_trip"))
+                .filter(|l| l["judged"] == "declared")
+                .filter_map(|l| l.as_object_mut())
+            {
+                l.insert("declaration_warned".into(), warned.into());
+            }
+        }
     }
     summary["link"] = link_report(out_dir, rig_setup);
     let text = serde_json::to_string_pretty(&summary)?;
@@ -382,7 +394,17 @@ pub(super) fn summarise(
                 eprintln!("hil:   it tripped on {}", seen.describe());
             }
             if let Some(l) = &f.leads_after_trip {
-                eprintln!("hil:   {}", l.describe());
+                let unlike = l.judged == crate::hil::check::after_trip::JudgedActuator::Declared
+                    && summary["compensation"]["declaration_warning"].is_string();
+                eprintln!(
+                    "hil:   {}{}",
+                    l.describe(),
+                    if unlike {
+                        " (judged on the declaration, which the run found this rig does not match: see the WARNING above)"
+                    } else {
+                        ""
+                    }
+                );
             }
         }
         if let Some(note) = &a.safety.hold_not_recorded {
