@@ -212,9 +212,9 @@ typedef struct fastemu_displacement_sample {
     uint32_t rig_state;       /* 44  FASTEMU_RIG_*                                         */
     uint32_t rig_fault_code;  /* 48  the rig's latched fault, 0 none                       */
     uint32_t reserved;        /* 52  0                                                     */
-    double commanded_force_n; /* 56  the force command in effect at the sample instant, N:  */
-                              /*     what the rig asked its actuator for over the period    */
-                              /*     before (law / gain + damping, or its own hold servo's  */
+    double commanded_force_n; /* 56  the force command applied over the period before the  */
+                              /*     sample, N: what the rig asked its actuator for         */
+                              /*     (law / gain + damping, or its own hold servo's         */
                               /*     command); NaN: not reported. fastemu reads the          */
                               /*     actuator's gain as measured / commanded at rest (the   */
                               /*     first samples, under the rig's servo) (ABI 4)          */
@@ -304,7 +304,7 @@ typedef struct fastemu_link_sample {
     uint32_t reserved;             /* 68  0                                                 */
     uint64_t echo_command_time_ns; /* 72  sender_time_ns of the newest command; 0 none yet  */
     uint64_t echo_hold_ns;         /* 80  rig clock from reading that command to now        */
-    double commanded_force_n;      /* 88  command in effect at the sample, N; NaN: none     */
+    double commanded_force_n;      /* 88  command over the period before, N; NaN: none      */
 } fastemu_link_sample;
 
 /* fastemu -> rig, 184 bytes: fastemu_actuator_command's content. */
