@@ -53,8 +53,8 @@ pub struct DisplacementSample {
     /// The rig's latched fault code (its own interlock, e.g. `commands-stale`), 0 none.
     pub rig_fault_code: u32,
     pub reserved: u32,
-    /// The force command in effect at the sample instant, N (what the rig asked its
-    /// actuator for over the period before it: the evaluated law divided by the gain, the
+    /// The force command applied over the period before the sample, N (what the rig asked
+    /// its actuator for: the evaluated law divided by the gain, the
     /// guard's damping, or its own hold servo's command); NaN when the rig does not say.
     /// Measured over commanded force at rest is the actuator's gain.
     pub commanded_force_n: f64,

@@ -167,7 +167,8 @@ pub struct SampleDatagram {
     pub echo_command_time_ns: u64,
     /// Rig clock from that command's arrival to this datagram's sending, ns.
     pub echo_hold_ns: u64,
-    /// The force command in effect at the sample instant, N; NaN: the rig does not say.
+    /// The force command applied over the period before the sample, N; NaN: the rig does
+    /// not say.
     pub commanded_force_n: f64,
 }
 
