@@ -552,7 +552,7 @@ impl<const N: usize> Datagram<N> {
     }
     /// The whole datagram (its kind's exact size: every field put).
     fn bytes(&self) -> &[u8] {
-        debug_assert_eq!(self.len, N);
+        assert_eq!(self.len, N, "a datagram of {N} bytes with {} put", self.len);
         &self.bytes[..self.len]
     }
 }
@@ -577,6 +577,9 @@ impl Transport for Udp {
         let mut next_status = 0;
         let mut ignored = Vec::with_capacity(MAX_DATAGRAMS_READ);
         loop {
+            // Commands before the start are not acted on, and run control other than STOP
+            // waits for none: both lists are emptied, so `drain` always has room to read.
+            ignored.clear();
             if monotonic_ns() >= next_status {
                 self.status(HEARTBEAT_READY, 0, period_ns);
                 next_status = monotonic_ns() + 10_000_000;
@@ -592,6 +595,7 @@ impl Transport for Udp {
             if self.controls.contains(&RUN_STOP) {
                 return Err("stopped before the start".into());
             }
+            self.controls.clear();
             if monotonic_ns() > give_up {
                 return Err("no START within 300 s".into());
             }

@@ -172,7 +172,7 @@ impl IoxPingPong {
     }
 
     /// Runs `body` with a blocking receiver on the event channel (the listener itself,
-    /// as the loop's controller waits: `WakeListener::wait_for`).
+    /// as the loop's controller waits: `transport::wait_on_listener`).
     pub fn with_event_waiter<R>(
         &self,
         body: impl FnOnce(&EventWaiter<'_>) -> R,
@@ -212,12 +212,9 @@ impl EventWaiter<'_> {
             if now >= deadline {
                 return Ok(None);
             }
-            // Wakes on a notification and consumes every pending one.
-            if let Err(e) = self.listener.timed_wait(|_| {}, deadline - now) {
-                return Err(IpcError::Receive {
-                    detail: format!("listener: {e:?}"),
-                });
-            }
+            // Wakes on a notification and consumes every pending one (as the loop's
+            // controller waits).
+            super::transport::wait_on_listener(self.listener, deadline - now);
         }
     }
 }

@@ -10,7 +10,8 @@
 //! trips on stale samples), a link that dies delivers no commands (the rig holds on stale
 //! commands); after `RIG_SILENCE` without a datagram the link ends the session itself.
 //!
-//! Must not: allocate, lock or log per datagram.
+//! Must not: allocate, lock or log per datagram (beyond the one block iceoryx2 0.10 makes
+//! inside each publish of what it forwards, `ipc::transport`).
 
 use std::net::SocketAddr;
 use std::path::Path;

@@ -2,11 +2,16 @@
 //! 0.10): the one heap block a publish makes inside iceoryx2, and none for a receive, a
 //! notify or the controller's wait on its listener (a `WaitSet` allocated two blocks per
 //! wake-up). The loops' own code allocates nothing (`hil_core`, `model_alloc`); this is
-//! what the transport adds, stated in ARCHITECTURE.md.
+//! what the transport adds, stated in ARCHITECTURE.md. The UDP link's datagram path
+//! (encode, send, receive, decode, check) allocates nothing.
 
 use crate::alloc_counter::count_allocations;
-use fastemu::ipc::messages::{sample_status, DisplacementSample};
+use fastemu::ipc::messages::{
+    command_mode, sample_status, ActuatorCommand, Compensation, DisplacementSample, LocalLaw,
+};
 use fastemu::ipc::{quiet_iceoryx2_logs, IpcNode};
+use fastemu::link::protocol::{CommandDatagram, Datagram, SampleDatagram, Side};
+use fastemu::link::socket::{bound_loopback_pair, open_link_socket, Receive};
 use std::time::Duration;
 
 fn sample(seq: u64) -> DisplacementSample {
@@ -66,15 +71,40 @@ fn a_publish_allocates_one_block_inside_iceoryx2_and_a_receive_a_notify_or_a_wai
             }
         });
         // The controller's wait on its listener: woken by a pending notification, which
-        // it consumes (the next wait, with none pending, times out unwoken).
-        let waits = count_allocations(|| {
+        // it consumes (the next wait, with none pending, times out unwoken) ...
+        let pending = count_allocations(|| {
             for _ in 0..N {
                 wake.notify();
                 assert!(listener.wait_for(Duration::from_millis(100)));
             }
+            assert!(!listener.wait_for(Duration::from_micros(300)));
         });
-        assert!(!listener.wait_for(Duration::from_millis(1)));
-        (publishes, receives, wakes + waits, received)
+        // ... and asleep, woken by another thread's notifications (its own node; only
+        // this thread's allocations are counted).
+        const WOKEN: usize = 100;
+        let id = run_id.clone();
+        let notifier = std::thread::spawn(move || {
+            let node = IpcNode::new(&id, "notifier").unwrap();
+            let wake = node.setpoint_wake().unwrap();
+            for _ in 0..WOKEN {
+                std::thread::sleep(Duration::from_micros(500));
+                wake.notify();
+            }
+        });
+        let mut woken = 0;
+        let asleep = count_allocations(|| {
+            while woken < WOKEN {
+                if listener.wait_for(Duration::from_millis(200)) {
+                    woken += 1;
+                } else {
+                    break;
+                }
+            }
+        });
+        notifier.join().unwrap();
+        // Notifications close together may be consumed by one wake-up: at least a few.
+        assert!(woken >= 10, "{woken} wake-ups of {WOKEN} notifications");
+        (publishes, receives, wakes + pending + asleep, received)
     };
     // Every sample arrived, in order, once: the sum of 100..100+N.
     assert_eq!(received, (100..100 + N).sum::<u64>());
@@ -87,4 +117,70 @@ fn a_publish_allocates_one_block_inside_iceoryx2_and_a_receive_a_notify_or_a_wai
     let left = fastemu::ipc::cleanup::clear_run(&run_id);
     assert!(left.is_empty(), "{left:?}");
     assert!(shm_files(&run_id).is_empty(), "{:?}", shm_files(&run_id));
+}
+
+/// A command as the controller sends one in law mode.
+fn command(seq: u64) -> ActuatorCommand {
+    ActuatorCommand {
+        sequence: seq,
+        setpoint_sequence: seq,
+        sample_sequence: seq,
+        sample_publish_time_ns: 0,
+        law: LocalLaw::constant(2e4),
+        force_min_n: -5e3,
+        force_max_n: 1.2e5,
+        mode: command_mode::LAW,
+        controller_state: 1,
+        fault_code: 0,
+        reserved: 0,
+        compensation: Compensation::lead(2.52e-4, 2),
+    }
+}
+
+#[test]
+fn the_udp_links_datagram_path_allocates_nothing() {
+    let (fastemu_socket, rig_socket) = bound_loopback_pair().unwrap();
+    let (fastemu_addr, rig_addr) = (
+        fastemu_socket.local_addr().unwrap(),
+        rig_socket.local_addr().unwrap(),
+    );
+    let (mut to_rig, mut from_rig) =
+        open_link_socket(fastemu_socket, rig_addr, Side::Fastemu, None).unwrap();
+    let (mut to_fastemu, mut from_fastemu) =
+        open_link_socket(rig_socket, fastemu_addr, Side::Rig, None).unwrap();
+    const N: u64 = 1000;
+    let mut accepted = [0u64; 2];
+    // Loopback delivers at once: every datagram sent is read in the same round.
+    let mut round = |k: u64, accepted: &mut [u64; 2]| {
+        to_fastemu.send_sample(&SampleDatagram::of(&sample(k), 0, 0));
+        if let Receive::Accepted(r) = from_rig.receive() {
+            assert!(matches!(r.datagram, Datagram::Sample(s) if s.to_sample(0).sequence == k));
+            accepted[0] += 1;
+        }
+        to_rig.send_command(&CommandDatagram {
+            command: command(k),
+            echo_sample_time_ns: 0,
+        });
+        if let Receive::Accepted(r) = from_fastemu.receive() {
+            assert!(matches!(r.datagram, Datagram::Command(c) if c.command.sequence == k));
+            accepted[1] += 1;
+        }
+    };
+    for k in 0..8 {
+        round(k, &mut accepted);
+    }
+    let allocations = count_allocations(|| {
+        for k in 8..8 + N {
+            round(k, &mut accepted);
+        }
+    });
+    assert_eq!(
+        accepted,
+        [N + 8, N + 8],
+        "datagrams accepted (samples, commands)"
+    );
+    assert_eq!(
+        allocations, 0,
+        "allocations in {N} rounds of a sample and a command"
+    );
 }
