@@ -41,10 +41,21 @@ fn shm_files(run_id: &str) -> Vec<String> {
         .unwrap_or_default()
 }
 
+/// Clears the run's iceoryx2 files when dropped: on every exit path, a failed assertion
+/// too (declared before the nodes, it drops after them).
+struct ClearRun(String);
+
+impl Drop for ClearRun {
+    fn drop(&mut self) {
+        let _ = fastemu::ipc::cleanup::clear_run(&self.0);
+    }
+}
+
 #[test]
 fn a_publish_allocates_one_block_inside_iceoryx2_and_a_receive_a_notify_or_a_wait_none() {
     quiet_iceoryx2_logs();
     let run_id = format!("italloc{}", std::process::id());
+    let _clear = ClearRun(run_id.clone());
     const N: u64 = 1000;
     let (publishes, receives, wakes, received) = {
         let node = IpcNode::new(&run_id, "alloc").unwrap();
