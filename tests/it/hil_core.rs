@@ -5,6 +5,7 @@
 //! against the model it linearises, and the rig core's allocation-free period.
 
 use crate::alloc_counter::count_allocations;
+use crate::common::sample;
 use fastemu::hil::config::{default_hil_config, CommandMode, HilConfig};
 use fastemu::hil::controller::ControllerCore;
 use fastemu::hil::emulator::{EmulatorCore, EmulatorIo, EmulatorRecord};
@@ -38,21 +39,6 @@ impl EmulatorIo for MockIo {
         if self.published.len() < self.published.capacity() {
             self.published.push(setpoint);
         }
-    }
-}
-
-fn sample(seq: u64, z: f64) -> DisplacementSample {
-    DisplacementSample {
-        sequence: seq,
-        rig_time_ns: seq * 244_141,
-        publish_time_ns: 0,
-        displacement_m: z,
-        actuator_force_n: f64::NAN,
-        status: sample_status::OK,
-        rig_state: 1,
-        rig_fault_code: 0,
-        reserved: 0,
-        commanded_force_n: f64::NAN,
     }
 }
 

@@ -6,28 +6,11 @@
 //! (encode, send, receive, decode, check) allocates nothing.
 
 use crate::alloc_counter::count_allocations;
-use fastemu::ipc::messages::{
-    command_mode, sample_status, ActuatorCommand, Compensation, DisplacementSample, LocalLaw,
-};
+use crate::common::{law_command, sample};
 use fastemu::ipc::{quiet_iceoryx2_logs, IpcNode};
 use fastemu::link::protocol::{CommandDatagram, Datagram, SampleDatagram, Side};
 use fastemu::link::socket::{bound_loopback_pair, open_link_socket, Receive};
 use std::time::Duration;
-
-fn sample(seq: u64) -> DisplacementSample {
-    DisplacementSample {
-        sequence: seq,
-        rig_time_ns: seq * 244_141,
-        publish_time_ns: 0,
-        displacement_m: 4.2e-4,
-        actuator_force_n: f64::NAN,
-        status: sample_status::OK,
-        rig_state: 1,
-        rig_fault_code: 0,
-        reserved: 0,
-        commanded_force_n: f64::NAN,
-    }
-}
 
 /// The run's iceoryx2 files in /dev/shm.
 fn shm_files(run_id: &str) -> Vec<String> {
@@ -65,13 +48,13 @@ fn a_publish_allocates_one_block_inside_iceoryx2_and_a_receive_a_notify_or_a_wai
         let listener = node.setpoint_listener().unwrap();
         // Warm-up: the first send and receive set up the connection.
         for k in 0..8 {
-            assert!(out.publish(sample(k)));
+            assert!(out.publish(sample(k, 4.2e-4)));
             wake.notify();
         }
         input.receive_each(|_| {});
         let publishes = count_allocations(|| {
             for k in 0..N {
-                out.publish(sample(100 + k));
+                out.publish(sample(100 + k, 4.2e-4));
             }
         });
         let mut received = 0u64;
@@ -130,24 +113,6 @@ fn a_publish_allocates_one_block_inside_iceoryx2_and_a_receive_a_notify_or_a_wai
     assert!(shm_files(&run_id).is_empty(), "{:?}", shm_files(&run_id));
 }
 
-/// A command as the controller sends one in law mode.
-fn command(seq: u64) -> ActuatorCommand {
-    ActuatorCommand {
-        sequence: seq,
-        setpoint_sequence: seq,
-        sample_sequence: seq,
-        sample_publish_time_ns: 0,
-        law: LocalLaw::constant(2e4),
-        force_min_n: -5e3,
-        force_max_n: 1.2e5,
-        mode: command_mode::LAW,
-        controller_state: 1,
-        fault_code: 0,
-        reserved: 0,
-        compensation: Compensation::lead(2.52e-4, 2),
-    }
-}
-
 #[test]
 fn the_udp_links_datagram_path_allocates_nothing() {
     let (fastemu_socket, rig_socket) = bound_loopback_pair().unwrap();
@@ -163,13 +128,13 @@ fn the_udp_links_datagram_path_allocates_nothing() {
     let mut accepted = [0u64; 2];
     // Loopback delivers at once: every datagram sent is read in the same round.
     let mut round = |k: u64, accepted: &mut [u64; 2]| {
-        to_fastemu.send_sample(&SampleDatagram::of(&sample(k), 0, 0));
+        to_fastemu.send_sample(&SampleDatagram::of(&sample(k, 4.2e-4), 0, 0));
         if let Receive::Accepted(r) = from_rig.receive() {
             assert!(matches!(r.datagram, Datagram::Sample(s) if s.to_sample(0).sequence == k));
             accepted[0] += 1;
         }
         to_rig.send_command(&CommandDatagram {
-            command: command(k),
+            command: law_command(k),
             echo_sample_time_ns: 0,
         });
         if let Receive::Accepted(r) = from_fastemu.receive() {

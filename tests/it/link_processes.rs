@@ -12,6 +12,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use crate::common::law_command;
 use fastemu::child::ChildGuard;
 use fastemu::hil::config::{default_hil_config, HilConfig};
 use fastemu::hil::controller::ControllerCore;
@@ -112,7 +113,7 @@ fn link_counts_loss_duplicates_reordering_and_garbage_by_reason_and_uses_none_of
         0,
         0,
         &CommandDatagram {
-            command: example_command(),
+            command: law_command(0),
             echo_sample_time_ns: 0,
         },
     );
@@ -184,23 +185,6 @@ fn link_counts_loss_duplicates_reordering_and_garbage_by_reason_and_uses_none_of
         assert_eq!(c.rejected_of(reason), n, "{reason}: {c:?}");
     }
     assert_eq!(c.rejected_total(), 10 + 200, "{c:?}");
-}
-
-fn example_command() -> fastemu::ipc::messages::ActuatorCommand {
-    fastemu::ipc::messages::ActuatorCommand {
-        sequence: 0,
-        setpoint_sequence: 0,
-        sample_sequence: 0,
-        sample_publish_time_ns: 0,
-        law: fastemu::ipc::messages::LocalLaw::constant(2e4),
-        force_min_n: -5e3,
-        force_max_n: 1.2e5,
-        mode: fastemu::ipc::messages::command_mode::LAW,
-        controller_state: 1,
-        fault_code: 0,
-        reserved: 0,
-        compensation: fastemu::ipc::messages::Compensation::lead(2.52e-4, 2),
-    }
 }
 
 /// The emulator's transport for the in-process test: the link's receiver (waits, bounded,
@@ -428,7 +412,7 @@ fn udp_link_run_is_clean_and_faithful_under_garbage_and_replays() {
             }
             3 => {
                 let command = CommandDatagram {
-                    command: example_command(),
+                    command: law_command(0),
                     echo_sample_time_ns: 0,
                 };
                 let n = encode_command(&mut buf, i, 0, &command);

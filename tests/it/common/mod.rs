@@ -1,5 +1,5 @@
-//! Shared helpers: parameter sets, a single-bin DFT, independent closed forms and
-//! temporary directories.
+//! Shared helpers: parameter sets, a single-bin DFT, independent closed forms,
+//! temporary directories and the loop's messages as the rig and the controller send them.
 
 #![allow(dead_code)]
 
@@ -87,4 +87,40 @@ impl Drop for TempDir {
 
 pub fn path_str(path: &Path) -> &str {
     path.to_str().expect("utf-8 temp path")
+}
+
+/// A rig sample of displacement `z` (m), sequence `seq`, no force measured or reported.
+pub fn sample(seq: u64, z: f64) -> fastemu::ipc::messages::DisplacementSample {
+    fastemu::ipc::messages::DisplacementSample {
+        sequence: seq,
+        rig_time_ns: seq * 244_141,
+        publish_time_ns: 0,
+        displacement_m: z,
+        actuator_force_n: f64::NAN,
+        status: fastemu::ipc::messages::sample_status::OK,
+        rig_state: 1,
+        rig_fault_code: 0,
+        reserved: 0,
+        commanded_force_n: f64::NAN,
+    }
+}
+
+/// A law command as the controller sends one: a constant 20 kN law, limits -5/120 kN, the
+/// shipped lead (252 us, order 2).
+pub fn law_command(seq: u64) -> fastemu::ipc::messages::ActuatorCommand {
+    use fastemu::ipc::messages::{command_mode, ActuatorCommand, Compensation, LocalLaw};
+    ActuatorCommand {
+        sequence: seq,
+        setpoint_sequence: seq,
+        sample_sequence: seq,
+        sample_publish_time_ns: 0,
+        law: LocalLaw::constant(2e4),
+        force_min_n: -5e3,
+        force_max_n: 1.2e5,
+        mode: command_mode::LAW,
+        controller_state: 1,
+        fault_code: 0,
+        reserved: 0,
+        compensation: Compensation::lead(2.52e-4, 2),
+    }
 }
