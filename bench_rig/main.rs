@@ -18,6 +18,12 @@ struct Cli {
     args: RigArgs,
 }
 
+/// The loop threads' unavoidable small allocations (iceoryx2's block per publish) come
+/// from a fixed lock-free pool; everything else from the system (`fastemu::rt::pool`).
+#[global_allocator]
+static ALLOCATOR: fastemu::rt::pool::RtPool<std::alloc::System> =
+    fastemu::rt::pool::RtPool::new(std::alloc::System);
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match run_rig_command(cli.args) {

@@ -55,6 +55,12 @@ enum Command {
     Ctl(cli::ctl::CtlArgs),
 }
 
+/// The loop threads' unavoidable small allocations (iceoryx2's block per publish) come
+/// from a fixed lock-free pool; everything else from the system (`fastemu::rt::pool`).
+#[global_allocator]
+static ALLOCATOR: fastemu::rt::pool::RtPool<std::alloc::System> =
+    fastemu::rt::pool::RtPool::new(std::alloc::System);
+
 fn main() -> std::process::ExitCode {
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,

@@ -75,6 +75,15 @@ pub fn run_controller(
         Priority::EventDriven,
     );
     let start = wait_for_start(process_id::CONTROLLER, &heartbeat, &control)?;
+    // Every process's ports exist now: connect before the loop (`ipc::Connect`).
+    crate::ipc::connect_all(&[
+        &setpoints,
+        &commands,
+        &command_wake,
+        &heartbeats_in,
+        &heartbeat,
+        &control,
+    ]);
     recorder.start(
         start.start_unix_ns,
         meta_json(
@@ -116,6 +125,7 @@ pub fn run_controller(
             *sent += 1;
         }
     };
+    let in_loop = crate::rt::pool::LoopSection::enter();
     loop {
         // Block until the emulator notifies, at most one keep-alive period (on the
         // listener itself: a `WaitSet` allocates on every wake-up, `ipc_alloc`).
@@ -164,6 +174,7 @@ pub fn run_controller(
             break;
         }
     }
+    drop(in_loop);
     heartbeat.publish(Heartbeat {
         process: process_id::CONTROLLER,
         state: controller_state::STOPPED,

@@ -187,6 +187,7 @@ impl SharedLoop<'_> {
     /// cycle's deadline, claim the cycle, run it; a cycle the other thread took is skipped.
     fn run_thread(&self, mode: WaitMode, after_ns: u64, by_standby: bool) {
         let clock = MonotonicClock;
+        let _loop = crate::rt::pool::LoopSection::enter();
         while let Some(idx) = self.turn.next_idx() {
             wait_until(&clock, self.turn.deadline_ns(idx) + after_ns, mode);
             let Some(stats) = self.turn.try_claim(idx, clock.now_ns()) else {
@@ -231,6 +232,8 @@ pub fn run_emulator(
 
     real_time_setup(cfg, &cfg.loop_.emulator_cpus, "emulator", Priority::Loop);
     let start = wait_for_start(process_id::EMULATOR, &heartbeat, &control)?;
+    // Every process's ports exist now: connect before the loop (`ipc::Connect`).
+    crate::ipc::connect_all(&[&input, &output, &wake, &heartbeat, &control]);
     recorder.start(
         start.start_unix_ns,
         meta_json(

@@ -245,15 +245,23 @@ pub fn meta_json(
     .unwrap_or_default()
 }
 
-/// Writes a process's end-of-run summary (`<name>-summary.json`).
+/// Writes a process's end-of-run summary (`<name>-summary.json`), with what its threads
+/// marked real-time took from the pool (`rt_pool`, `rt::pool::PoolStats`).
 pub fn write_summary(
     out_dir: &Path,
     name: &str,
     summary: &impl serde::Serialize,
 ) -> std::io::Result<()> {
+    let mut value = serde_json::to_value(summary).unwrap_or_default();
+    if let Some(object) = value.as_object_mut() {
+        object.insert(
+            "rt_pool".to_string(),
+            serde_json::to_value(crate::rt::pool::stats()).unwrap_or_default(),
+        );
+    }
     std::fs::write(
         out_dir.join(format!("{name}-summary.json")),
-        serde_json::to_string_pretty(summary).unwrap_or_default(),
+        serde_json::to_string_pretty(&value).unwrap_or_default(),
     )
 }
 

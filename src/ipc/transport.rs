@@ -3,7 +3,8 @@
 //!
 //! Must not: allocate, lock or log on `publish`/`receive_newest`/`notify`/`wait_for` (the
 //! per-sample path) beyond what iceoryx2 0.10 does inside a publish: one small block per
-//! loan (the sample's shared state, an `Rc`), freed when it is sent (`ipc_alloc` counts it).
+//! loan (the sample's shared state, an `Rc`), freed when it is sent (`ipc_alloc` counts it);
+//! on a loop thread that block comes from `rt::pool`, not the system allocator.
 //! Every service is opened-or-created with the same settings by every process, so the
 //! start order of the processes does not matter.
 
@@ -15,6 +16,7 @@ use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 
 use super::messages::{ActuatorCommand, DisplacementSample, ForceSetpoint, Heartbeat, RunControl};
@@ -172,6 +174,41 @@ impl Wake {
     #[inline]
     pub fn notify(&self) {
         let _ = self.notifier.notify();
+    }
+}
+
+/// A port whose connections to the counterparts that exist now can be made before its
+/// loop: iceoryx2 0.10 builds a connection (names, paths, shared-memory handles, on the
+/// heap) in the first send, receive or notify after a counterpart appears, so a loop that
+/// starts before they are made allocates in its first periods (the processes' `rt_pool`
+/// counted 3-12 such requests per loop). After START every process's ports exist.
+pub trait Connect {
+    fn connect(&self);
+}
+
+impl<T: fmt::Debug + ZeroCopySend + Copy + 'static> Connect for Out<T> {
+    fn connect(&self) {
+        let _ = self.publisher.update_connections();
+    }
+}
+
+impl<T: fmt::Debug + ZeroCopySend + Copy + 'static> Connect for In<T> {
+    fn connect(&self) {
+        let _ = self.subscriber.update_connections();
+    }
+}
+
+impl Connect for Wake {
+    fn connect(&self) {
+        let _ = self.notifier.update_connections();
+    }
+}
+
+/// Makes `ports`' connections now (`Connect`): called by each loop process after START,
+/// before its loop.
+pub fn connect_all(ports: &[&dyn Connect]) {
+    for port in ports {
+        port.connect();
     }
 }
 

@@ -160,7 +160,14 @@ fn receive_loop(
     };
     let mut clock_checked = false;
     let mut last_echo = 0u64;
+    // The loop proper begins at START (the run's time zero known): the displacement port
+    // connects to the emulator's then (`ipc::Connect`), outside it.
+    let mut in_loop = None;
     while !shared.stop.load(Ordering::Relaxed) {
+        if in_loop.is_none() && shared.t0_ns.load(Ordering::Relaxed) != 0 {
+            crate::ipc::Connect::connect(&samples);
+            in_loop = Some(crate::rt::pool::LoopSection::enter());
+        }
         let r = match receiver.receive() {
             Receive::Accepted(r) => r,
             Receive::Rejected(Reject::BadContent) if receiver.wrong_period_ns != 0 => {
@@ -415,6 +422,8 @@ fn serve_started(
     let start =
         wait_for_start_within(process_id::RIG, heartbeat, control, Duration::from_secs(60))?;
     shared.t0_ns.store(start.t0_ns, Ordering::Relaxed);
+    // Every process's ports exist now: connect before the loop (`ipc::Connect`).
+    crate::ipc::connect_all(&[commands, heartbeat, control]);
     let mut control_sequence = 1u64;
     let start_datagram = |now: u64| ControlDatagram {
         command: run_command::START,
@@ -441,6 +450,7 @@ fn serve_started(
     };
     // 3. Forward commands as they come; control, heartbeats and liveness around them.
     {
+        let _loop = crate::rt::pool::LoopSection::enter();
         loop {
             listener.wait_for(wait);
             let echo = shared.newest_sample_time_ns.load(Ordering::Relaxed);

@@ -48,12 +48,20 @@ struct IpcRigTransport {
 
 impl RigTransport for IpcRigTransport {
     fn wait_for_start(&mut self) -> Result<StartInfo, ProcessError> {
-        wait_for_start_within(
+        let start = wait_for_start_within(
             process_id::RIG,
             &self.heartbeat,
             &self.control,
             self.start_timeout,
-        )
+        )?;
+        // Every process's ports exist now: connect before the loop (`ipc::Connect`).
+        crate::ipc::connect_all(&[
+            &self.samples,
+            &self.commands,
+            &self.heartbeat,
+            &self.control,
+        ]);
+        Ok(start)
     }
     #[inline]
     fn send_sample(&mut self, sample: &DisplacementSample) {
@@ -247,6 +255,7 @@ fn run_rig_loop(
     let mut missed = 0u64;
     let mut without_command = 0u64;
     let mut orchestrator_lost = false;
+    let in_loop = crate::rt::pool::LoopSection::enter();
     loop {
         let stats = scheduler.wait_next(&clock);
         // A late wake-up skipped deadlines: the hardware did not stop, so those periods
@@ -311,6 +320,7 @@ fn run_rig_loop(
             }
         }
     }
+    drop(in_loop);
     core.finish_event();
     core.drain_events(|e| events.push(e));
     let fault_code = core.servo().trip().map_or(0, |t| t.fault.code());

@@ -12,8 +12,10 @@ pub struct RtSetup {
     pub cpus: Vec<usize>,
 }
 
-/// Applies `setup` to the calling thread/process; returns one warning per step refused.
+/// Applies `setup` to the calling thread/process and marks the thread real-time (its small
+/// allocations from now on come from `rt::pool`); returns one warning per step refused.
 pub fn apply_rt_setup(setup: &RtSetup) -> Vec<String> {
+    super::pool::mark_this_thread_realtime();
     let mut warnings = Vec::new();
     if setup.lock_memory {
         // SAFETY: plain syscall with constant flags.

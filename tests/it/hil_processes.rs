@@ -430,6 +430,17 @@ fn closed_loop_is_clean_faithful_replayable_exportable_and_leaves_nothing_behind
     );
     let rel = json["fidelity"]["displacement_rel_rms"].as_f64().unwrap();
     assert!(rel < 0.02, "displacement relative RMS error {rel}");
+    // No loop reached the system allocator: iceoryx2's block per publish came from the
+    // real-time pool (a publish per period at least), its connections were made before
+    // the loops (`ipc::connect_all`).
+    for process in ["emulator", "controller", "rig"] {
+        let pool = &json["rt_pool"][process];
+        assert_eq!(pool["loop_system_allocations"], 0, "{process}: {pool}");
+        assert!(
+            pool["served"].as_u64().unwrap() >= steps,
+            "{process}: {pool}"
+        );
+    }
     for key in ["end_to_end", "wake_jitter"] {
         for p in ["p50", "p99", "p999", "max"] {
             assert!(

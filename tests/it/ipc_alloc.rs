@@ -5,7 +5,7 @@
 //! what the transport adds, stated in ARCHITECTURE.md. The UDP link's datagram path
 //! (encode, send, receive, decode, check) allocates nothing.
 
-use crate::alloc_counter::count_allocations;
+use crate::alloc_counter::{count_allocations, count_allocations_and_system};
 use crate::common::{law_command, sample};
 use fastemu::ipc::{quiet_iceoryx2_logs, IpcNode};
 use fastemu::link::protocol::{CommandDatagram, Datagram, SampleDatagram, Side};
@@ -111,6 +111,44 @@ fn a_publish_allocates_one_block_inside_iceoryx2_and_a_receive_a_notify_or_a_wai
     let left = fastemu::ipc::cleanup::clear_run(&run_id);
     assert!(left.is_empty(), "{left:?}");
     assert!(shm_files(&run_id).is_empty(), "{:?}", shm_files(&run_id));
+}
+
+/// On a thread marked real-time (every loop thread is, by `apply_rt_setup`), iceoryx2's
+/// block per publish comes from the fixed pool (`fastemu::rt::pool`): the N requests are
+/// there, none reaches the system allocator, and the samples arrive.
+#[test]
+fn on_a_real_time_thread_a_publishs_block_comes_from_the_pool_not_the_system() {
+    quiet_iceoryx2_logs();
+    let run_id = format!("itpool{}", std::process::id());
+    let _clear = ClearRun(run_id.clone());
+    const N: u64 = 1000;
+    let id = run_id.clone();
+    let (counts, received) = std::thread::spawn(move || {
+        let node = IpcNode::new(&id, "pool").unwrap();
+        let out = node.displacement_out().unwrap();
+        let input = node.displacement_in().unwrap();
+        for k in 0..8 {
+            assert!(out.publish(sample(k, 4.2e-4)));
+        }
+        input.receive_each(|_| {});
+        fastemu::rt::pool::mark_this_thread_realtime();
+        let counts = count_allocations_and_system(|| {
+            for k in 0..N {
+                out.publish(sample(100 + k, 4.2e-4));
+            }
+        });
+        let mut received = 0u64;
+        input.receive_each(|s| received += s.sequence);
+        (counts, received)
+    })
+    .join()
+    .unwrap();
+    assert_eq!(received, (100..100 + N).sum::<u64>());
+    assert_eq!(
+        counts,
+        (N as usize, 0),
+        "(requests, reaching the system) in {N} publishes"
+    );
 }
 
 #[test]

@@ -182,6 +182,15 @@ pub(super) fn summarise(
         "stale_samples": u(&emu, "stale_cycles"),
         "missing_samples": u(&emu, "missing_samples"),
         "records_dropped": records_dropped,
+        // What each process's threads marked real-time took from the fixed pool, and how
+        // often a loop reached the system allocator (`rt::pool`; null for a process that
+        // did not run here, an external rig).
+        "rt_pool": {
+            "emulator": emu["rt_pool"],
+            "controller": ctl["rt_pool"],
+            "rig": rig["rt_pool"],
+            "link": read_json(&out_dir.join("link-summary.json"))["rt_pool"],
+        },
         "stable": stable,
         "clean": clean,
         "not_clean_because": why,
@@ -410,6 +419,19 @@ pub(super) fn summarise(
         if let Some(note) = &a.safety.hold_not_recorded {
             eprintln!("hil: {note}");
         }
+    }
+    let reached: Vec<String> = ["emulator", "controller", "rig", "link"]
+        .iter()
+        .filter_map(|p| {
+            let n = summary["rt_pool"][p]["loop_system_allocations"].as_u64()?;
+            (n > 0).then(|| format!("{p} {n}"))
+        })
+        .collect();
+    if !reached.is_empty() {
+        eprintln!(
+            "hil: a loop reached the system allocator ({}; `rt_pool` in summary.json): the real-time path allocated beyond its pool",
+            reached.join(", ")
+        );
     }
     if !outcome.faults.is_empty() {
         eprintln!("hil: FAULT: {}", outcome.faults.join("; "));
