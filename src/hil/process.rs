@@ -252,11 +252,13 @@ pub fn write_summary(
     name: &str,
     summary: &impl serde::Serialize,
 ) -> std::io::Result<()> {
+    // Read before serialising (which allocates on this thread, marked real-time).
+    let pool = crate::rt::pool::stats();
     let mut value = serde_json::to_value(summary).unwrap_or_default();
     if let Some(object) = value.as_object_mut() {
         object.insert(
             "rt_pool".to_string(),
-            serde_json::to_value(crate::rt::pool::stats()).unwrap_or_default(),
+            serde_json::to_value(pool).unwrap_or_default(),
         );
     }
     std::fs::write(

@@ -181,7 +181,7 @@ impl Wake {
 /// loop: iceoryx2 0.10 builds a connection (names, paths, shared-memory handles, on the
 /// heap) in the first send, receive or notify after a counterpart appears, so a loop that
 /// starts before they are made allocates in its first periods (the processes' `rt_pool`
-/// counted 3-12 such requests per loop). After START every process's ports exist.
+/// counted 3-15 such requests per loop). After START every process's ports exist.
 pub trait Connect {
     fn connect(&self);
 }

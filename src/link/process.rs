@@ -163,11 +163,15 @@ fn receive_loop(
     // The loop proper begins at START (the run's time zero known): the displacement port
     // connects to the emulator's then (`ipc::Connect`), outside it.
     let mut in_loop = None;
-    while !shared.stop.load(Ordering::Relaxed) {
+    // Also just before a sample is published: a receive already waiting when START came.
+    let start_the_loop = |in_loop: &mut Option<crate::rt::pool::LoopSection>| {
         if in_loop.is_none() && shared.t0_ns.load(Ordering::Relaxed) != 0 {
             crate::ipc::Connect::connect(&samples);
-            in_loop = Some(crate::rt::pool::LoopSection::enter());
+            *in_loop = Some(crate::rt::pool::LoopSection::enter());
         }
+    };
+    while !shared.stop.load(Ordering::Relaxed) {
+        start_the_loop(&mut in_loop);
         let r = match receiver.receive() {
             Receive::Accepted(r) => r,
             Receive::Rejected(Reject::BadContent) if receiver.wrong_period_ns != 0 => {
@@ -222,6 +226,7 @@ fn receive_loop(
                 } else {
                     r.arrival_ns
                 };
+                start_the_loop(&mut in_loop);
                 samples.publish(d.to_sample(published));
                 if result.same_clock {
                     // Where in the loop's period the rig sends (its clock offset, plus its
@@ -450,7 +455,7 @@ fn serve_started(
     };
     // 3. Forward commands as they come; control, heartbeats and liveness around them.
     {
-        let _loop = crate::rt::pool::LoopSection::enter();
+        let section = crate::rt::pool::LoopSection::enter();
         loop {
             listener.wait_for(wait);
             let echo = shared.newest_sample_time_ns.load(Ordering::Relaxed);
@@ -498,6 +503,8 @@ fn serve_started(
                 .max(start.t0_ns);
             if now > last + RIG_SILENCE.as_nanos() as u64 {
                 summary.rig_silent = true;
+                // The message is not the loop's work.
+                drop(section);
                 return Err(ProcessError(format!(
                     "no datagram from the rig at {} for {:?}: the rig link is silent",
                     plan.peer, RIG_SILENCE

@@ -40,6 +40,8 @@ static IN_USE: AtomicUsize = AtomicUsize::new(0);
 static PEAK_IN_USE: AtomicUsize = AtomicUsize::new(0);
 static LARGEST_REQUEST: AtomicUsize = AtomicUsize::new(0);
 static LOOP_SYSTEM: AtomicU64 = AtomicU64::new(0);
+static LOOP_SYSTEM_FREES: AtomicU64 = AtomicU64::new(0);
+static LOOP_REQUESTS: AtomicU64 = AtomicU64::new(0);
 
 thread_local! {
     // `const`, no destructor: reading it never allocates, so the allocator may.
@@ -47,28 +49,39 @@ thread_local! {
     static IN_LOOP: Cell<bool> = const { Cell::new(false) };
 }
 
-/// While alive, the calling thread is inside its loop (and marked real-time): a request
-/// it makes that reaches the system allocator is counted (`PoolStats::loop_system_allocations`,
-/// 0 in a loop that keeps the rule). Entered by every loop of the processes.
-pub struct LoopSection(());
+/// While alive, the calling thread is inside its loop (and marked real-time): its requests
+/// are counted (`PoolStats::loop_requests`), and those that reach the system allocator, and
+/// its frees of system blocks, apart (`loop_system_allocations`, `loop_system_frees`: 0 in
+/// a loop that keeps the rule). Entered by every loop of the processes; it stays on its
+/// thread (not `Send`) and restores the thread's state before it when dropped.
+pub struct LoopSection {
+    was_in_loop: bool,
+    _on_this_thread: std::marker::PhantomData<*const ()>,
+}
 
 impl LoopSection {
     pub fn enter() -> LoopSection {
         mark_this_thread_realtime();
-        IN_LOOP.with(|l| l.set(true));
-        LoopSection(())
+        LoopSection {
+            was_in_loop: IN_LOOP.with(|l| l.replace(true)),
+            _on_this_thread: std::marker::PhantomData,
+        }
     }
 }
 
 impl Drop for LoopSection {
     fn drop(&mut self) {
-        let _ = IN_LOOP.try_with(|l| l.set(false));
+        let _ = IN_LOOP.try_with(|l| l.set(self.was_in_loop));
     }
+}
+
+fn in_loop() -> bool {
+    IN_LOOP.try_with(Cell::get).unwrap_or(false)
 }
 
 /// Counts a request about to reach the system allocator if the thread is in its loop.
 fn count_if_in_loop() {
-    if IN_LOOP.try_with(Cell::get).unwrap_or(false) {
+    if in_loop() {
         LOOP_SYSTEM.fetch_add(1, Ordering::Relaxed);
     }
 }
@@ -78,7 +91,7 @@ pub fn mark_this_thread_realtime() {
     REALTIME.with(|r| r.set(true));
 }
 
-/// Whether the calling thread is marked (false while its locals are torn down).
+/// Whether the calling thread is marked.
 pub fn this_thread_is_realtime() -> bool {
     REALTIME.try_with(Cell::get).unwrap_or(false)
 }
@@ -88,16 +101,21 @@ pub fn this_thread_is_realtime() -> bool {
 pub struct PoolStats {
     /// Requests on marked threads served from the pool.
     pub served: u64,
-    /// Requests on marked threads that went to the system allocator (too large, too
-    /// aligned, or the pool full).
+    /// Requests on marked threads (allocations and reallocations) that went to the system
+    /// allocator: too large, too aligned, or the pool full.
     pub fallbacks: u64,
     /// Blocks in use now, and the most at once.
     pub in_use: usize,
     pub peak_in_use: usize,
     /// The largest request seen on a marked thread, bytes.
     pub largest_request_bytes: usize,
-    /// Requests that reached the system allocator from inside a loop (`LoopSection`).
+    /// Requests (allocations and reallocations) made inside a loop (`LoopSection`): the
+    /// pool's and the system's.
+    pub loop_requests: u64,
+    /// Of those, the ones that reached the system allocator.
     pub loop_system_allocations: u64,
+    /// Frees of system blocks inside a loop (they reach the system allocator too).
+    pub loop_system_frees: u64,
 }
 
 /// The pool's counters (relaxed reads; exact once the threads that allocate are quiet).
@@ -108,7 +126,9 @@ pub fn stats() -> PoolStats {
         in_use: IN_USE.load(Ordering::Relaxed),
         peak_in_use: PEAK_IN_USE.load(Ordering::Relaxed),
         largest_request_bytes: LARGEST_REQUEST.load(Ordering::Relaxed),
+        loop_requests: LOOP_REQUESTS.load(Ordering::Relaxed),
         loop_system_allocations: LOOP_SYSTEM.load(Ordering::Relaxed),
+        loop_system_frees: LOOP_SYSTEM_FREES.load(Ordering::Relaxed),
     }
 }
 
@@ -149,10 +169,14 @@ fn take() -> Option<*mut u8> {
     None
 }
 
-/// Gives a block back (from any thread).
+/// Gives a block back (from any thread). A block not in use is a double free: abort
+/// rather than free whoever holds it now.
 fn give(ptr: *mut u8) {
     let index = (ptr as usize - base()) / BLOCK_BYTES;
-    USED[index / 64].fetch_and(!(1u64 << (index % 64)), Ordering::Release);
+    let bit = 1u64 << (index % 64);
+    if USED[index / 64].fetch_and(!bit, Ordering::Release) & bit == 0 {
+        std::process::abort();
+    }
     IN_USE.fetch_sub(1, Ordering::Relaxed);
 }
 
@@ -171,6 +195,9 @@ impl<A> RtPool<A> {
     fn pooled(&self, layout: Layout) -> Option<*mut u8> {
         if !this_thread_is_realtime() {
             return None;
+        }
+        if in_loop() {
+            LOOP_REQUESTS.fetch_add(1, Ordering::Relaxed);
         }
         LARGEST_REQUEST.fetch_max(layout.size(), Ordering::Relaxed);
         let block = if layout.size() <= BLOCK_BYTES && layout.align() <= BLOCK_BYTES {
@@ -217,12 +244,21 @@ unsafe impl<A: GlobalAlloc> GlobalAlloc for RtPool<A> {
         if in_pool(ptr) {
             give(ptr);
         } else {
+            if in_loop() {
+                LOOP_SYSTEM_FREES.fetch_add(1, Ordering::Relaxed);
+            }
             unsafe { self.inner.dealloc(ptr, layout) }
         }
     }
 
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
         if !in_pool(ptr) {
+            if this_thread_is_realtime() {
+                FALLBACKS.fetch_add(1, Ordering::Relaxed);
+                if in_loop() {
+                    LOOP_REQUESTS.fetch_add(1, Ordering::Relaxed);
+                }
+            }
             count_if_in_loop();
             return unsafe { self.inner.realloc(ptr, layout, new_size) };
         }
@@ -318,10 +354,14 @@ mod tests {
         std::thread::spawn(move || {
             let pool = RtPool::new(System);
             let big = Layout::from_size_align(4 * BLOCK_BYTES, 8).unwrap();
-            let before = stats().loop_system_allocations;
+            let before = stats();
             {
                 let _loop = LoopSection::enter();
                 assert!(this_thread_is_realtime());
+                {
+                    // Nested: its end leaves the outer section in force.
+                    let _inner = LoopSection::enter();
+                }
                 unsafe {
                     let p = pool.alloc(small);
                     pool.dealloc(p, small);
@@ -333,7 +373,13 @@ mod tests {
                 let q = pool.alloc(big);
                 pool.dealloc(q, big);
             }
-            assert_eq!(stats().loop_system_allocations - before, 1);
+            let after = stats();
+            assert_eq!(after.loop_requests - before.loop_requests, 2);
+            assert_eq!(
+                after.loop_system_allocations - before.loop_system_allocations,
+                1
+            );
+            assert_eq!(after.loop_system_frees - before.loop_system_frees, 1);
         })
         .join()
         .unwrap();

@@ -430,14 +430,16 @@ fn closed_loop_is_clean_faithful_replayable_exportable_and_leaves_nothing_behind
     );
     let rel = json["fidelity"]["displacement_rel_rms"].as_f64().unwrap();
     assert!(rel < 0.02, "displacement relative RMS error {rel}");
-    // No loop reached the system allocator: iceoryx2's block per publish came from the
+    // No loop allocated from the system: iceoryx2's block per publish came from the
     // real-time pool (a publish per period at least), its connections were made before
-    // the loops (`ipc::connect_all`).
+    // the loops (`ipc::connect_all`). (Frees of system blocks in a loop are counted and
+    // reported, not required to be 0: `link_processes`' external session saw one.)
     for process in ["emulator", "controller", "rig"] {
         let pool = &json["rt_pool"][process];
         assert_eq!(pool["loop_system_allocations"], 0, "{process}: {pool}");
+        // The loop's section was live: its publishes were counted in it.
         assert!(
-            pool["served"].as_u64().unwrap() >= steps,
+            pool["loop_requests"].as_u64().unwrap() >= steps,
             "{process}: {pool}"
         );
     }

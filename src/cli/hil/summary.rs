@@ -423,13 +423,15 @@ pub(super) fn summarise(
     let reached: Vec<String> = ["emulator", "controller", "rig", "link"]
         .iter()
         .filter_map(|p| {
-            let n = summary["rt_pool"][p]["loop_system_allocations"].as_u64()?;
+            let pool = &summary["rt_pool"][p];
+            let n =
+                pool["loop_system_allocations"].as_u64()? + pool["loop_system_frees"].as_u64()?;
             (n > 0).then(|| format!("{p} {n}"))
         })
         .collect();
     if !reached.is_empty() {
         eprintln!(
-            "hil: a loop reached the system allocator ({}; `rt_pool` in summary.json): the real-time path allocated beyond its pool",
+            "hil: a loop reached the system allocator ({} times; `rt_pool` in summary.json): beyond the real-time pool (iceoryx2 connecting a port that appeared during the run, such as `fastemu ctl`'s, does)",
             reached.join(", ")
         );
     }
