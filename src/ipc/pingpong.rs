@@ -6,7 +6,8 @@
 //! (the way the loop's controller, which must not burn a core, waits). The pinger publishes
 //! on `<prefix>/…/ping` and reads `…/pong`; the ponger does the opposite.
 //! Must not: time anything or allocate on the send/receive path beyond the one block
-//! iceoryx2 0.10 makes per loan (`ipc::transport`); that cost is measured.
+//! iceoryx2 0.10 makes per loan (`ipc::transport`; from `rt::pool` on the bench's threads,
+//! which their set-up marks real-time); that cost is measured.
 
 use std::fmt;
 use std::time::{Duration, Instant};
