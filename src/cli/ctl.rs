@@ -3,7 +3,9 @@
 //! speaks to it over the run's own shared memory). `hold` puts the rig into a position
 //! hold and pauses the programme; `resume` continues it without a jump; `stop` ends it in
 //! an orderly unload; `status` prints each process's state. Every action lands in the
-//! rig's records with its time.
+//! rig's records with its time. `ctl` speaks to the run's orchestrator only (its
+//! operator services: requests in, the processes' heartbeats relayed out), never to a
+//! loop's ports, so a `ctl` mid-run costs the loops nothing.
 
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -116,7 +118,7 @@ fn state_name(hb: &Heartbeat) -> String {
 
 /// The newest heartbeat of each process within `window`.
 fn heartbeats(node: &IpcNode, window: Duration) -> anyhow::Result<[Option<Heartbeat>; 3]> {
-    let input = node.heartbeat_in()?;
+    let input = node.operator_status_in()?;
     let mut latest = [None; 3];
     let t = Instant::now();
     while t.elapsed() < window {
@@ -185,16 +187,17 @@ pub fn run(args: CtlArgs) -> anyhow::Result<ExitCode> {
         CtlAction::Stop => (run_command::END, &[rig_state::UNLOAD, rig_state::FINISHED]),
     };
     // Subscribe first: a stop may finish the run quickly.
-    let input = node.heartbeat_in()?;
-    let control = node.control_out()?;
-    control.publish(RunControl {
+    let input = node.operator_status_in()?;
+    let requests = node.operator_request_out()?;
+    requests.publish(RunControl {
         sequence: std::process::id() as u64,
         start_time_ns: 0,
         start_unix_ns: 0,
         command,
         reserved: 0,
     });
-    // Confirm from the rig's heartbeats (it reads run control every 10 ms).
+    // Confirm from the rig's heartbeats, as the orchestrator relays them (it relays the
+    // request and the heartbeats every 5 ms; the rig reads run control every 10 ms).
     let t = Instant::now();
     let mut last = None;
     while t.elapsed() < Duration::from_secs(2) {

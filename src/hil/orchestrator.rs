@@ -363,6 +363,8 @@ struct Supervisor {
     sequence: u64,
     /// Where the link process writes its summary (its error, if it fails).
     link_summary_error: Option<PathBuf>,
+    /// Every heartbeat received, relayed to `fastemu ctl` (`Stream::OperatorStatus`).
+    status_relay: Option<Out<Heartbeat>>,
 }
 
 impl Supervisor {
@@ -430,6 +432,9 @@ impl Supervisor {
         let mut faults = Vec::new();
         heartbeats.receive_each(|hb| {
             let i = hb.process as usize;
+            if let Some(relay) = &self.status_relay {
+                relay.publish(hb);
+            }
             if i < 3 {
                 self.last_heartbeat[i] = Some(Instant::now());
                 if hb.state == HEARTBEAT_READY {
@@ -538,6 +543,49 @@ impl Supervisor {
             interrupts_seen: 0,
             sequence: 0,
             link_summary_error: Some(plan.out_dir.join("link-summary.json")),
+            status_relay: None,
+        }
+    }
+
+    /// `fastemu ctl`'s requests (`Stream::OperatorRequest`), relayed to the rig on the
+    /// run's control stream as the live view's are: `ctl` never opens a loop's ports, so
+    /// no loop connects to a port that appears mid-run. Before the start only `stop` is
+    /// acted on (as a signal is: the run ends before it starts).
+    fn relay_operator_requests(
+        &mut self,
+        requests: &In<RunControl>,
+        control: &Out<RunControl>,
+        progress: bool,
+    ) {
+        let mut commands = [0u32; 8];
+        let mut n = 0;
+        requests.receive_each(|r| {
+            if n < commands.len() {
+                commands[n] = r.command;
+                n += 1;
+            }
+        });
+        for &command in &commands[..n] {
+            let name = match command {
+                run_command::HOLD => "hold",
+                run_command::RESUME => "resume",
+                run_command::END => "stop",
+                _ => {
+                    eprintln!("hil: unknown request {command} from fastemu ctl: ignored");
+                    continue;
+                }
+            };
+            if self.started_at.is_some() {
+                if progress {
+                    eprintln!("hil: operator request from fastemu ctl: {name}");
+                }
+                self.send(control, command, 0, 0);
+            } else if command == run_command::END {
+                self.outcome.operator_stop = true;
+                self.push_fault("hil: stopped by fastemu ctl before the start".into());
+            } else {
+                eprintln!("hil: fastemu ctl {name} before the start: ignored");
+            }
         }
     }
 
@@ -696,8 +744,10 @@ pub fn run_processes(
     };
     let heartbeats = node.heartbeat_in()?;
     let control = node.control_out()?;
+    let operator_requests = node.operator_request_in()?;
     let (first, after_rig) = child_specs(plan)?;
     let mut sup = Supervisor::new(plan);
+    sup.status_relay = Some(node.operator_status_out()?);
     spawn_children(plan, first, &mut sup)?;
     if let Some(wait) = plan.rig.external_wait() {
         if wait_for_external_rig(&mut sup, &heartbeats, wait)? {
@@ -715,6 +765,7 @@ pub fn run_processes(
         let now = Instant::now();
         sup.check_exits();
         sup.check_heartbeats(&heartbeats);
+        sup.relay_operator_requests(&operator_requests, &control, progress);
         let interrupts = INTERRUPTS.load(Ordering::SeqCst);
         match sup.started_at {
             None => sup.before_start(plan, &control, interrupts, start_wait, now, progress),
@@ -756,6 +807,7 @@ pub fn run_processes(
     }
     let mut outcome = sup.into_outcome();
     drop(heartbeats);
+    drop(operator_requests);
     drop(control);
     drop(rig_services);
     drop(node);

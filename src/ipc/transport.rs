@@ -49,6 +49,10 @@ pub enum Stream {
     Command,
     Heartbeat,
     Control,
+    /// `fastemu ctl`'s requests to the run's orchestrator (never read by a loop).
+    OperatorRequest,
+    /// The heartbeats the orchestrator relays to `fastemu ctl` (never written by a loop).
+    OperatorStatus,
 }
 
 impl Stream {
@@ -59,6 +63,8 @@ impl Stream {
             Stream::Command => "command",
             Stream::Heartbeat => "heartbeat",
             Stream::Control => "control",
+            Stream::OperatorRequest => "operator_request",
+            Stream::OperatorStatus => "operator_status",
         }
     }
 }
@@ -379,6 +385,18 @@ impl IpcNode {
     pub fn control_in(&self) -> Result<In<RunControl>, IpcError> {
         self.input(Stream::Control)
     }
+    pub fn operator_request_out(&self) -> Result<Out<RunControl>, IpcError> {
+        self.out(Stream::OperatorRequest)
+    }
+    pub fn operator_request_in(&self) -> Result<In<RunControl>, IpcError> {
+        self.input(Stream::OperatorRequest)
+    }
+    pub fn operator_status_out(&self) -> Result<Out<Heartbeat>, IpcError> {
+        self.out(Stream::OperatorStatus)
+    }
+    pub fn operator_status_in(&self) -> Result<In<Heartbeat>, IpcError> {
+        self.input(Stream::OperatorStatus)
+    }
 
     /// Notifier that wakes whoever waits for new setpoints.
     pub fn setpoint_wake(&self) -> Result<Wake, IpcError> {
@@ -460,9 +478,16 @@ pub fn service_settings(stream: Stream) -> (usize, usize, usize, usize) {
         Stream::Setpoint | Stream::Command => (0, 8, 1, 4),
         // Heartbeats and control messages are rarer; control keeps its last message for
         // late subscribers.
-        // `fastemu ctl` and the live view subscribe to heartbeats and publish control.
+        // The orchestrator subscribes to heartbeats and publishes control (for itself,
+        // the live view and `fastemu ctl`); an external rig may read them too.
         Stream::Heartbeat => (0, 64, 4, 6),
         Stream::Control => (1, 8, 4, 4),
+        // `fastemu ctl` speaks to the orchestrator only, never to a loop's ports: a port
+        // that appears mid-run makes its counterparts build a connection (allocations,
+        // shared-memory handles) in their next send or receive, and the loops' ports are
+        // connected once, before the loops (`connect_all`). Up to 4 `ctl` at once.
+        Stream::OperatorRequest => (0, 8, 4, 1),
+        Stream::OperatorStatus => (0, 64, 1, 4),
     }
 }
 
