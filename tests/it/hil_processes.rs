@@ -971,7 +971,8 @@ fn an_operator_stop_holds_unloads_and_ends_the_run() {
 /// No loop allocated from the system: iceoryx2's block per publish came from the
 /// real-time pool (a publish per period at least), its connections were made before the
 /// loops (`ipc::connect_all`). (Frees of system blocks in a loop are counted and
-/// reported, not required to be 0: `link_processes`' external session saw one.)
+/// reported, not required to be 0: a counterpart that leaves before the loops stop has
+/// its connection dropped in a loop's last receive; `link_processes`' external sessions.)
 fn assert_no_loop_reached_the_system_allocator(json: &serde_json::Value, steps: u64) {
     for process in ["emulator", "controller", "rig"] {
         let pool = &json["rt_pool"][process];

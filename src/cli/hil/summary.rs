@@ -420,19 +420,30 @@ pub(super) fn summarise(
             eprintln!("hil: {note}");
         }
     }
-    let reached: Vec<String> = ["emulator", "controller", "rig", "link"]
-        .iter()
-        .filter_map(|p| {
-            let pool = &summary["rt_pool"][p];
-            let n =
-                pool["loop_system_allocations"].as_u64()? + pool["loop_system_frees"].as_u64()?;
-            (n > 0).then(|| format!("{p} {n}"))
-        })
-        .collect();
-    if !reached.is_empty() {
+    // Allocations and frees apart: a free at the end (a counterpart that left before the
+    // loops stopped, its connection dropped in a loop's last receive) is iceoryx2's
+    // cleanup; an allocation is a port that appeared during the run.
+    let count = |key: &str| -> Vec<String> {
+        ["emulator", "controller", "rig", "link"]
+            .iter()
+            .filter_map(|p| {
+                let n = summary["rt_pool"][p][key].as_u64()?;
+                (n > 0).then(|| format!("{p} {n}"))
+            })
+            .collect()
+    };
+    let allocated = count("loop_system_allocations");
+    if !allocated.is_empty() {
         eprintln!(
-            "hil: a loop reached the system allocator ({} times; `rt_pool` in summary.json): beyond the real-time pool (iceoryx2 connecting a port that appeared during the run, such as `fastemu ctl`'s, does)",
-            reached.join(", ")
+            "hil: a loop allocated from the system allocator ({} times; `rt_pool` in summary.json): beyond the real-time pool (iceoryx2 connecting a port that appeared on a loop's service during the run does)",
+            allocated.join(", ")
+        );
+    }
+    let freed = count("loop_system_frees");
+    if !freed.is_empty() {
+        eprintln!(
+            "hil: a loop freed system memory ({} times; `rt_pool` in summary.json): iceoryx2 dropping its connection to a port that left, such as a rig's that ended before the loops stopped",
+            freed.join(", ")
         );
     }
     if !outcome.faults.is_empty() {
