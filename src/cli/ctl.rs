@@ -217,6 +217,23 @@ pub fn run(args: CtlArgs) -> anyhow::Result<ExitCode> {
             );
             return Ok(ExitCode::SUCCESS);
         }
+        // The run ended at the stop (it had not started: no unload to confirm).
+        if args.action == CtlAction::Stop && crate::hil::registry::has_ended(&run) {
+            println!("ctl stop: done; run {} ended", run.run_id);
+            return Ok(ExitCode::SUCCESS);
+        }
+        // No rig heartbeat after 300 ms: no rig is there yet (an external rig awaited).
+        // A stop then ends the run before it starts; the orchestrator waits for the
+        // run's nodes to go before it clears the run, so leave it and wait for the end.
+        if args.action == CtlAction::Stop
+            && last.is_none()
+            && t.elapsed() > Duration::from_millis(300)
+        {
+            drop(input);
+            drop(requests);
+            drop(node);
+            return Ok(wait_for_the_end(&run));
+        }
         std::thread::sleep(Duration::from_millis(5));
     }
     let seen = last.map_or("no heartbeat".to_string(), |hb| state_name(&hb));
@@ -226,4 +243,24 @@ pub fn run(args: CtlArgs) -> anyhow::Result<ExitCode> {
         run.run_id
     );
     Ok(ExitCode::from(2))
+}
+
+/// `ctl stop` of a run whose rig never came: waits up to 5 s for the run to end.
+fn wait_for_the_end(run: &RunEntry) -> ExitCode {
+    let t = Instant::now();
+    while t.elapsed() < Duration::from_secs(5) {
+        if crate::hil::registry::has_ended(run) {
+            println!(
+                "ctl stop: done; run {} ended before its rig started",
+                run.run_id
+            );
+            return ExitCode::SUCCESS;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    eprintln!(
+        "ctl stop: sent to run {}, which has no rig yet, but it did not end within 5 s",
+        run.run_id
+    );
+    ExitCode::from(2)
 }

@@ -750,7 +750,7 @@ pub fn run_processes(
     sup.status_relay = Some(node.operator_status_out()?);
     spawn_children(plan, first, &mut sup)?;
     if let Some(wait) = plan.rig.external_wait() {
-        if wait_for_external_rig(&mut sup, &heartbeats, wait)? {
+        if wait_for_external_rig(&mut sup, &heartbeats, &operator_requests, wait)? {
             spawn_children(plan, after_rig, &mut sup)?;
         } else {
             sup.stop_once(&control, Instant::now());
@@ -819,16 +819,25 @@ pub fn run_processes(
 }
 
 /// Waits until the external rig (or the link, for a rig behind it) reports ready, at
-/// most `wait`; false if it did not come, the link died, or the operator stopped.
+/// most `wait`; false if it did not come, the link died, or the operator stopped (a
+/// signal, or `fastemu ctl stop`).
 fn wait_for_external_rig(
     sup: &mut Supervisor,
     heartbeats: &In<Heartbeat>,
+    operator_requests: &In<RunControl>,
     wait: Duration,
 ) -> Result<bool, ProcessError> {
     let t0 = Instant::now();
     loop {
         sup.check_exits();
         sup.check_heartbeats(heartbeats);
+        let mut stop = false;
+        operator_requests.receive_each(|r| stop |= r.command == run_command::END);
+        if stop {
+            sup.outcome.operator_stop = true;
+            sup.push_fault("hil: stopped by fastemu ctl while waiting for the rig".into());
+            return Ok(false);
+        }
         if sup.ready[process_id::RIG as usize] {
             eprintln!("hil: the rig is ready; starting the emulator and the controller");
             return Ok(true);

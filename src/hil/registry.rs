@@ -81,6 +81,12 @@ fn provably_dead(pid: u32) -> bool {
     rc != 0 && std::io::Error::last_os_error().raw_os_error() == Some(libc::ESRCH)
 }
 
+/// Whether run `run` has ended: its orchestrator provably no longer exists, or its entry
+/// is gone from the registry (removed at the run's end).
+pub fn has_ended(run: &RunEntry) -> bool {
+    provably_dead(run.pid) || !registry_dir().join(format!("{}.json", run.run_id)).exists()
+}
+
 /// Writes `entry` as `<dir>/<run id>.json` atomically (temporary file in `dir`, rename);
 /// returns the entry's path. No fsync: the rename alone makes readers see a whole entry,
 /// and after a crash of the machine every registered run is over anyway.

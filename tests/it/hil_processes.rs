@@ -985,7 +985,7 @@ fn assert_no_loop_reached_the_system_allocator(json: &serde_json::Value, steps: 
     }
 }
 
-fn ctl(args: &[&str]) -> (bool, String) {
+pub(super) fn ctl(args: &[&str]) -> (bool, String) {
     let out = Command::new(FASTEMU)
         .arg("ctl")
         .args(args)

@@ -30,8 +30,8 @@ use fastemu::rig::process::RigTransport;
 use fastemu::rt::CycleStats;
 
 use super::hil_processes::{
-    assert_hold_in_records, assert_nothing_left, export_csv, faults, scratch_dir, spawn_hil_with,
-    the_child, write_config, Hil, Scratch, AXLE_S, FASTEMU, LOCK_WAIT, SERIAL,
+    assert_hold_in_records, assert_nothing_left, ctl, export_csv, faults, scratch_dir,
+    spawn_hil_with, the_child, write_config, Hil, Scratch, AXLE_S, FASTEMU, LOCK_WAIT, SERIAL,
 };
 
 const EXAMPLE_RIG: &str = env!("CARGO_BIN_EXE_example_rig");
@@ -916,6 +916,53 @@ fn an_external_rig_that_never_connects_is_a_named_fault_that_leaves_nothing() {
     assert!(!stderr.contains("not merged"), "{stderr}");
     assert_eq!(json["records"]["parts"], 0, "{json}");
     assert_eq!(json["run_id"], run_id.as_str());
+    assert_nothing_left(&json);
+}
+
+/// `fastemu ctl stop` while `hil` waits for an external rig ends the run at once (not
+/// at the end of its wait), as an operator stop with nothing left; `ctl` says the run
+/// ended before its rig started and does not hold the run's clearing up (its own node
+/// is one of the run's).
+#[test]
+fn ctl_stop_ends_a_run_that_waits_for_its_external_rig() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = scratch_dir("external-ctl-stop");
+    let config = write_config(&dir, &[], "");
+    let run_id = format!("feit{}wait", std::process::id());
+    let mut hil = spawn_hil_with(
+        &config,
+        &dir.join("report"),
+        2.0,
+        &[
+            "--rig",
+            "external",
+            "--run-id",
+            &run_id,
+            "--rig-wait-s",
+            "60",
+        ],
+    );
+    // Registered as soon as it waits.
+    let t = Instant::now();
+    while !ctl(&["--run-id", &run_id, "status"]).0 {
+        assert!(t.elapsed() < Duration::from_secs(20), "never registered");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let (ok, text) = ctl(&["--run-id", &run_id, "stop"]);
+    assert!(
+        ok && text.contains("ended before its rig started"),
+        "{text}"
+    );
+    let (code, json) = hil.finish(Duration::from_secs(30));
+    // Ended by the stop, not by the wait's end (that fault is "no rig connected").
+    let stderr = hil.stderr();
+    assert_eq!(code, 3, "{stderr}");
+    assert!(
+        stderr.contains("stopped by fastemu ctl while waiting for the rig"),
+        "{stderr}"
+    );
+    assert_eq!(json["operator_stop"], true, "{json}");
+    assert_eq!(json["records"]["parts"], 0, "{json}");
     assert_nothing_left(&json);
 }
 
