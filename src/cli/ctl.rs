@@ -15,8 +15,8 @@ use clap::{Args, Subcommand};
 use crate::hil::fault::fault_code_name;
 use crate::hil::registry::{running, RunEntry, Scan};
 use crate::ipc::messages::{
-    controller_state, emulator_state, process_id, rig_state, run_command, Heartbeat, RunControl,
-    HEARTBEAT_READY,
+    controller_state, emulator_state, operator_answer, process_id, rig_state, run_command,
+    Heartbeat, RunControl, HEARTBEAT_READY,
 };
 use crate::ipc::{quiet_iceoryx2_logs, IpcNode};
 
@@ -186,80 +186,105 @@ pub fn run(args: CtlArgs) -> anyhow::Result<ExitCode> {
         CtlAction::Resume => (run_command::RESUME, &[rig_state::RUNNING]),
         CtlAction::Stop => (run_command::END, &[rig_state::UNLOAD, rig_state::FINISHED]),
     };
-    // Subscribe first: a stop may finish the run quickly.
+    // Subscribe first: a stop may finish the run quickly. The request goes to the run's
+    // orchestrator, which answers it (`operator_answer`) and relays it to the rig; it is
+    // sent again every 100 ms until answered (the orchestrator may not have subscribed
+    // yet, or may have been busy), a repeat is answered, not relayed again.
     let input = node.operator_status_in()?;
     let requests = node.operator_request_out()?;
-    requests.publish(RunControl {
-        sequence: std::process::id() as u64,
-        start_time_ns: 0,
-        start_unix_ns: 0,
-        command,
-        reserved: 0,
-    });
-    // Confirm from the rig's heartbeats, as the orchestrator relays them (it relays the
-    // request and the heartbeats every 5 ms; the rig reads run control every 10 ms).
+    let sequence = (u64::from(std::process::id()) << 32)
+        | u64::from(
+            std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.subsec_nanos()),
+        );
+    let action = format!("{:?}", args.action).to_lowercase();
     let t = Instant::now();
+    let mut sent_at: Option<Instant> = None;
+    let mut answer = None;
     let mut last = None;
     while t.elapsed() < Duration::from_secs(2) {
-        input.receive_each(|hb| {
-            if hb.process == process_id::RIG {
-                last = Some(hb);
-            }
+        if answer.is_none() && sent_at.is_none_or(|s| s.elapsed() > Duration::from_millis(100)) {
+            requests.publish(RunControl {
+                sequence,
+                start_time_ns: 0,
+                start_unix_ns: 0,
+                command,
+                reserved: 0,
+            });
+            sent_at = Some(Instant::now());
+        }
+        input.receive_each(|hb| match hb.process {
+            process_id::RIG => last = Some(hb),
+            process_id::HIL if hb.sequence == sequence => answer = Some(hb.state),
+            _ => {}
         });
-        if last.is_some_and(|hb| wanted.contains(&hb.state)) {
-            let hb = last.expect("checked");
-            println!(
-                "ctl {}: done; rig state {} at t = {:.3} s (run {})",
-                format!("{:?}", args.action).to_lowercase(),
-                state_name(&hb),
-                hb.sequence as f64 / run.rate_hz,
-                run.run_id
-            );
-            return Ok(ExitCode::SUCCESS);
-        }
-        // The run ended at the stop (it had not started: no unload to confirm).
-        if args.action == CtlAction::Stop && crate::hil::registry::has_ended(&run) {
-            println!("ctl stop: done; run {} ended", run.run_id);
-            return Ok(ExitCode::SUCCESS);
-        }
-        // No rig heartbeat after 300 ms: no rig is there yet (an external rig awaited).
-        // A stop then ends the run before it starts; the orchestrator waits for the
-        // run's nodes to go before it clears the run, so leave it and wait for the end.
-        if args.action == CtlAction::Stop
-            && last.is_none()
-            && t.elapsed() > Duration::from_millis(300)
-        {
-            drop(input);
-            drop(requests);
-            drop(node);
-            return Ok(wait_for_the_end(&run));
+        match answer {
+            Some(operator_answer::RELAYED) => {
+                // Confirmed by the rig's heartbeats as the orchestrator relays them (the
+                // rig reads run control every 10 ms).
+                if let Some(hb) = last.filter(|hb| wanted.contains(&hb.state)) {
+                    println!(
+                        "ctl {action}: done; rig state {} at t = {:.3} s (run {})",
+                        state_name(&hb),
+                        hb.sequence as f64 / run.rate_hz,
+                        run.run_id
+                    );
+                    return Ok(ExitCode::SUCCESS);
+                }
+            }
+            Some(operator_answer::ENDED_BEFORE_START) => {
+                // Leave the run: an external run's clearing up waits for its nodes.
+                drop(input);
+                drop(requests);
+                drop(node);
+                return Ok(wait_for_the_end(&run));
+            }
+            Some(operator_answer::IGNORED_BEFORE_START) => {
+                eprintln!(
+                    "ctl {action}: run {} has not started yet: nothing to {action} (`ctl stop` ends it)",
+                    run.run_id
+                );
+                return Ok(ExitCode::from(2));
+            }
+            Some(other) => {
+                eprintln!(
+                    "ctl {action}: run {}'s hil did not understand the request (answer {other}): is it another fastemu version?",
+                    run.run_id
+                );
+                return Ok(ExitCode::from(2));
+            }
+            None => {}
         }
         std::thread::sleep(Duration::from_millis(5));
     }
-    let seen = last.map_or("no heartbeat".to_string(), |hb| state_name(&hb));
-    eprintln!(
-        "ctl {}: sent to run {}, but the rig did not confirm within 2 s (its state: {seen})",
-        format!("{:?}", args.action).to_lowercase(),
-        run.run_id
-    );
+    if answer.is_none() {
+        eprintln!(
+            "ctl {action}: run {}'s hil did not answer within 2 s (it writes its report once the run is over, or it is stuck); the request may not have reached the rig",
+            run.run_id
+        );
+    } else {
+        let seen = last.map_or("no heartbeat".to_string(), |hb| state_name(&hb));
+        eprintln!(
+            "ctl {action}: relayed to run {}'s rig, but the rig did not confirm within 2 s (its state: {seen})",
+            run.run_id
+        );
+    }
     Ok(ExitCode::from(2))
 }
 
-/// `ctl stop` of a run whose rig never came: waits up to 5 s for the run to end.
+/// `ctl stop` of a run that had not started: waits up to 5 s for the run to end.
 fn wait_for_the_end(run: &RunEntry) -> ExitCode {
     let t = Instant::now();
     while t.elapsed() < Duration::from_secs(5) {
         if crate::hil::registry::has_ended(run) {
-            println!(
-                "ctl stop: done; run {} ended before its rig started",
-                run.run_id
-            );
+            println!("ctl stop: done; run {} ended before it started", run.run_id);
             return ExitCode::SUCCESS;
         }
         std::thread::sleep(Duration::from_millis(20));
     }
     eprintln!(
-        "ctl stop: sent to run {}, which has no rig yet, but it did not end within 5 s",
+        "ctl stop: run {} had not started and ends, but it did not end within 5 s",
         run.run_id
     );
     ExitCode::from(2)

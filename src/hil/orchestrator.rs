@@ -22,7 +22,7 @@ use super::process::ProcessError;
 use crate::child::ChildGuard;
 use crate::ipc::cleanup::clear_run;
 use crate::ipc::messages::{
-    process_id, rig_state, run_command, Heartbeat, RunControl, HEARTBEAT_READY,
+    operator_answer, process_id, rig_state, run_command, Heartbeat, RunControl, HEARTBEAT_READY,
 };
 use crate::ipc::{In, IpcNode, Out};
 use crate::rt::clock::monotonic_now_ns;
@@ -363,8 +363,13 @@ struct Supervisor {
     sequence: u64,
     /// Where the link process writes its summary (its error, if it fails).
     link_summary_error: Option<PathBuf>,
-    /// Every heartbeat received, relayed to `fastemu ctl` (`Stream::OperatorStatus`).
+    /// Every heartbeat received, relayed to `fastemu ctl` (`Stream::OperatorStatus`),
+    /// with the answers to its requests.
     status_relay: Option<Out<Heartbeat>>,
+    /// The last `ctl` requests answered (sequence, answer), so a repeat is not relayed
+    /// twice.
+    answered: [(u64, u32); 16],
+    answered_next: usize,
 }
 
 impl Supervisor {
@@ -544,48 +549,85 @@ impl Supervisor {
             sequence: 0,
             link_summary_error: Some(plan.out_dir.join("link-summary.json")),
             status_relay: None,
+            answered: [(u64::MAX, 0); 16],
+            answered_next: 0,
         }
     }
 
     /// `fastemu ctl`'s requests (`Stream::OperatorRequest`), relayed to the rig on the
     /// run's control stream as the live view's are: `ctl` never opens a loop's ports, so
     /// no loop connects to a port that appears mid-run. Before the start only `stop` is
-    /// acted on (as a signal is: the run ends before it starts).
+    /// acted on (as a signal is: the run ends before it starts). Every request is
+    /// answered on the status stream (`operator_answer`); `ctl` sends a request again
+    /// until it is answered, and a repeat gets the first answer again, not a second
+    /// relay.
     fn relay_operator_requests(
         &mut self,
         requests: &In<RunControl>,
         control: &Out<RunControl>,
         progress: bool,
     ) {
-        let mut commands = [0u32; 8];
+        let mut received = [(0u64, 0u32); 16];
         let mut n = 0;
         requests.receive_each(|r| {
-            if n < commands.len() {
-                commands[n] = r.command;
+            // More than 16 in 5 ms: the rest are sent again by their `ctl`.
+            if n < received.len() {
+                received[n] = (r.sequence, r.command);
                 n += 1;
             }
         });
-        for &command in &commands[..n] {
-            let name = match command {
-                run_command::HOLD => "hold",
-                run_command::RESUME => "resume",
-                run_command::END => "stop",
-                _ => {
-                    eprintln!("hil: unknown request {command} from fastemu ctl: ignored");
-                    continue;
+        for &(sequence, command) in &received[..n] {
+            let answer = match self.answered.iter().find(|a| a.0 == sequence) {
+                Some(&(_, answer)) => answer,
+                None => {
+                    let answer = self.act_on_operator_request(command, control, progress);
+                    self.answered[self.answered_next % self.answered.len()] = (sequence, answer);
+                    self.answered_next += 1;
+                    answer
                 }
             };
-            if self.started_at.is_some() {
-                if progress {
-                    eprintln!("hil: operator request from fastemu ctl: {name}");
-                }
-                self.send(control, command, 0, 0);
-            } else if command == run_command::END {
-                self.outcome.operator_stop = true;
-                self.push_fault("hil: stopped by fastemu ctl before the start".into());
-            } else {
-                eprintln!("hil: fastemu ctl {name} before the start: ignored");
+            if let Some(relay) = &self.status_relay {
+                relay.publish(Heartbeat {
+                    process: process_id::HIL,
+                    state: answer,
+                    sequence,
+                    time_ns: monotonic_now_ns(),
+                    fault_code: 0,
+                    reserved: command,
+                });
             }
+        }
+    }
+
+    /// Acts on one `ctl` request; its answer (`operator_answer`).
+    fn act_on_operator_request(
+        &mut self,
+        command: u32,
+        control: &Out<RunControl>,
+        progress: bool,
+    ) -> u32 {
+        let name = match command {
+            run_command::HOLD => "hold",
+            run_command::RESUME => "resume",
+            run_command::END => "stop",
+            _ => {
+                eprintln!("hil: unknown request {command} from fastemu ctl: ignored");
+                return operator_answer::UNKNOWN;
+            }
+        };
+        if self.started_at.is_some() {
+            if progress {
+                eprintln!("hil: operator request from fastemu ctl: {name}");
+            }
+            self.send(control, command, 0, 0);
+            operator_answer::RELAYED
+        } else if command == run_command::END {
+            self.outcome.operator_stop = true;
+            self.push_fault("hil: stopped by fastemu ctl before the start".into());
+            operator_answer::ENDED_BEFORE_START
+        } else {
+            eprintln!("hil: fastemu ctl {name} before the start: ignored");
+            operator_answer::IGNORED_BEFORE_START
         }
     }
 
@@ -614,7 +656,8 @@ impl Supervisor {
                 "hil: interrupted by signal {} before the start",
                 INTERRUPT_SIGNAL.load(Ordering::SeqCst)
             ));
-        } else if self.ready.iter().all(|&r| r) {
+        } else if self.ready.iter().all(|&r| r) && self.first_fault_at.is_none() {
+            // (Not after a fault, such as a `ctl stop` in this same tick.)
             let t0 = monotonic_now_ns() + 100_000_000;
             self.loop_t0_ns = Some(t0);
             self.outcome.started = true;
@@ -750,7 +793,12 @@ pub fn run_processes(
     sup.status_relay = Some(node.operator_status_out()?);
     spawn_children(plan, first, &mut sup)?;
     if let Some(wait) = plan.rig.external_wait() {
-        if wait_for_external_rig(&mut sup, &heartbeats, &operator_requests, wait)? {
+        if wait_for_external_rig(
+            &mut sup,
+            &heartbeats,
+            (&operator_requests, &control, progress),
+            wait,
+        )? {
             spawn_children(plan, after_rig, &mut sup)?;
         } else {
             sup.stop_once(&control, Instant::now());
@@ -824,20 +872,15 @@ pub fn run_processes(
 fn wait_for_external_rig(
     sup: &mut Supervisor,
     heartbeats: &In<Heartbeat>,
-    operator_requests: &In<RunControl>,
+    (operator_requests, control, progress): (&In<RunControl>, &Out<RunControl>, bool),
     wait: Duration,
 ) -> Result<bool, ProcessError> {
     let t0 = Instant::now();
     loop {
         sup.check_exits();
         sup.check_heartbeats(heartbeats);
-        let mut stop = false;
-        operator_requests.receive_each(|r| stop |= r.command == run_command::END);
-        if stop {
-            sup.outcome.operator_stop = true;
-            sup.push_fault("hil: stopped by fastemu ctl while waiting for the rig".into());
-            return Ok(false);
-        }
+        // A `ctl stop` is a fault before the start (checked below).
+        sup.relay_operator_requests(operator_requests, control, progress);
         if sup.ready[process_id::RIG as usize] {
             eprintln!("hil: the rig is ready; starting the emulator and the controller");
             return Ok(true);

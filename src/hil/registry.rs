@@ -67,8 +67,9 @@ pub fn registry_dir() -> PathBuf {
 /// The prefix of a writer's temporary files; run ids never start with a dot.
 const TMP_PREFIX: &str = ".tmp.";
 
-/// Whether `pid` names a process that provably no longer exists (ESRCH). Anything else
-/// (alive, not ours, an implausible pid, an unexpected error) is not proof.
+/// Whether `pid` names a process that provably no longer exists (ESRCH) or has exited
+/// (a zombie its parent has not reaped). Anything else (alive, not ours, an implausible
+/// pid, an unexpected error) is not proof.
 fn provably_dead(pid: u32) -> bool {
     let Ok(pid) = libc::pid_t::try_from(pid) else {
         return false;
@@ -78,7 +79,14 @@ fn provably_dead(pid: u32) -> bool {
     }
     // SAFETY: signal 0 only checks for existence/permission.
     let rc = unsafe { libc::kill(pid, 0) };
-    rc != 0 && std::io::Error::last_os_error().raw_os_error() == Some(libc::ESRCH)
+    if rc != 0 {
+        return std::io::Error::last_os_error().raw_os_error() == Some(libc::ESRCH);
+    }
+    // A zombie (exited, not yet reaped by its parent) answers signal 0 too.
+    std::fs::read_to_string(format!("/proc/{pid}/stat")).is_ok_and(|stat| {
+        stat.rsplit_once(')')
+            .is_some_and(|(_, rest)| rest.trim_start().starts_with('Z'))
+    })
 }
 
 /// Whether run `run` has ended: its orchestrator provably no longer exists, or its entry
@@ -342,6 +350,28 @@ mod tests {
         assert_eq!(scan.skipped[0].path, zero);
         assert!(zero.exists());
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn an_exited_orchestrator_not_yet_reaped_is_dead() {
+        let mut live = std::process::Command::new("sleep")
+            .arg("30")
+            .spawn()
+            .unwrap();
+        assert!(!provably_dead(live.id()));
+        let mut exited = std::process::Command::new("true").spawn().unwrap();
+        // Not reaped: a zombie until `wait`; signal 0 still finds it.
+        let t = std::time::Instant::now();
+        while !provably_dead(exited.id()) {
+            assert!(t.elapsed().as_secs() < 20, "`true` never exited");
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        }
+        // SAFETY: signal 0 only checks for existence.
+        assert_eq!(unsafe { libc::kill(exited.id() as libc::pid_t, 0) }, 0);
+        exited.wait().unwrap();
+        assert!(provably_dead(exited.id()));
+        live.kill().unwrap();
+        live.wait().unwrap();
     }
 
     #[test]

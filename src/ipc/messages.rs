@@ -387,6 +387,23 @@ pub mod process_id {
     pub const RIG: u32 = 0;
     pub const EMULATOR: u32 = 1;
     pub const CONTROLLER: u32 = 2;
+    /// The orchestrator (`fastemu hil`), on its operator-status service only (its answers
+    /// to `fastemu ctl`); never on a rig's services.
+    pub const HIL: u32 = 3;
+}
+
+/// The orchestrator's answer to a `fastemu ctl` request: a `Heartbeat` on the operator
+/// status service with `process = process_id::HIL`, `sequence` the request's, `state`
+/// one of these and `reserved` the request's command.
+pub mod operator_answer {
+    /// Relayed to the rig on the run's control stream.
+    pub const RELAYED: u32 = 1;
+    /// A stop before the start: the run ends without starting.
+    pub const ENDED_BEFORE_START: u32 = 2;
+    /// A hold or resume before the start: nothing to act on.
+    pub const IGNORED_BEFORE_START: u32 = 3;
+    /// A command `ctl` does not send.
+    pub const UNKNOWN: u32 = 4;
 }
 
 /// Heartbeat state meaning "ports created, waiting for the start command" (all processes).
