@@ -169,14 +169,34 @@ pub fn run(args: CtlArgs) -> anyhow::Result<ExitCode> {
         for run in &scan.runs {
             let node = IpcNode::new(&run.run_id, "ctl")?;
             print_status(run, &node)?;
+            drop(node);
+            tidy_after(run);
         }
         return Ok(ExitCode::SUCCESS);
     }
     let run = find_run(scan, args.run_id.as_deref())?;
+    let code = act(&args, &run);
+    tidy_after(&run);
+    code
+}
+
+/// A `ctl` that met a run in its last moments (its `hil` already cleared the run's
+/// files) left the files its own node created; once the run has ended and no node of
+/// it is left (an external rig still connected keeps its files), they are cleared.
+fn tidy_after(run: &RunEntry) {
+    if crate::hil::registry::has_ended(run)
+        && crate::ipc::count_nodes(&run.run_id).is_ok_and(|n| n == 0)
+    {
+        crate::ipc::cleanup::clear_run(&run.run_id);
+    }
+}
+
+/// Sends `args.action` to `run` and waits for its answer and the rig's confirmation.
+fn act(args: &CtlArgs, run: &RunEntry) -> anyhow::Result<ExitCode> {
     let node = IpcNode::new(&run.run_id, "ctl")?;
     let (command, wanted): (u32, &[u32]) = match args.action {
         CtlAction::Status => {
-            print_status(&run, &node)?;
+            print_status(run, &node)?;
             return Ok(ExitCode::SUCCESS);
         }
         CtlAction::Hold => (
@@ -238,11 +258,18 @@ pub fn run(args: CtlArgs) -> anyhow::Result<ExitCode> {
                 drop(input);
                 drop(requests);
                 drop(node);
-                return Ok(wait_for_the_end(&run));
+                return Ok(wait_for_the_end(run));
             }
             Some(operator_answer::IGNORED_BEFORE_START) => {
                 eprintln!(
                     "ctl {action}: run {} has not started yet: nothing to {action} (`ctl stop` ends it)",
+                    run.run_id
+                );
+                return Ok(ExitCode::from(2));
+            }
+            Some(operator_answer::IGNORED_ENDING) => {
+                eprintln!(
+                    "ctl {action}: run {} is ending (a stop was sent; a stop is not taken back): nothing to {action}",
                     run.run_id
                 );
                 return Ok(ExitCode::from(2));

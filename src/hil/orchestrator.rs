@@ -615,11 +615,17 @@ impl Supervisor {
                 return operator_answer::UNKNOWN;
             }
         };
-        if self.started_at.is_some() {
+        if self.started_at.is_some() && self.end_sent_at.is_some() && command != run_command::END {
+            eprintln!("hil: fastemu ctl {name} after a stop: ignored (the run is ending)");
+            operator_answer::IGNORED_ENDING
+        } else if self.started_at.is_some() {
             if progress {
                 eprintln!("hil: operator request from fastemu ctl: {name}");
             }
             self.send(control, command, 0, 0);
+            if command == run_command::END {
+                self.end_sent_at.get_or_insert_with(Instant::now);
+            }
             operator_answer::RELAYED
         } else if command == run_command::END {
             self.outcome.operator_stop = true;
@@ -727,6 +733,9 @@ impl Supervisor {
                 );
             }
             self.send(control, command, 0, 0);
+            if command == run_command::END {
+                self.end_sent_at.get_or_insert_with(Instant::now);
+            }
         }
         // The rig ended the run (or died): the others stop now.
         if self.process_finished(process_id::RIG) {

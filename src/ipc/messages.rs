@@ -404,6 +404,9 @@ pub mod operator_answer {
     pub const IGNORED_BEFORE_START: u32 = 3;
     /// A command `ctl` does not send.
     pub const UNKNOWN: u32 = 4;
+    /// A hold or resume after a stop was sent: the run is ending (a stop is not taken
+    /// back).
+    pub const IGNORED_ENDING: u32 = 5;
 }
 
 /// Heartbeat state meaning "ports created, waiting for the start command" (all processes).

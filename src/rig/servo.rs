@@ -349,9 +349,15 @@ impl Servo {
         }
     }
 
-    /// Operator resume from an operator hold (a fault hold is never resumed).
+    /// Operator resume from an operator hold (a fault hold is never resumed, nor the
+    /// hold of an operator's end: a stop cannot be taken back).
     pub fn operator_resume(&mut self, step_idx: u64) {
-        if let Phase::Holding { operator: true, .. } = self.phase {
+        if let Phase::Holding {
+            operator: true,
+            unload: false,
+            ..
+        } = self.phase
+        {
             if self.trip.is_none() {
                 self.phase = Phase::Resuming {
                     since_step: step_idx,
@@ -362,7 +368,9 @@ impl Servo {
     }
 
     /// Orderly end requested by the operator: hold, unload, finish. The hold's clock
-    /// restarts, so an end after a long operator hold still unloads before finishing.
+    /// restarts, so an end after a long operator hold still unloads before finishing;
+    /// an end repeated while already unloading changes nothing (restarting the clock
+    /// each time would keep the run from ever finishing).
     pub fn operator_end(&mut self, step_idx: u64) {
         match self.phase {
             Phase::Holding {
@@ -370,8 +378,10 @@ impl Servo {
                 ref mut since_step,
                 ..
             } => {
-                *unload = true;
-                *since_step = step_idx;
+                if !*unload {
+                    *unload = true;
+                    *since_step = step_idx;
+                }
             }
             _ => self.enter_hold(step_idx, true, true),
         }

@@ -1023,6 +1023,15 @@ fn ctl_holds_resumes_and_stops_a_running_run_from_another_process() {
     std::thread::sleep(Duration::from_millis(300));
     let (ok, text) = ctl(&["--run-id", &id, "stop"]);
     assert!(ok, "{text}");
+    // A stop is not taken back: a resume after it is refused (by `hil`, or the run has
+    // already ended), and the run ends (below: no force control after the unload).
+    let (ok, text) = ctl(&["--run-id", &id, "resume"]);
+    assert!(
+        !ok && ["is ending", "did not answer", "no running hil run"]
+            .iter()
+            .any(|t| text.contains(t)),
+        "{text}"
+    );
     let (code, json) = hil.finish(Duration::from_secs(60));
     assert_eq!(code, 0, "{json}\n{}", hil.stderr());
     assert_eq!(json["operator_stop"], true);
@@ -1048,7 +1057,14 @@ fn ctl_holds_resumes_and_stops_a_running_run_from_another_process() {
         .iter()
         .position(|r| r.t_s > held.last().unwrap().t_s && r.state == rig_state::RUNNING);
     assert!(resumed.is_some(), "never resumed");
-    assert!(rig.iter().any(|r| r.state == rig_state::UNLOAD));
+    let unload = rig.iter().position(|r| r.state == rig_state::UNLOAD);
+    assert!(unload.is_some(), "never unloaded");
+    assert!(
+        rig[unload.unwrap()..]
+            .iter()
+            .all(|r| r.state != rig_state::RUNNING),
+        "back in force control after the stop"
+    );
     assert_eq!(rig.last().unwrap().external_force_n, 0.0);
     // `ctl` appeared mid-run four times and spoke to the orchestrator only: no loop
     // built a connection to its ports (iceoryx2 allocates there; it did until

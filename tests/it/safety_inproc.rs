@@ -572,6 +572,54 @@ fn an_operator_hold_and_resume_mid_passage_is_bumpless() {
     }
 }
 
+/// An operator's resume takes the rig out of an operator hold, but not out of the hold of
+/// an operator's end (a stop): the unload goes on and the run ends (a trial of
+/// 2026-11-29: `ctl stop` then `ctl resume` put the rig back in force control with the
+/// programme ended, and the run never finished).
+#[test]
+fn a_resume_does_not_take_back_a_stop() {
+    use fastemu::rig::Servo;
+    let cfg = cfg();
+    let (z0, f0) = (4.0e-4, 2.0e4);
+    let mut servo = Servo::new(cfg.servo_config(), z0, f0);
+    let mut step = 0u64;
+    let mut run = |servo: &mut Servo, periods: u64| {
+        for _ in 0..periods {
+            // The element's law, constant at the load the specimen carries.
+            servo.on_command(&crate::common::law_command(step), step);
+            servo.update(step, z0, f0, f0);
+            step += 1;
+        }
+        step
+    };
+    let k = run(&mut servo, 10);
+    servo.operator_hold(k);
+    let k = run(&mut servo, 10);
+    assert!(servo.holding());
+    servo.operator_resume(k);
+    let k = run(&mut servo, 10);
+    assert!(!servo.holding(), "an operator hold is resumed");
+    servo.operator_end(k);
+    let k = run(&mut servo, 10);
+    assert!(servo.holding());
+    servo.operator_resume(k);
+    let mut k = run(&mut servo, 10);
+    assert!(servo.holding(), "a stop was taken back by a resume");
+    assert!(servo.trip().is_none());
+    // A stop repeated every period (an operator pressing it again and again) does not
+    // restart the hold's clock: the unloaded specimen at rest ends the run.
+    servo.on_unloaded();
+    let periods = ((cfg.servo_config().hold_min_s + 1.0) / cfg.loop_.dt_s()) as u64;
+    for _ in 0..periods {
+        servo.operator_end(k);
+        k = run(&mut servo, 1);
+    }
+    assert!(
+        servo.finished(),
+        "repeated stops kept the run from finishing"
+    );
+}
+
 /// Commands a rig must not act on (unknown mode, a non-finite law, limits out of order)
 /// neither drive the actuator nor keep the interlock fed: after the last good command the
 /// servo latches commands-stale exactly `command_stale_periods` later and holds, as if
